@@ -1,0 +1,37 @@
+# Every target sets up its own virtual environment, so a fresh clone needs only Python 3.11 and make.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+# torch first and pinned: a CPU build of exactly this version is what pip finds locally; a looser spec
+# in a fresh venv can pull a multi-GB CUDA build.
+TORCH := torch==2.13.0
+PINS := "gymnasium[mujoco]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
+
+.PHONY: demo test test-all bench lint venv clean
+
+$(BIN)/activate:
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+
+$(VENV)/.installed: $(BIN)/activate pyproject.toml
+	$(BIN)/pip install -q $(TORCH)
+	$(BIN)/pip install -q $(PINS) -e ".[dev]"
+	touch $@
+
+venv: $(VENV)/.installed
+
+demo: venv
+	MUJOCO_GL=egl $(BIN)/digail run
+
+test: venv
+	MUJOCO_GL=egl $(BIN)/python -m pytest -q
+
+bench: venv
+	$(BIN)/python benchmarks/throughput.py
+
+lint: venv
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/mypy src
+
+clean:
+	rm -rf $(VENV) build *.egg-info

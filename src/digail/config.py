@@ -1,0 +1,226 @@
+"""Configuration: frozen dataclasses, one preset per environment (paper Table 3) and a tiny SMOKE preset.
+
+Every field is typed, defaulted and documented; tyro turns these classes into the command line, and the resolved
+config is written as `config.json` into every run folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from digail.errors import UserError
+
+
+@dataclass(frozen=True)
+class VAEConfig:
+    """VAE pre-training (paper section 3.1 and appendix): macro-policy q, prior p, sub-task policy pi."""
+
+    codes: int = 4
+    """number of sub-task codes K"""
+    epochs: int = 500
+    """passes over the demonstrations"""
+    batch_size: int = 32
+    """demonstrations per gradient step"""
+    lr: float = 3e-4
+    """Adam learning rate"""
+    hidden: tuple[int, ...] = (64, 64)
+    """hidden layer sizes of every MLP"""
+    kl_weight: float = 1.0
+    """beta, weight of KL(q || p) per step"""
+    smoothing_weight: float = 0.0
+    """lambda_s, weight of the smoothing term L_s that penalises code switches (paper appendix)"""
+    tau0: float = 5.0
+    """initial Gumbel-softmax temperature"""
+    tau_decay: float = 3e-3
+    """k in tau_e = max(tau_min, tau0 * exp(-k * epoch))"""
+    tau_min: float = 0.1
+    """temperature floor"""
+    hard: bool = False
+    """straight-through hard one-hot samples in the forward pass"""
+    learn_prior: bool = True
+    """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
+
+    def tau(self, epoch: int) -> float:
+        """Gumbel-softmax temperature at `epoch`."""
+        import math
+
+        return max(self.tau_min, self.tau0 * math.exp(-self.tau_decay * epoch))
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Proximal policy optimisation (clip objective) with GAE."""
+
+    num_envs: int = 8
+    """parallel environments (synchronous vector env)"""
+    batch_size: int = 512
+    """environment steps per iteration, across all envs (paper Table 3 'batch size')"""
+    epochs: int = 10
+    """passes over each batch"""
+    minibatch_size: int = 128
+    """samples per gradient step"""
+    lr: float = 3e-4
+    """Adam learning rate (policy and value)"""
+    gamma: float = 0.99
+    """discount"""
+    gae_lambda: float = 0.95
+    """GAE lambda"""
+    clip: float = 0.2
+    """PPO ratio clip epsilon"""
+    ent_coef: float = 0.0
+    """lambda_2, entropy bonus weight"""
+    vf_coef: float = 0.5
+    """value-loss weight"""
+    max_grad_norm: float = 0.5
+    """gradient-norm clip"""
+    norm_adv: bool = True
+    """normalise advantages per minibatch"""
+    target_kl: float | None = None
+    """stop the epoch loop early once the approximate KL exceeds this (None: never)"""
+
+    @property
+    def steps_per_env(self) -> int:
+        """rollout length per env per iteration"""
+        return max(1, self.batch_size // self.num_envs)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """GAIL / Directed-Info GAIL training (paper section 3 and eq. 4)."""
+
+    method: Literal["digail", "gail"] = "digail"
+    """digail: K codes, frozen q, directed-info bonus; gail: one code, no bonus"""
+    iterations: int = 1000
+    """PPO iterations (paper Table 3 'epochs')"""
+    bonus_weight: float = 0.01
+    """lambda_1, weight of the directed-info bonus log q(c_t | s_t, c_{t-1}) (paper Table 3 'posterior lambda')"""
+    replay_fraction: float = 0.5
+    """share of envs whose codes replay q's segmentation of a random expert demonstration; the rest closed-loop"""
+    bc_weight: float = 0.0
+    """weight of the BC / L2 term on expert (s, c_E) -> a_E (paper's Fetch experiment); 0 disables it"""
+    bc_batch_size: int = 256
+    """expert samples per BC term evaluation"""
+    disc_updates: int = 1
+    """discriminator passes over each batch"""
+    disc_lr: float = 3e-4
+    """discriminator Adam learning rate"""
+    disc_minibatch_size: int = 256
+    """samples per discriminator gradient step (half agent, half expert)"""
+    reward: Literal["positive", "negative", "logit"] = "positive"
+    """generator reward from D: positive = -log(1 - D), negative = log D, logit = log D - log(1 - D)"""
+    init_from_vae: bool = True
+    """initialise the sub-task policy from the VAE decoder"""
+    hidden: tuple[int, ...] = (64, 64)
+    """hidden layer sizes of policy, value and discriminator"""
+    checkpoint_every: int = 25
+    """iterations between checkpoints"""
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    """PPO settings"""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Paper Table 3 settings for one environment."""
+
+    vae: VAEConfig
+    train: TrainConfig
+    eval_episodes: int = 300
+    """episodes for `digail evaluate` (paper: 300)"""
+
+
+def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any]) -> Preset:
+    return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)))
+
+
+PRESETS: dict[str, Preset] = {
+    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch.
+    "four-rooms": _preset(
+        dict(codes=4, epochs=500, batch_size=32),
+        dict(iterations=1000, bonus_weight=0.1),
+        dict(batch_size=256, minibatch_size=64, ent_coef=0.01),
+    ),
+    "circle-world": _preset(
+        dict(codes=2, epochs=1000, batch_size=16, smoothing_weight=1.0),
+        dict(iterations=1000, bonus_weight=0.01),
+        dict(batch_size=512, minibatch_size=128),
+    ),
+    "pendulum": _preset(
+        dict(codes=4, epochs=1000, batch_size=16),
+        dict(iterations=2000, bonus_weight=0.01),
+        dict(batch_size=1024, minibatch_size=256),
+    ),
+    "hopper": _preset(
+        dict(codes=4, epochs=2000, batch_size=32),
+        dict(iterations=5000, bonus_weight=0.01),
+        dict(batch_size=4096, minibatch_size=512),
+    ),
+    "walker2d": _preset(
+        dict(codes=4, epochs=2000, batch_size=32),
+        dict(iterations=5000, bonus_weight=0.001),
+        dict(batch_size=8192, minibatch_size=1024),
+    ),
+    "fetch": _preset(
+        dict(codes=4, epochs=1000, batch_size=32),
+        dict(iterations=2000, bonus_weight=0.01, bc_weight=0.0),
+        dict(batch_size=4096, minibatch_size=512),
+    ),
+    # A few seconds end to end: for tests and trying the commands.
+    "smoke": _preset(
+        dict(codes=2, epochs=5, batch_size=8),
+        dict(iterations=2, checkpoint_every=1),
+        dict(num_envs=2, batch_size=64, epochs=2, minibatch_size=32),
+    ),
+}
+
+ENV_PRESET: dict[str, str] = {
+    "digail/FourRooms-v0": "four-rooms",
+    "digail/CircleWorld-v0": "circle-world",
+    "Pendulum-v1": "pendulum",
+    "InvertedPendulum-v5": "pendulum",
+    "Hopper-v5": "hopper",
+    "Walker2d-v5": "walker2d",
+    "FetchPickAndPlace-v4": "fetch",
+    "digail/FetchPickAndPlace-v4": "fetch",
+}
+
+
+def get_preset(name: str | None, env_id: str | None = None) -> Preset:
+    """The preset called `name`, or the one for `env_id` when `name` is None (defaults for unknown envs)."""
+    if name is None:
+        name = ENV_PRESET.get(env_id or "")
+        if name is None:
+            return Preset(VAEConfig(), TrainConfig())
+    if name not in PRESETS:
+        raise UserError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}.")
+    return PRESETS[name]
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """A config dataclass as plain JSON-able data (tuples become lists)."""
+    return dataclasses.asdict(cfg)
+
+
+def from_dict(cls: type, data: dict[str, Any]) -> Any:
+    """Rebuild a (possibly nested) config dataclass from `to_dict` output, ignoring unknown keys."""
+    kwargs: dict[str, Any] = {}
+    hints = {f.name: f for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        if key not in hints:
+            continue
+        default = getattr(cls(), key) if _has_default(cls) else None
+        if dataclasses.is_dataclass(default) and isinstance(value, dict):
+            value = from_dict(type(default), value)
+        elif isinstance(default, tuple) and isinstance(value, list):
+            value = tuple(value)
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+def _has_default(cls: type) -> bool:
+    try:
+        cls()
+    except TypeError:
+        return False
+    return True

@@ -1,0 +1,16 @@
+"""Environments shipped with digail, registered with Gymnasium on `import digail`."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+
+def register_envs() -> None:
+    """Register `digail/FourRooms-v0` and `digail/CircleWorld-v0` (idempotent)."""
+    specs = {
+        "digail/FourRooms-v0": ("digail.envs.four_rooms:FourRoomsEnv", 100),
+        "digail/CircleWorld-v0": ("digail.envs.circle_world:CircleWorldEnv", 120),
+    }
+    for env_id, (entry_point, steps) in specs.items():
+        if env_id not in gym.registry:
+            gym.register(id=env_id, entry_point=entry_point, max_episode_steps=steps)

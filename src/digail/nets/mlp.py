@@ -1,0 +1,32 @@
+"""Multi-layer perceptrons (paper appendix: 2 hidden layers of 64 ReLU units)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+
+def mlp(in_dim: int, out_dim: int, hidden: Sequence[int] = (64, 64), out_gain: float = 1.0) -> nn.Sequential:
+    """A ReLU MLP with orthogonal initialisation; `out_gain` scales the last layer (small for policy heads)."""
+    layers: list[nn.Module] = []
+    dims = [in_dim, *hidden]
+    for a, b in zip(dims[:-1], dims[1:], strict=True):
+        layers += [_init(nn.Linear(a, b), 2**0.5), nn.ReLU()]
+    layers.append(_init(nn.Linear(dims[-1], out_dim), out_gain))
+    return nn.Sequential(*layers)
+
+
+def _init(layer: nn.Linear, gain: float) -> nn.Linear:
+    nn.init.orthogonal_(layer.weight, gain)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def one_hot(codes: torch.Tensor, k: int) -> torch.Tensor:
+    """Float one-hot of integer `codes`; a code of -1 (the start input) gives the zero vector."""
+    out = torch.zeros(*codes.shape, k, device=codes.device)
+    valid = codes >= 0
+    out[valid] = torch.nn.functional.one_hot(codes[valid], k).float()
+    return out

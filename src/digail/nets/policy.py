@@ -1,0 +1,64 @@
+"""Sub-task policy pi(a | s, c): Gaussian (state-independent log-std) or categorical head on an MLP."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+from torch.distributions import Categorical, Distribution, Independent, Normal
+
+from digail.nets.mlp import mlp
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    """What the policy head needs to know about an action space."""
+
+    discrete: bool
+    """categorical (True) or Gaussian (False)"""
+    dim: int
+    """number of actions (discrete) or action dimensions (continuous)"""
+
+    @staticmethod
+    def from_space(space: gym.Space) -> ActionSpec:
+        if isinstance(space, gym.spaces.Discrete):
+            return ActionSpec(True, int(space.n))
+        if isinstance(space, gym.spaces.Box) and len(space.shape) == 1:
+            return ActionSpec(False, int(space.shape[0]))
+        raise ValueError(f"unsupported action space {space}; digail handles Discrete and 1-D Box actions")
+
+    @staticmethod
+    def from_actions(acts: np.ndarray, n_discrete: int | None = None) -> ActionSpec:
+        """Infer from demonstration actions: integer actions are discrete with `n_discrete` (or max + 1) values."""
+        acts = np.asarray(acts)
+        if np.issubdtype(acts.dtype, np.integer):
+            return ActionSpec(True, int(n_discrete if n_discrete is not None else acts.max() + 1))
+        return ActionSpec(False, int(acts.reshape(len(acts), -1).shape[1]))
+
+
+class SubtaskPolicy(nn.Module):
+    """pi_theta(a_t | s_t, c_t) on normalised observations and one-hot codes (paper section 3.1, decoder)."""
+
+    def __init__(self, obs_dim: int, codes: int, action: ActionSpec, hidden: Sequence[int] = (64, 64),
+                 init_log_std: float = -0.5) -> None:
+        super().__init__()
+        self.codes, self.action = codes, action
+        self.net = mlp(obs_dim + codes, action.dim, hidden, out_gain=0.01)
+        if not action.discrete:
+            self.log_std = nn.Parameter(torch.full((action.dim,), init_log_std))
+
+    def dist(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> Distribution:
+        """Action distribution for normalised observations and (one-hot or relaxed) codes."""
+        out = self.net(torch.cat([obs_n, code_1h], -1))
+        if self.action.discrete:
+            return Categorical(logits=out)
+        return Independent(Normal(out, self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)), 1)
+
+    def mode(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
+        """Most likely action (argmax or mean)."""
+        out = self.net(torch.cat([obs_n, code_1h], -1))
+        return out.argmax(-1) if self.action.discrete else out
