@@ -8,7 +8,7 @@ import gymnasium as gym
 def register_envs() -> None:
     """Register `digail/FourRooms-v0` and `digail/CircleWorld-v0` (idempotent)."""
     specs = {
-        "digail/FourRooms-v0": ("digail.envs.four_rooms:FourRoomsEnv", 100),
+        "digail/FourRooms-v0": ("digail.envs.four_rooms:FourRoomsEnv", 64),
         "digail/CircleWorld-v0": ("digail.envs.circle_world:CircleWorldEnv", 120),
     }
     for env_id, (entry_point, steps) in specs.items():

@@ -51,6 +51,7 @@ class HierarchicalPolicy(nn.Module):
                  learn_prior: bool = True) -> None:
         super().__init__()
         self.obs_dim, self.codes, self.action = obs_dim, codes, action
+        self.hidden, self.learn_prior = tuple(hidden), learn_prior  # kept so checkpoints can rebuild the model
         self.normalizer = ObsNormalizer(obs_dim)
         self.q = MacroPolicy(obs_dim, codes, hidden)
         self.prior = CodePrior(codes, learn_prior)

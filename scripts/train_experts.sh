@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Train the RL experts that ship in src/digail/experts/weights/, one after the other (one process at a time:
+# each uses a single CPU thread). The commands are exactly these; the script only adds --resume when a folder
+# already holds checkpoints, so rerunning it after an interruption continues where it stopped, and it skips an
+# env whose folder already holds a final eval.json.
+#
+#   usage: scripts/train_experts.sh [ENV ...]      (default: all four, cheapest first)
+#   log:   experts_work/<env>/train.log; result: experts_work/<env>/eval.json and best_expert.pt
+#
+# Shipping a trained expert: cp experts_work/<env>/best_expert.pt src/digail/experts/weights/<env>.pt
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DIGAIL=${DIGAIL:-.venv/bin/digail}
+export PYTHONWARNINGS=ignore MUJOCO_GL=${MUJOCO_GL:-egl}
+
+envs=("$@")
+[ ${#envs[@]} -eq 0 ] && envs=(Pendulum-v1 InvertedPendulum-v5 Hopper-v5 Walker2d-v5)
+
+for env in "${envs[@]}"; do
+    out="experts_work/${env}"
+    if [ -f "${out}/eval.json" ]; then
+        echo "skip ${env}: ${out}/eval.json exists"
+        continue
+    fi
+    resume=()
+    compgen -G "${out}/checkpoints/step_*.zip" >/dev/null && resume=(--resume)
+    mkdir -p "${out}"
+    echo "$(date -u +%FT%TZ) start ${env} ${resume[*]:-}" | tee -a "${out}/train.log"
+    # The exact training command (seed 0, the env's default budget from digail.experts.rl.EXPERT_SPECS):
+    "${DIGAIL}" expert "${env}" --out "${out}" --seed 0 "${resume[@]}" >>"${out}/train.log" 2>&1
+    echo "$(date -u +%FT%TZ) done ${env}" | tee -a "${out}/train.log"
+done

@@ -1,0 +1,454 @@
+"""GAIL (Ho and Ermon, 2016) with a code-conditioned policy pi(a | s, c): the trainer Directed-Info GAIL extends.
+
+With one code and no bonus this is plain GAIL. The loop per iteration: roll out the vector env, update the
+discriminator on agent vs expert pairs, relabel rewards from it, run PPO (optionally with a BC term).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+
+from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
+from digail.algos.rollout import VecEnv, make_env
+from digail.config import TrainConfig
+from digail.data.trajectory import Trajectory
+from digail.errors import TrainingError
+from digail.nets.critic import Discriminator, ValueNet, generator_reward
+from digail.nets.vae import HierarchicalPolicy
+from digail.scalars import ScalarLogger
+from digail.utils import atomic_write_bytes
+
+CHECKPOINT_VERSION = 1
+
+
+def action_transform(env: gym.Env) -> Any:
+    """The map from a sampled action to what the env executes, as the discriminator should see it.
+
+    Box actions are clipped to their bounds; an env may also define `canonical_action(acts)` (a batch function,
+    e.g. Circle-World normalises directions), so D cannot tell agent from expert by a detail the env discards.
+    """
+    space = env.action_space
+    canonical = getattr(env.unwrapped, "canonical_action", None)
+    if isinstance(space, gym.spaces.Discrete):
+        return None
+    low = torch.as_tensor(space.low, dtype=torch.float32)
+    high = torch.as_tensor(space.high, dtype=torch.float32)
+
+    def transform(acts: torch.Tensor) -> torch.Tensor:
+        out = torch.max(torch.min(acts, high), low)
+        return canonical(out) if canonical is not None else out
+
+    return transform
+
+
+@dataclass
+class CodeState:
+    """Per-env macro-policy state during rollouts."""
+
+    prev: torch.Tensor
+    """(N,) previous code, -1 at an episode start (the start input c_{-1})"""
+    t_ep: np.ndarray
+    """(N,) step index within the current episode"""
+    replay_idx: np.ndarray
+    """(N,) expert demonstration whose code sequence the env replays (ignored for closed-loop envs)"""
+
+
+class GAIL:
+    """GAIL with PPO on a code-conditioned policy (paper section 2.1; the paper's GAIL baseline uses K = 1).
+
+    Args:
+        env_id: Gymnasium id of the environment.
+        demos: expert demonstrations.
+        model: hierarchical policy whose `normalizer` (fitted on the demonstrations) and `q` stay fixed and whose
+            `pi` is trained; for plain GAIL it has one code.
+        cfg: trainer settings.
+        seed: seeds torch, NumPy and the environments.
+        run_dir: where checkpoints and scalars go (None: nowhere, e.g. in tests).
+        device: torch device of the networks.
+    """
+
+    method = "gail"
+
+    def __init__(self, env_id: str, demos: list[Trajectory], model: HierarchicalPolicy, cfg: TrainConfig, *,
+                 seed: int = 0, run_dir: Path | None = None, device: str | torch.device = "cpu",
+                 progress: bool = True) -> None:
+        self.env_id, self.cfg, self.seed = env_id, cfg, seed
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.device = torch.device(device)
+        self.progress = progress
+        torch.manual_seed(seed)
+        random.seed(seed)
+        self.gen = torch.Generator().manual_seed(seed)
+        self.np_rng = np.random.default_rng(seed)
+
+        self.model = model.to(self.device)
+        self.model.q.requires_grad_(False)
+        self.model.prior.requires_grad_(False)
+        self.model.normalizer.requires_grad_(False)
+        self.K = model.codes
+        self.eye = torch.eye(self.K, device=self.device)
+        obs_dim = model.obs_dim
+
+        self.envs = VecEnv.of(env_id, cfg.ppo.num_envs)
+        probe = self.envs.envs[0]
+        self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
+        self.n_actions = int(probe.action_space.n) if self.discrete else 0
+        if not self.discrete:
+            self.act_low = probe.action_space.low.astype(np.float32)
+            self.act_high = probe.action_space.high.astype(np.float32)
+        self._act_transform = action_transform(probe)
+        act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape))
+
+        self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
+        self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
+        self.optimizer = torch.optim.Adam([*self.model.pi.parameters(), *self.value.parameters()],
+                                          lr=cfg.ppo.lr, eps=1e-5)
+        self.disc_optimizer = torch.optim.Adam(self.disc.parameters(), lr=cfg.disc_lr)
+
+        self._load_expert(demos)
+        self.iteration = 0
+        self.global_step = 0
+        self.recent_returns: deque[float] = deque(maxlen=50)
+        self.recent_lengths: deque[float] = deque(maxlen=50)
+        self.recent_closed_returns: deque[float] = deque(maxlen=50)
+        self._obs: torch.Tensor | None = None
+        self._logger: ScalarLogger | None = None
+
+    # ------------------------------------------------------------------------------------------ expert data
+    def _load_expert(self, demos: list[Trajectory]) -> None:
+        """Expert (s, a) pairs for D and the BC term, and q's code sequence for every demonstration."""
+        obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]),
+                              device=self.device)
+        acts_np = np.concatenate([np.asarray(t.acts) for t in demos])
+        self.exp_obs_n = self.model.normalizer(obs)
+        if self.discrete:
+            self.exp_acts = torch.as_tensor(acts_np, dtype=torch.long, device=self.device)
+        else:
+            self.exp_acts = torch.as_tensor(acts_np, dtype=torch.float32, device=self.device)
+        self.exp_act_in = self._act_input(self.exp_acts)
+        seqs = [self._decode_codes(t) for t in demos]
+        self.exp_codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=self.device)
+        longest = max(len(s) for s in seqs)
+        self.replay_codes = np.full((len(seqs), longest), -1, dtype=np.int64)
+        for i, s in enumerate(seqs):
+            self.replay_codes[i, : len(s)] = s
+
+    @torch.no_grad()
+    def _decode_codes(self, traj: Trajectory) -> np.ndarray:
+        """Causal decoding c_t = argmax q(. | s_t, c_{t-1}) of one demonstration (all zeros for one code)."""
+        if self.K == 1:
+            return np.zeros(len(traj), dtype=np.int64)
+        obs_n = self.model.normalizer(torch.as_tensor(np.asarray(traj.obs[:-1], np.float32), device=self.device))
+        prev = torch.zeros(1, self.K, device=self.device)
+        out = np.empty(len(traj), dtype=np.int64)
+        for t in range(len(traj)):
+            c = int(self.model.q(obs_n[t : t + 1], prev).argmax(-1))
+            out[t] = c
+            prev = self.eye[c : c + 1]
+        return out
+
+    def _act_input(self, acts: torch.Tensor) -> torch.Tensor:
+        """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
+        if self.discrete:
+            return nn.functional.one_hot(acts.long(), self.n_actions).float()
+        return self._act_transform(acts) if self._act_transform is not None else acts
+
+    # ----------------------------------------------------------------------------------- macro-policy hooks
+    def _new_code_state(self, n: int) -> CodeState:
+        return CodeState(prev=torch.full((n,), -1, dtype=torch.long, device=self.device),
+                         t_ep=np.zeros(n, dtype=np.int64), replay_idx=np.zeros(n, dtype=np.int64))
+
+    def _start_episodes(self, idx: np.ndarray) -> None:
+        """Reset the code state of the envs in `idx` at an episode start."""
+        self.codes_state.prev[torch.as_tensor(idx, device=self.device)] = -1
+        self.codes_state.t_ep[idx] = 0
+
+    def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
+                      env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """Codes c_t for observations s_t given c_{t-1}, and log q(c_t | s_t, c_{t-1}). One code: always 0."""
+        n = len(obs_n)
+        return (torch.zeros(n, dtype=torch.long, device=self.device), torch.zeros(n, device=self.device))
+
+    # ------------------------------------------------------------------------------------------ rollouts
+    def _reset_envs(self) -> torch.Tensor:
+        base = self.seed * 100_003 + self.iteration * 1_009
+        obs, _ = self.envs.reset([base + i for i in range(self.envs.num_envs)])
+        n = self.envs.num_envs
+        self.codes_state = self._new_code_state(n)
+        self._start_episodes(np.arange(n))
+        self.ep_returns = np.zeros(n)
+        self.ep_lengths = np.zeros(n, dtype=np.int64)
+        obs_t = torch.as_tensor(obs, device=self.device)
+        self._codes, _ = self._choose_codes(self.model.normalizer(obs_t), self.codes_state.prev,
+                                            self.codes_state.t_ep, np.arange(n))
+        self.codes_state.prev = self._codes.clone()
+        return obs_t
+
+    def _env_actions(self, acts: torch.Tensor) -> np.ndarray:
+        a = acts.cpu().numpy()
+        if self.discrete:
+            return a
+        return np.clip(a, self.act_low, self.act_high)
+
+    @torch.no_grad()
+    def collect(self) -> dict[str, torch.Tensor]:
+        """One rollout of `steps_per_env` steps in every env: the on-policy batch, env rewards and the bonus."""
+        cfg = self.cfg.ppo
+        T, N = cfg.steps_per_env, self.envs.num_envs
+        if self._obs is None:
+            self._obs = self._reset_envs()
+        dev, obs_dim = self.device, self.model.obs_dim
+        b_obs = torch.zeros(T, N, obs_dim, device=dev)
+        b_codes = torch.zeros(T, N, dtype=torch.long, device=dev)
+        b_acts = torch.zeros(T, N, *(() if self.discrete else self.exp_acts.shape[1:]), device=dev,
+                             dtype=torch.long if self.discrete else torch.float32)
+        b_logp, b_values, b_bonus = (torch.zeros(T, N, device=dev) for _ in range(3))
+        b_final_values = torch.zeros(T, N, device=dev)
+        b_term = torch.zeros(T, N, dtype=torch.bool, device=dev)
+        b_trunc = torch.zeros(T, N, dtype=torch.bool, device=dev)
+        norm, pi, value = self.model.normalizer, self.model.pi, self.value
+        all_idx = np.arange(N)
+        obs_n = norm(self._obs)
+        codes = self._codes
+        for t in range(T):
+            code_1h = self.eye[codes]
+            dist = pi.dist(obs_n, code_1h)
+            act = dist.sample()
+            b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, act
+            b_logp[t] = dist.log_prob(act)
+            b_values[t] = value(obs_n, code_1h)
+            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(act))
+            self.ep_returns += rews
+            self.ep_lengths += 1
+            self.codes_state.t_ep += 1
+            next_obs_n = norm(torch.as_tensor(next_obs, device=dev))
+            prev = self.codes_state.prev
+            if final:
+                done = np.fromiter(final, dtype=np.int64)
+                done_t = torch.as_tensor(done, device=dev)
+                final_obs_n = norm(torch.as_tensor(np.stack([final[i][0] for i in done]), device=dev))
+                bonus_obs_n = next_obs_n.clone()
+                bonus_obs_n[done_t] = final_obs_n
+                new_codes, logq = self._choose_codes(bonus_obs_n, prev, self.codes_state.t_ep, all_idx)
+                trunc_mask = torch.as_tensor(truncs[done], device=dev)
+                if bool(trunc_mask.any()):
+                    tr = done_t[trunc_mask]
+                    b_final_values[t, tr] = value(final_obs_n[trunc_mask], self.eye[new_codes[tr]])
+                for i in done:
+                    self._episode_done(int(i))
+                self._start_episodes(done)
+                start_codes, _ = self._choose_codes(next_obs_n[done_t], self.codes_state.prev[done_t],
+                                                    self.codes_state.t_ep[done], done)
+                new_codes[done_t] = start_codes
+            else:
+                new_codes, logq = self._choose_codes(next_obs_n, prev, self.codes_state.t_ep, all_idx)
+            b_bonus[t] = logq
+            b_term[t] = torch.as_tensor(terms, device=dev)
+            b_trunc[t] = torch.as_tensor(truncs, device=dev)
+            self.codes_state.prev = new_codes.clone()
+            codes = new_codes
+            obs_n = next_obs_n
+            self._obs = torch.as_tensor(next_obs, device=dev)
+        self._codes = codes
+        last_values = value(obs_n, self.eye[codes])
+        self.global_step += T * N
+        return dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
+                    final_values=b_final_values, terminated=b_term, truncated=b_trunc, last_values=last_values)
+
+    def _episode_done(self, i: int) -> None:
+        self.recent_returns.append(float(self.ep_returns[i]))
+        self.recent_lengths.append(float(self.ep_lengths[i]))
+        if self._is_closed_loop(i):
+            self.recent_closed_returns.append(float(self.ep_returns[i]))
+        self.ep_returns[i] = 0.0
+        self.ep_lengths[i] = 0
+
+    def _is_closed_loop(self, i: int) -> bool:
+        return True
+
+    # ------------------------------------------------------------------------------------- discriminator
+    def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> dict[str, float]:
+        """Binary cross-entropy on agent (label 0) vs expert (label 1) pairs; returns loss and accuracies."""
+        n = len(obs_n)
+        half = max(1, self.cfg.disc_minibatch_size // 2)
+        bce = nn.functional.binary_cross_entropy_with_logits
+        losses, acc_agent, acc_expert, steps = 0.0, 0.0, 0.0, 0
+        for _ in range(self.cfg.disc_updates):
+            perm = torch.randperm(n, generator=self.gen)
+            for start in range(0, n - half + 1, half):
+                idx = perm[start:start + half]
+                e_idx = torch.randint(len(self.exp_obs_n), (len(idx),), generator=self.gen)
+                logits_agent = self.disc(obs_n[idx], act_in[idx])
+                logits_expert = self.disc(self.exp_obs_n[e_idx], self.exp_act_in[e_idx])
+                loss = bce(logits_agent, torch.zeros_like(logits_agent)) + \
+                    bce(logits_expert, torch.ones_like(logits_expert))
+                self.disc_optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                self.disc_optimizer.step()
+                losses += loss.item()
+                acc_agent += float((logits_agent < 0).float().mean())
+                acc_expert += float((logits_expert > 0).float().mean())
+                steps += 1
+        steps = max(steps, 1)
+        return {"disc/loss": losses / steps, "disc/acc_agent": acc_agent / steps,
+                "disc/acc_expert": acc_expert / steps, "disc/accuracy": 0.5 * (acc_agent + acc_expert) / steps}
+
+    # ---------------------------------------------------------------------------------------- iteration
+    def _bc_loss(self) -> torch.Tensor:
+        """BC / L2 term on expert (s, c_E) -> a_E: squared error of the mean (continuous) or NLL (discrete)."""
+        idx = torch.randint(len(self.exp_obs_n), (self.cfg.bc_batch_size,), generator=self.gen)
+        code_1h = self.eye[self.exp_codes[idx]]
+        if self.discrete:
+            return -self.model.pi.dist(self.exp_obs_n[idx], code_1h).log_prob(self.exp_acts[idx]).mean()
+        mean = self.model.pi.mode(self.exp_obs_n[idx], code_1h)
+        return (mean - self.exp_acts[idx]).pow(2).sum(-1).mean()
+
+    def iterate(self) -> dict[str, float]:
+        """One training iteration; returns its scalars."""
+        t0 = time.perf_counter()
+        batch = self.collect()
+        t_rollout = time.perf_counter() - t0
+        T, N = batch["logp"].shape
+        flat_obs = batch["obs"].reshape(T * N, -1)
+        flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
+        act_in = self._act_input(flat_acts)
+        stats = self.update_discriminator(flat_obs, act_in)
+        with torch.no_grad():
+            logits = self.disc(flat_obs, act_in).reshape(T, N)
+            disc_rew = generator_reward(logits, self.cfg.reward)
+            bonus = self.cfg.bonus_weight * batch["bonus"]
+            rews = disc_rew + bonus
+        adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
+                                   batch["final_values"], batch["last_values"], self.cfg.ppo.gamma,
+                                   self.cfg.ppo.gae_lambda)
+        ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
+                             logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
+        losses = ppo_update(self.model.pi, self.value, self.optimizer, ppo_batch, self.cfg.ppo, self.gen,
+                            bc_loss=self._bc_loss if self.cfg.bc_weight > 0 else None,
+                            bc_weight=self.cfg.bc_weight)
+        if not all(math.isfinite(v) for v in (*losses.values(), *stats.values())):
+            bad = [k for k, v in {**losses, **stats}.items() if not math.isfinite(v)]
+            raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {self.iteration + 1}; the last "
+                                "good checkpoint is kept - lower the learning rate or check the demonstrations.")
+        self.iteration += 1
+        elapsed = time.perf_counter() - t0
+        out = {f"losses/{k}": v for k, v in losses.items()}
+        out.update(stats)
+        out.update({
+            "rollout/disc_reward": float(disc_rew.mean()),
+            "rollout/bonus": float(batch["bonus"].mean()),
+            "rollout/ep_return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
+            "rollout/ep_length": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
+            "rollout/ep_return_closed_loop": (float(np.mean(self.recent_closed_returns))
+                                              if self.recent_closed_returns else float("nan")),
+            "perf/sps": T * N / elapsed,
+            "perf/rollout_sps": T * N / t_rollout,
+            "perf/global_step": float(self.global_step),
+        })
+        return out
+
+    def train(self, iterations: int | None = None) -> dict[str, float]:
+        """Run until `iterations` (default: the config's) are done, checkpointing along the way."""
+        from tqdm import tqdm
+
+        total = self.cfg.iterations if iterations is None else iterations
+        if self.run_dir is not None and self._logger is None:
+            self._logger = ScalarLogger(self.run_dir)
+        last: dict[str, float] = {}
+        bar = tqdm(total=total, initial=self.iteration, disable=not self.progress, desc=self.method,
+                   dynamic_ncols=True)
+        start_step, t_start = self.global_step, time.perf_counter()
+        try:
+            while self.iteration < total:
+                last = self.iterate()
+                sps = (self.global_step - start_step) / max(time.perf_counter() - t_start, 1e-9)
+                bar.update(1)
+                bar.set_postfix(steps=self.global_step, sps=f"{sps:.0f}", ret=f"{last['rollout/ep_return']:.2f}",
+                                d_acc=f"{last['disc/accuracy']:.2f}", bonus=f"{last['rollout/bonus']:.2f}")
+                if self._logger is not None:
+                    self._logger.log(self.global_step, {"iteration": float(self.iteration), **last})
+                if self.run_dir is not None and (self.iteration % self.cfg.checkpoint_every == 0
+                                                 or self.iteration == total):
+                    self.save_checkpoint(self.run_dir / "checkpoint.pt")
+        finally:
+            bar.close()
+        return last
+
+    # --------------------------------------------------------------------------------------- checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "version": CHECKPOINT_VERSION,
+            "method": self.method,
+            "iteration": self.iteration,
+            "global_step": self.global_step,
+            "model": self.model.state_dict(),
+            "value": self.value.state_dict(),
+            "disc": self.disc.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "disc_optimizer": self.disc_optimizer.state_dict(),
+            "rng": {
+                "torch": torch.get_rng_state(),
+                "gen": self.gen.get_state(),
+                "numpy": _np_state_to_tensors(self.np_rng),
+            },
+            "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.iteration = int(state["iteration"])
+        self.global_step = int(state["global_step"])
+        self.model.load_state_dict(state["model"])
+        self.value.load_state_dict(state["value"])
+        self.disc.load_state_dict(state["disc"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.disc_optimizer.load_state_dict(state["disc_optimizer"])
+        torch.set_rng_state(state["rng"]["torch"])
+        self.gen.set_state(state["rng"]["gen"])
+        _np_state_from_tensors(self.np_rng, state["rng"]["numpy"])
+        self.recent_returns.extend(state["recent_returns"].tolist())
+        self._obs = None  # envs restart with fresh episodes seeded from (seed, iteration)
+
+    def save_checkpoint(self, path: Path) -> None:
+        """Atomically write the full training state (weights_only-loadable)."""
+        import io
+
+        buf = io.BytesIO()
+        torch.save(self.state_dict(), buf)
+        atomic_write_bytes(Path(path), buf.getvalue())
+        self._save_model(Path(path).parent / "model.pt")
+
+    def _save_model(self, path: Path) -> None:
+        from digail.checkpoint import save_model
+
+        save_model(path, self.model, kind=self.method, config={}, env_id=self.env_id)
+
+    def load_checkpoint(self, path: Path) -> None:
+        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=True))
+
+
+def _np_state_to_tensors(rng: np.random.Generator) -> dict[str, Any]:
+    st = rng.bit_generator.state
+    return {"state": str(st["state"]["state"]), "inc": str(st["state"]["inc"]),
+            "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}
+
+
+def _np_state_from_tensors(rng: np.random.Generator, data: dict[str, Any]) -> None:
+    st = rng.bit_generator.state
+    st["state"] = {"state": int(data["state"]), "inc": int(data["inc"])}
+    st["has_uint32"], st["uinteger"] = int(data["has_uint32"]), int(data["uinteger"])
+    rng.bit_generator.state = st
+
+
+def make_probe_env(env_id: str) -> gym.Env:
+    return make_env(env_id)

@@ -1,0 +1,123 @@
+"""Self-contained, pickle-free checkpoints of a `HierarchicalPolicy`.
+
+A checkpoint is one `torch.save` file holding only tensors and plain Python data, so it loads with
+`torch.load(..., weights_only=True)`: the state_dict (normaliser statistics included, they are buffers), what is
+needed to rebuild the model (observation size, number of codes, action spec, hidden sizes), the environment id,
+what produced it (`kind`: "vae", "digail", "gail", ...), the digail version and the resolved config as a JSON
+string. Run folders keep it as `model.pt` beside `config.json`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from digail.errors import UserError
+from digail.nets.policy import ActionSpec
+from digail.nets.vae import HierarchicalPolicy
+from digail.utils import atomic_write_bytes
+
+FORMAT = "digail-model"
+FORMAT_VERSION = 1
+MODEL_FILE = "model.pt"
+CONFIG_FILE = "config.json"
+
+
+def save_model(path: str | Path, model: HierarchicalPolicy, *, kind: str, config: dict[str, Any],
+               env_id: str | None, extra: dict[str, Any] | None = None) -> Path:
+    """Write `model` and its metadata to `path` atomically (a temporary file renamed over it).
+
+    Args:
+        path: the file to write, or a folder (then `folder/model.pt`).
+        model: the hierarchical policy; its normaliser statistics travel in the state_dict.
+        kind: what produced the model, e.g. "vae" or "digail".
+        config: the resolved configuration (JSON-serialisable), stored as a JSON string.
+        env_id: the Gymnasium id the demonstrations came from, or None when unknown.
+        extra: more weights-only data to keep (tensors, numbers, strings, lists, dicts), e.g. an optimiser
+            state_dict for resuming; returned under `meta["extra"]`.
+
+    Returns:
+        The path of the written file.
+    """
+    from digail import __version__
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / MODEL_FILE
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "digail_version": __version__,
+        "kind": kind,
+        "env_id": env_id,
+        "obs_dim": int(model.obs_dim),
+        "codes": int(model.codes),
+        "action_discrete": bool(model.action.discrete),
+        "action_dim": int(model.action.dim),
+        "hidden": [int(h) for h in model.hidden],
+        "learn_prior": bool(model.learn_prior),
+        "config_json": json.dumps(config, default=str),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "extra": extra or {},
+    }
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[HierarchicalPolicy, dict[str, Any]]:
+    """Rebuild the model saved by `save_model`, in eval mode on `device`.
+
+    Args:
+        path: the checkpoint file, or a run folder holding `model.pt`.
+        device: where to put the model.
+
+    Returns:
+        `(model, meta)` where `meta` has `kind`, `env_id`, `digail_version`, `obs_dim`, `codes`, `action`
+        (an `ActionSpec`), `hidden`, `config` (a dict) and `extra`.
+
+    Raises:
+        UserError: the file is missing, unreadable, not a digail checkpoint, or does not fit the model it describes.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / MODEL_FILE
+    if not path.is_file():
+        raise UserError(f"no model checkpoint at {path}; pass a run folder made by `digail pretrain` or `digail train`.")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
+        raise UserError(f"cannot read checkpoint {path} (corrupt or not a torch file: {exc}); re-create the run.") from exc
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise UserError(f"{path} is not a digail model checkpoint; pass the model.pt of a digail run folder.")
+    if payload.get("format_version") != FORMAT_VERSION:
+        raise UserError(f"checkpoint {path} has format version {payload.get('format_version')}, this digail reads "
+                        f"version {FORMAT_VERSION}; re-create the run with this version.")
+    try:
+        action = ActionSpec(bool(payload["action_discrete"]), int(payload["action_dim"]))
+        model = HierarchicalPolicy(int(payload["obs_dim"]), int(payload["codes"]), action,
+                                   hidden=tuple(payload["hidden"]), learn_prior=bool(payload["learn_prior"]))
+        model.load_state_dict(payload["state_dict"])
+        config = json.loads(payload["config_json"])
+    except (KeyError, TypeError, RuntimeError, json.JSONDecodeError) as exc:
+        raise UserError(f"checkpoint {path} is incomplete or does not match its model description ({exc}); "
+                        "re-create the run.") from exc
+    meta = {
+        "kind": payload.get("kind"),
+        "env_id": payload.get("env_id"),
+        "digail_version": payload.get("digail_version"),
+        "obs_dim": model.obs_dim,
+        "codes": model.codes,
+        "action": action,
+        "hidden": model.hidden,
+        "config": config,
+        "extra": payload.get("extra", {}),
+    }
+    return model.to(device).eval(), meta

@@ -1,0 +1,199 @@
+"""Record expert demonstrations as a Minari dataset (`digail demos`).
+
+digail's own envs (and Fetch) are driven by their scripted experts (`digail.experts.scripted`), the others by
+a reinforcement-learning expert (`digail.experts.rl.load_expert`, the shipped weights or `--expert PATH`).
+Episode `i` is reset with seed `seed + i`, so a dataset is reproducible from its command line. Oracle labels
+from `info["subtask"]` are kept when the env provides them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from digail.data.minari_io import (
+    SUBTASK_KEY,
+    check_matches_env,
+    flatten_dict_obs,
+    load_dataset,
+    make_env,
+    minari_root,
+    write_dataset,
+)
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.utils import check_new_dir
+
+DEFAULT_EPISODES: dict[str, int] = {
+    "digail/FourRooms-v0": 300,
+    "digail/CircleWorld-v0": 100,
+    "Pendulum-v1": 25,
+    "InvertedPendulum-v5": 25,
+    "Hopper-v5": 50,
+    "Walker2d-v5": 50,
+    "FetchPickAndPlace-v4": 500,
+    "digail/FetchPickAndPlace-v4": 500,
+}
+"""Demonstrations per environment in the paper (section 5 and appendix)."""
+
+Policy = Callable[[gym.Env, Any], Any]
+"""An expert as the recorder uses it: (env, current observation) -> action."""
+
+
+def default_dataset_id(env_id: str) -> str:
+    """Minari id for an env's expert demonstrations, e.g. Hopper-v5 -> digail/hopper/expert-v0."""
+    name = env_id.split("/")[-1]
+    name = re.sub(r"-v\d+$", "", name).lower()
+    name = re.sub(r"[^a-z0-9_-]", "", name) or "env"
+    return f"digail/{name}/expert-v0"
+
+
+def _resolve_expert(env_id: str, expert: Path | None) -> tuple[Policy, str]:
+    """The expert to record and a short name of its kind (stored in the metadata)."""
+    if expert is None:
+        from digail.experts.scripted import get_scripted_expert
+
+        scripted = get_scripted_expert(env_id)
+        if scripted is not None:
+            return (lambda env, obs: scripted(env)), "scripted"
+    try:
+        from digail.experts.rl import load_expert
+    except ImportError as exc:
+        raise UserError(f"no scripted expert for {env_id} and the RL experts are unavailable ({exc}); "
+                        "install the rl extra (`pip install digail[rl]`).") from exc
+    policy = load_expert(env_id, expert)
+    return (lambda env, obs: policy(np.asarray(obs, dtype=np.float32)[None])[0]), "rl"
+
+
+def _flat(obs: Any, space: gym.Space) -> np.ndarray:
+    if isinstance(space, gym.spaces.Dict):
+        return flatten_dict_obs({k: np.asarray(v)[None] for k, v in obs.items()}, space)[0]
+    return np.asarray(obs)
+
+
+def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0, *,
+                     desc: str = "demos") -> list[Trajectory]:
+    """Run `policy` for `episodes` episodes, episode `i` reset with `seed + i`, with a progress bar.
+
+    Dict observations are stored flattened (`flatten_dict_obs`); the policy still sees the env's own
+    observation. Actions are stored as given to the env (int64 for Discrete, float32 otherwise).
+    """
+    discrete = isinstance(env.action_space, gym.spaces.Discrete)
+    trajs: list[Trajectory] = []
+    bar = tqdm(range(episodes), desc=desc, unit="ep")
+    for i in bar:
+        obs, info = env.reset(seed=seed + i)
+        obs_rows = [_flat(obs, env.observation_space)]
+        acts, rews = [], []
+        labels = [info.get(SUBTASK_KEY)]
+        while True:
+            action = policy(env, obs)
+            action = int(action) if discrete else np.asarray(action, dtype=np.float32).reshape(
+                env.action_space.shape)
+            obs, reward, terminated, truncated, info = env.step(action)
+            obs_rows.append(_flat(obs, env.observation_space))
+            acts.append(action)
+            rews.append(float(reward))
+            labels.append(info.get(SUBTASK_KEY))
+            if terminated or truncated:
+                break
+        has_labels = all(label is not None for label in labels)
+        trajs.append(Trajectory(
+            obs=np.asarray(obs_rows, dtype=np.float32),
+            acts=np.asarray(acts, dtype=np.int64 if discrete else np.float32),
+            rews=np.asarray(rews, dtype=np.float32),
+            subtasks=np.asarray(labels, dtype=np.int64) if has_labels else None,
+            terminated=bool(terminated),
+        ))
+        returns = [float(t.rews.sum()) for t in trajs if t.rews is not None]
+        bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=len(acts))
+    return trajs
+
+
+def summarize(trajs: list[Trajectory]) -> dict[str, Any]:
+    """Return statistics and label counts (over all stored labels, T + 1 per episode) of some episodes."""
+    returns = np.array([float(t.rews.sum()) if t.rews is not None else np.nan for t in trajs])
+    lengths = np.array([len(t) for t in trajs])
+    out: dict[str, Any] = {
+        "episodes": len(trajs),
+        "steps": int(lengths.sum()),
+        "return_mean": float(np.mean(returns)),
+        "return_std": float(np.std(returns)),
+        "length_mean": float(lengths.mean()),
+        "terminated": int(sum(t.terminated for t in trajs)),
+    }
+    if all(t.subtasks is not None for t in trajs):
+        counts = Counter(int(c) for t in trajs for c in np.asarray(t.subtasks))
+        out["label_counts"] = {str(k): counts[k] for k in sorted(counts)}
+    return out
+
+
+def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLike[str] | None = None,
+                 seed: int = 0, expert: str | os.PathLike[str] | None = None, force: bool = False) -> Path:
+    """Roll out an expert in `env_id` and write the episodes as a Minari dataset; return its folder.
+
+    Args:
+        env_id: a registered env id, e.g. "digail/CircleWorld-v0" or "Hopper-v5".
+        episodes: number of episodes (default: the paper's size, `DEFAULT_EPISODES`).
+        out: dataset folder (default: `$MINARI_DATASETS_PATH` or `~/.minari/datasets`, then the dataset id,
+            e.g. `digail/circleworld/expert-v0`, so the id resolves there).
+        seed: episode `i` is reset with `seed + i`.
+        expert: RL expert file; when given it is used even for envs with a scripted expert. Default: the
+            scripted expert where one exists, else the shipped RL expert.
+        force: replace an existing dataset folder.
+
+    Raises:
+        UserError: unknown env, no default size (pass `episodes`), bad `episodes`, existing `out` without
+            `force`, no expert available.
+    """
+    if episodes is None:
+        if env_id not in DEFAULT_EPISODES:
+            raise UserError(f"no default number of episodes for {env_id}; pass --episodes N.")
+        episodes = DEFAULT_EPISODES[env_id]
+    if episodes < 1:
+        raise UserError(f"--episodes must be at least 1, got {episodes}.")
+    if seed < 0:
+        raise UserError(f"--seed must be non-negative, got {seed}.")
+    dataset_id = default_dataset_id(env_id)
+    path = Path(out) if out is not None else minari_root() / dataset_id
+    check_new_dir(path, force)  # fail before the (possibly long) rollouts
+    env = make_env(env_id)
+    try:
+        policy, kind = _resolve_expert(env_id, None if expert is None else Path(expert))
+        obs_space = env.observation_space
+        flat_space = gym.spaces.flatten_space(obs_space) if isinstance(obs_space, gym.spaces.Dict) else None
+        trajs = rollout_episodes(env, policy, episodes, seed, desc=f"demos {env_id}")
+    finally:
+        env.close()
+    summary = summarize(trajs)
+    record = {"seed": seed, "episodes": episodes, "expert": kind,
+              "expert_file": None if expert is None else str(expert), **summary}
+    labels = "; oracle labels in infos['subtask']." if "label_counts" in summary else "."
+    description = (f"{episodes} demonstrations of the {kind} expert in {env_id} recorded by digail, episode "
+                   f"i reset with seed {seed} + i{labels}")
+    seeds = [seed + i for i in range(episodes)]
+    return write_dataset(trajs, path, env_id, dataset_id, force=force, seeds=seeds, description=description,
+                         algorithm_name=f"{kind} expert", observation_space=flat_space,
+                         extra_metadata=record)
+
+
+def manifest_entry(path_or_id: str | os.PathLike[str], command: str) -> dict[str, Any]:
+    """One MANIFEST.json entry for a dataset written by `record_demos`, loaded and checked against its env."""
+    ds = load_dataset(path_or_id)
+    if ds.env_id is None:
+        raise UserError(f"dataset {ds.path} records no environment id.")
+    check_matches_env(ds, ds.env_id)
+    record = ds.metadata.get("digail", {})
+    data = ds.path / "data"
+    entry: dict[str, Any] = {"id": ds.dataset_id, "env": ds.env_id, "seed": record.get("seed"),
+                             "expert": record.get("expert"), "command": command, **summarize(ds.trajs),
+                             "size_bytes": sum(f.stat().st_size for f in data.iterdir() if f.is_file())}
+    return entry

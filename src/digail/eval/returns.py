@@ -1,0 +1,223 @@
+"""Roll out a hierarchical policy for N episodes and score it: returns, task metrics, normalised return.
+
+Evaluation is always closed-loop: the macro-policy q picks c_t = argmax q(. | s_t, c_{t-1}) from the agent's own
+states, exactly what segmentation does offline. `digail compose` swaps q for a user's code schedule.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from digail.algos.rollout import make_env
+from digail.nets.mlp import one_hot
+from digail.nets.vae import HierarchicalPolicy
+
+# Final-info keys an env may report, and how eval.json names their aggregate.
+RATE_KEYS = {"is_success": "success_rate", "order_correct": "order_correct_rate",
+             "order_reversed": "order_reversed_rate"}
+MEAN_KEYS = ("radius_error", "closure_error")
+
+
+@dataclass
+class Episode:
+    """One evaluated episode."""
+
+    ret: float
+    length: int
+    reset_info: dict[str, Any]
+    final_info: dict[str, Any]
+    codes: list[int] = field(default_factory=list)
+    obs: list[np.ndarray] = field(default_factory=list)
+
+
+@torch.no_grad()
+def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: int, *, deterministic: bool = False,
+                 schedule: Sequence[int] | None = None, num_envs: int = 8, keep_obs: int = 0,
+                 env_kwargs: dict[str, Any] | None = None) -> list[Episode]:
+    """Run `episodes` episodes (episode e reset with seed + e) with the model's sub-task policies.
+
+    Codes come from the closed-loop macro-policy (argmax of q), or from `schedule` (code per step; the last code
+    repeats once it runs out). The first `keep_obs` episodes keep their observations for plots.
+    """
+    model.eval()
+    device = next(model.parameters()).device
+    envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(min(num_envs, episodes))]
+    discrete = isinstance(envs[0].action_space, gym.spaces.Discrete)
+    low = None if discrete else envs[0].action_space.low
+    high = None if discrete else envs[0].action_space.high
+    K = model.codes
+    eye = torch.eye(K, device=device)
+    results: list[Episode | None] = [None] * episodes
+    next_ep = 0
+    slots: list[dict[str, Any]] = []
+    for env in envs:
+        ep = next_ep
+        next_ep += 1
+        obs, info = env.reset(seed=seed + ep)
+        slots.append(dict(env=env, ep=ep, obs=obs, prev=-1, t=0,
+                          rec=Episode(0.0, 0, info, {}, [], [obs] if ep < keep_obs else [])))
+    while slots:
+        obs_t = torch.as_tensor(np.stack([np.asarray(s["obs"], np.float32) for s in slots]), device=device)
+        obs_n = model.normalizer(obs_t)
+        if schedule is not None:
+            codes = torch.as_tensor([schedule[min(s["t"], len(schedule) - 1)] for s in slots], device=device)
+        else:
+            prev = torch.as_tensor([s["prev"] for s in slots], device=device)
+            codes = model.q(obs_n, one_hot(prev, K)).argmax(-1)
+        code_1h = eye[codes]
+        acts = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
+        acts_np = acts.cpu().numpy()
+        if not discrete:
+            acts_np = np.clip(acts_np, low, high)
+        keep: list[dict[str, Any]] = []
+        for s, a, c in zip(slots, acts_np, codes.tolist(), strict=True):
+            obs, r, term, trunc, info = s["env"].step(a)
+            rec: Episode = s["rec"]
+            rec.ret += float(r)
+            rec.length += 1
+            rec.codes.append(int(c))
+            if s["ep"] < keep_obs:
+                rec.obs.append(obs)
+            s["obs"], s["prev"], s["t"] = obs, int(c), s["t"] + 1
+            if term or trunc:
+                rec.final_info = info
+                results[s["ep"]] = rec
+                if next_ep < episodes:
+                    ep = next_ep
+                    next_ep += 1
+                    obs, info = s["env"].reset(seed=seed + ep)
+                    s.update(ep=ep, obs=obs, prev=-1, t=0,
+                             rec=Episode(0.0, 0, info, {}, [], [obs] if ep < keep_obs else []))
+                    keep.append(s)
+            else:
+                keep.append(s)
+        slots = keep
+    for env in envs:
+        env.close()
+    return [r for r in results if r is not None]
+
+
+def task_metrics(episodes: list[Episode]) -> dict[str, float]:
+    """Env-specific scores from the episodes' infos (success, path-length ratio, circle drawing)."""
+    out: dict[str, float] = {}
+    finals = [e.final_info for e in episodes]
+    for key, name in RATE_KEYS.items():
+        vals = [bool(f[key]) for f in finals if key in f]
+        if vals:
+            out[name] = float(np.mean(vals))
+    for key in MEAN_KEYS:
+        vals = [float(f[key]) for f in finals if key in f]
+        if vals:
+            out[key] = float(np.mean(vals))
+    ratios = [e.length / e.reset_info["shortest_path_length"] for e in episodes
+              if e.final_info.get("is_success") and e.reset_info.get("shortest_path_length")]
+    if any("shortest_path_length" in e.reset_info for e in episodes):
+        out["path_length_ratio"] = float(np.mean(ratios)) if ratios else float("nan")
+    return out
+
+
+def summarize(episodes: list[Episode]) -> dict[str, Any]:
+    """Mean and std of returns, mean length and the task metrics."""
+    rets = np.array([e.ret for e in episodes])
+    return {"episodes": len(episodes), "mean_return": float(rets.mean()), "std_return": float(rets.std()),
+            "mean_length": float(np.mean([e.length for e in episodes])), **task_metrics(episodes)}
+
+
+def expert_policy(env_id: str) -> Callable[[gym.Env, np.ndarray], Any] | None:
+    """The project's expert for `env_id` as a per-env callable, or None when there is none."""
+    from digail.experts.scripted import get_scripted_expert
+
+    scripted = get_scripted_expert(env_id)
+    if scripted is not None:
+        return lambda env, obs: scripted(env)
+    try:
+        from digail.experts.rl import load_expert
+
+        policy = load_expert(env_id)
+    except Exception:
+        return None
+    return lambda env, obs: policy(np.asarray(obs, np.float32)[None])[0]
+
+
+def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | None:
+    """The expert measured the same way as the agent: same env, seeds and episode count."""
+    policy = expert_policy(env_id)
+    if policy is None:
+        return None
+    env = make_env(env_id)
+    eps = []
+    for e in range(episodes):
+        obs, info = env.reset(seed=seed + e)
+        rec = Episode(0.0, 0, info, {})
+        while True:
+            obs, r, term, trunc, info = env.step(policy(env, obs))
+            rec.ret += float(r)
+            rec.length += 1
+            if term or trunc:
+                rec.final_info = info
+                break
+        eps.append(rec)
+    env.close()
+    return summarize(eps)
+
+
+def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: int = 10_000,
+             deterministic: bool = False, with_expert: bool = True) -> dict[str, Any]:
+    """Closed-loop evaluation; adds `normalized_return` (agent / expert mean return) when an expert exists."""
+    eps = run_episodes(model, env_id, episodes, seed, deterministic=deterministic)
+    out = summarize(eps)
+    out.update(env_id=env_id, seed=seed, deterministic=deterministic, macro_policy="closed-loop argmax q")
+    if with_expert:
+        expert = expert_summary(env_id, episodes, seed)
+        if expert is not None:
+            out["expert"] = expert
+            denom = expert["mean_return"]
+            out["normalized_return"] = float(out["mean_return"] / denom) if denom != 0 else float("nan")
+    return out
+
+
+def evaluate_command(run: Path, *, episodes: int, seed: int, deterministic: bool, video: bool) -> dict[str, Any]:
+    """`digail evaluate RUN`: write RUN/eval.json (and a video when asked)."""
+    from digail.checkpoint import load_model
+    from digail.utils import write_json
+
+    model, meta = load_model(Path(run) / "model.pt")
+    env_id = _env_of(run, meta)
+    result = evaluate(model, env_id, episodes, seed, deterministic)
+    result["kind"] = meta.get("kind")
+    write_json(Path(run) / "eval.json", result)
+    _print_summary(result)
+    if video:
+        from digail.viz.video import record_video
+
+        print(f"video: {record_video(model, env_id, Path(run) / 'videos' / 'eval.mp4', seed=seed)}")
+    return result
+
+
+def _env_of(run: Path, meta: dict[str, Any]) -> str:
+    from digail.errors import UserError
+
+    env_id = meta.get("env_id")
+    if not env_id:
+        cfg = Path(run) / "config.json"
+        if cfg.exists():
+            env_id = json.loads(cfg.read_text()).get("env_id")
+    if not env_id:
+        raise UserError(f"cannot tell which environment {run} was trained on; its model.pt and config.json "
+                        "name none.")
+    return str(env_id)
+
+
+def _print_summary(result: dict[str, Any]) -> None:
+    keys = ["mean_return", "std_return", "normalized_return", "success_rate", "path_length_ratio",
+            "order_correct_rate", "order_reversed_rate", "radius_error"]
+    parts = [f"{k}={result[k]:.3f}" for k in keys if isinstance(result.get(k), float)]
+    print(f"{result['episodes']} episodes: " + ", ".join(parts))

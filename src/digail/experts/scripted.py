@@ -1,0 +1,62 @@
+"""Scripted experts: closed-form controllers that read the env's true state (through `env.unwrapped`).
+
+Each expert is a function `expert(env) -> action` for the env's current state; `get_scripted_expert` maps an
+env id to one. They are deterministic, so demonstrations recorded from a seeded env are reproducible.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from digail.envs.circle_world import CircleWorldEnv, reference_point
+from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
+
+
+def _unwrapped(env: gym.Env, cls: type) -> Any:
+    base = env.unwrapped
+    if not isinstance(base, cls):
+        raise TypeError(f"This expert drives {cls.__name__}, got {type(base).__name__}.")
+    return base
+
+
+def four_rooms_expert(env: gym.Env) -> int:
+    """Shortest-path action towards the apple (ties: up, right, down, left first); 0 once on the apple.
+
+    The label in `info["subtask"]` follows the same path (`digail.envs.four_rooms.shortest_paths_to`).
+    """
+    base: FourRoomsEnv = _unwrapped(env, FourRoomsEnv)
+    x, y = base.agent
+    return int(shortest_paths_to(base.apple).action[y, x])
+
+
+def circle_expert(env: gym.Env) -> np.ndarray:
+    """Unit direction from the current position to the next reference point, float32 of shape (2,).
+
+    Clockwise for the first `steps_per_circle` steps, then back counter-clockwise. A step of the env's chord
+    length in this direction lands on the reference point, and aiming at it afresh each step keeps rounding
+    errors from accumulating. Zero action once the episode's steps are used up.
+    """
+    base: CircleWorldEnv = _unwrapped(env, CircleWorldEnv)
+    if base.t >= base.episode_steps:
+        return np.zeros(2, dtype=np.float32)
+    offset = reference_point(base.radius, base.t + 1, base.steps_per_circle) - base.position
+    norm = float(np.linalg.norm(offset))
+    if norm < 1e-12:
+        return np.zeros(2, dtype=np.float32)
+    return (offset / norm).astype(np.float32)
+
+
+_SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
+    "digail/FourRooms-v0": four_rooms_expert,
+    "digail/CircleWorld-v0": circle_expert,
+    # The Fetch pick-and-place controller lives in its own module and is added here under its env id.
+}
+
+
+def get_scripted_expert(env_id: str) -> Callable[[gym.Env], Any] | None:
+    """The scripted expert for `env_id`, or None when the env has none (use an RL expert instead)."""
+    return _SCRIPTED_EXPERTS.get(env_id)

@@ -1,0 +1,128 @@
+"""`digail run`: the whole pipeline in one run folder.
+
+demonstrations (shipped, or recorded with the env's expert) -> VAE pre-training -> Directed-Info GAIL ->
+closed-loop evaluation -> segmentation -> composition (Circle-World: reversed circles) -> figures -> report.html.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from digail.config import get_preset, to_dict
+from digail.utils import check_new_dir, default_run_dir, resolve_device, set_torch_threads, write_json
+
+if TYPE_CHECKING:
+    from digail.cli import RunArgs
+
+# What `digail compose` runs at the end of the pipeline, per env: the schedule of an undemonstrated behaviour.
+COMPOSE_SCHEDULES = {"digail/CircleWorld-v0": "1:60,0:60"}
+
+
+def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
+    """The shipped dataset for `env_id` when there is one, else freshly recorded demonstrations."""
+    from digail.data.demos import default_dataset_id, record_demos
+    from digail.data.minari_io import load_dataset, shipped_dataset_ids
+
+    dataset_id = default_dataset_id(env_id)
+    if dataset_id in shipped_dataset_ids():
+        return load_dataset(dataset_id), dataset_id
+    path = record_demos(env_id, out=run_dir / "demos", seed=seed)
+    return load_dataset(str(path)), str(path)
+
+
+def run_pipeline(args: RunArgs) -> Path:
+    """Run every stage into one folder; returns it."""
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.algos.vae_pretrain import pretrain
+    from digail.checkpoint import save_model
+    from digail.data.minari_io import check_matches_env, make_env
+    from digail.eval.composition import compose, parse_schedule
+    from digail.eval.returns import evaluate, run_episodes
+    from digail.eval.segmentation import write_segmentation
+    from digail.nets.policy import ActionSpec
+    from digail.viz.plots import plot_episodes, plot_training
+    from digail.viz.report import write_report
+
+    set_torch_threads(1)
+    device = resolve_device(args.device)
+    make_env(args.env).close()  # an unknown id fails here, before anything is written
+    preset = get_preset(args.preset, args.env)
+    run_dir = Path(args.out) if args.out is not None else default_run_dir(args.env, "digail", args.seed)
+    check_new_dir(run_dir, args.force)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    dataset, demos_ref = _demonstrations(args.env, run_dir, args.seed)
+    check_matches_env(dataset, args.env)
+    trajs = list(dataset.trajs)
+    timings["demos_s"] = time.perf_counter() - t0
+    print(f"[1/5] {len(trajs)} demonstrations of {args.env} ({demos_ref})")
+
+    t0 = time.perf_counter()
+    vae_dir = run_dir / "vae"
+    vae_dir.mkdir(exist_ok=True)
+    action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
+    vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
+                            log_dir=vae_dir)
+    vae_cfg = {"kind": "vae", "demos": demos_ref, "env_id": args.env, "seed": args.seed,
+               "vae": to_dict(preset.vae)}
+    save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)
+    write_json(vae_dir / "config.json", vae_cfg)
+    timings["pretrain_s"] = time.perf_counter() - t0
+    print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
+
+    t0 = time.perf_counter()
+    cfg = replace(preset.train, method="digail")
+    write_json(run_dir / "config.json", {"method": "digail", "env_id": args.env, "demos": demos_ref,
+                                         "seed": args.seed, "preset": args.preset, "train": to_dict(cfg),
+                                         "vae": to_dict(preset.vae), "pipeline": True})
+    trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
+                            device=device)
+    trainer.train()
+    trainer.save_checkpoint(run_dir / "checkpoint.pt")
+    model = trainer.model
+    save_model(run_dir / "model.pt", model, kind="digail", config={"train": to_dict(cfg)}, env_id=args.env)
+    timings["train_s"] = time.perf_counter() - t0
+    print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
+
+    t0 = time.perf_counter()
+    episodes = args.episodes if args.episodes is not None else preset.eval_episodes
+    result = evaluate(model, args.env, episodes)
+    result["kind"] = "digail"
+    write_json(run_dir / "eval.json", result)
+    shown = run_episodes(model, args.env, 6, 10_000, keep_obs=6)
+    plot_episodes(shown, run_dir / "figures" / "eval.png", title="closed-loop macro-policy")
+    timings["evaluate_s"] = time.perf_counter() - t0
+    print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")
+
+    t0 = time.perf_counter()
+    seg = write_segmentation(run_dir, model, trajs, demos=demos_ref)
+    composed = None
+    if args.env in COMPOSE_SCHEDULES:
+        schedule = COMPOSE_SCHEDULES[args.env]
+        composed, eps = compose(model, args.env, parse_schedule(schedule, model.codes), min(episodes, 100),
+                                20_000)
+        composed["schedule"] = schedule
+        plot_episodes(eps, run_dir / "figures" / "compose.png", title=f"composed: {schedule}")
+        write_json(run_dir / "compose.json", composed)
+    plot_training(run_dir)
+    timings["segment_compose_s"] = time.perf_counter() - t0
+    write_json(run_dir / "timings.json", timings)
+    report = write_report(run_dir)
+    print(f"[5/5] segmentation and figures written; report: {report}")
+    _print_headline(result, seg, composed)
+    return run_dir
+
+
+def _print_headline(result: dict[str, Any], seg: dict[str, Any] | None, composed: dict[str, Any] | None) -> None:
+    keys = ["mean_return", "success_rate", "path_length_ratio", "order_correct_rate", "radius_error"]
+    parts = [f"{k}={result[k]:.3f}" for k in keys if isinstance(result.get(k), float)]
+    if seg and "accuracy" in seg:
+        parts.append(f"segmentation accuracy={seg['accuracy']:.3f}")
+    if composed and "order_reversed_rate" in composed:
+        parts.append(f"composed order_reversed_rate={composed['order_reversed_rate']:.3f}")
+    print("results: " + ", ".join(parts))
