@@ -133,7 +133,7 @@ class TrainArgs:
     method: Literal["digail", "gail"] = "digail"
     """digail or gail"""
     vae: Path | None = None
-    """pre-trained VAE run folder (digail: required unless --pretrain; gail: optional policy init)"""
+    """pre-trained VAE run folder (required for digail: its q and its decoder as the initial policy)"""
     preset: str | None = None
     """settings preset (default: the env's)"""
     out: Path | None = None

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
+
+import tyro
 
 from digail.errors import UserError
 
@@ -90,8 +92,8 @@ class PPOConfig:
 class TrainConfig:
     """GAIL / Directed-Info GAIL training (paper section 3 and eq. 4)."""
 
-    method: Literal["digail", "gail"] = "digail"
-    """digail: K codes, frozen q, directed-info bonus; gail: one code, no bonus"""
+    method: Annotated[Literal["digail", "gail"], tyro.conf.Suppress] = "digail"
+    """digail: K codes, frozen q, directed-info bonus; gail: one code, no bonus (set by `--method`)"""
     iterations: int = 1000
     """PPO iterations (paper Table 3 'epochs')"""
     bonus_weight: float = 0.01

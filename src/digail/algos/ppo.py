@@ -84,7 +84,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
             if bc_loss is not None and bc_weight > 0:
                 bc = bc_loss()
                 loss = loss + bc_weight * bc
-                stats["bc"] += float(bc)
+                stats["bc"] += bc.item()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
@@ -92,9 +92,9 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
             with torch.no_grad():
                 approx_kl = float(((ratio - 1) - log_ratio).mean())
                 stats["clip_frac"] += float(((ratio - 1).abs() > cfg.clip).float().mean())
-            stats["policy"] += float(pg_loss)
-            stats["value"] += float(v_loss)
-            stats["entropy"] += float(entropy)
+            stats["policy"] += pg_loss.item()
+            stats["value"] += v_loss.item()
+            stats["entropy"] += entropy.item()
             stats["approx_kl"] += approx_kl
             kl_sum, kl_count = kl_sum + approx_kl, kl_count + 1
             updates += 1

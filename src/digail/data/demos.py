@@ -88,6 +88,7 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
     """
     discrete = isinstance(env.action_space, gym.spaces.Discrete)
     trajs: list[Trajectory] = []
+    returns: list[float] = []
     bar = tqdm(range(episodes), desc=desc, unit="ep")
     for i in bar:
         obs, info = env.reset(seed=seed + i)
@@ -113,7 +114,7 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
             subtasks=np.asarray(labels, dtype=np.int64) if has_labels else None,
             terminated=bool(terminated),
         ))
-        returns = [float(t.rews.sum()) for t in trajs if t.rews is not None]
+        returns.append(float(np.sum(rews)))
         bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=len(acts))
     return trajs
 
@@ -185,6 +186,31 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
                          extra_metadata=record)
 
 
+SHIPPED_COMMAND = "digail demos {env} --episodes {episodes} --seed {seed} --out src/digail/datasets/{id}"
+"""The command that made each shipped dataset (run from the repository root)."""
+
+
+def build_manifest(root: Path | None = None) -> dict[str, Any]:
+    """The content of `MANIFEST.json` for the datasets below a Minari root (default: the shipped root)."""
+    from digail.data.minari_io import SHIPPED_ROOT
+
+    root = SHIPPED_ROOT if root is None else Path(root)
+    entries = []
+    for meta in sorted(root.glob("**/data/metadata.json")):
+        folder = meta.parent.parent
+        ds_id = folder.relative_to(root).as_posix()
+        entry = manifest_entry(folder, "")
+        entry["command"] = SHIPPED_COMMAND.format(env=entry["env"], episodes=entry["episodes"],
+                                                  seed=entry["seed"], id=ds_id)
+        if entry.get("expert_file"):
+            entry["command"] += f" --expert {entry['expert_file']}"
+        entries.append(entry)
+    about = ("Expert demonstrations shipped with digail (Minari datasets; this folder is a Minari root, so "
+             "the ids resolve with MINARI_DATASETS_PATH pointing here). Returns are the undiscounted returns "
+             "of the recorded episodes; label counts cover all stored labels (T + 1 per episode).")
+    return {"description": about, "datasets": entries}
+
+
 def manifest_entry(path_or_id: str | os.PathLike[str], command: str) -> dict[str, Any]:
     """One MANIFEST.json entry for a dataset written by `record_demos`, loaded and checked against its env."""
     ds = load_dataset(path_or_id)
@@ -194,6 +220,22 @@ def manifest_entry(path_or_id: str | os.PathLike[str], command: str) -> dict[str
     record = ds.metadata.get("digail", {})
     data = ds.path / "data"
     entry: dict[str, Any] = {"id": ds.dataset_id, "env": ds.env_id, "seed": record.get("seed"),
-                             "expert": record.get("expert"), "command": command, **summarize(ds.trajs),
+                             "expert": record.get("expert"), "expert_file": record.get("expert_file"),
+                             "command": command, **summarize(ds.trajs),
                              "size_bytes": sum(f.stat().st_size for f in data.iterdir() if f.is_file())}
     return entry
+
+
+def write_manifest(root: Path | None = None) -> Path:
+    """Rewrite `MANIFEST.json` of a Minari root (default: the shipped one) after adding a dataset there."""
+    from digail.data.minari_io import SHIPPED_ROOT
+    from digail.utils import write_json
+
+    path = (SHIPPED_ROOT if root is None else Path(root)) / "MANIFEST.json"
+    write_json(path, build_manifest(root))
+    path.chmod(0o644)
+    return path
+
+
+if __name__ == "__main__":  # `python -m digail.data.demos` refreshes the shipped MANIFEST.json
+    print(f"wrote {write_manifest()}")

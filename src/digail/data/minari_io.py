@@ -531,7 +531,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
         raise UserError(f"extra dataset metadata is not JSON-serialisable ({_one_line(exc)}).") from exc
 
     with atomic_dir(path, force=force) as tmp:
-        root = tmp / ".minari-root"
+        root = (tmp / ".minari-root").resolve()  # Minari mis-joins relative roots
         with _minari_root_at(root), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Minari nags about optional metadata (permalink, eval env)
             mds = create_dataset_from_buffers(
@@ -543,7 +543,14 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
         shutil.rmtree(root)
         if compact:
             _compact_hdf5(tmp / "data" / "main_data.hdf5")
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it private; give it the permissions of a plain mkdir
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _compact_hdf5(file: Path) -> None:

@@ -6,20 +6,22 @@ is the slowest step of the whole project on a CPU.
 
 Two formats live side by side:
 
-* **Training checkpoints** (`OUT/checkpoints/step_<N>.zip` + `step_<N>.vecnormalize.pkl`): SB3's own format, with
-  the value net, the optimiser state and the running statistics, used only by `--resume`.
-* **Shipped experts** (`*.pt`): the deterministic actor alone, exported as a plain state_dict together with the
-  observation statistics, the env id and the action bounds, loaded with `torch.load(..., weights_only=True)`.
-  They are tiny, pickle-free and need neither SB3 nor the training folder: `load_expert` rebuilds the actor
-  from them. Every expert folder holds `expert.pt` (the latest export) and `best_expert.pt` (the best periodic
-  evaluation), and the shipped ones are copies of `best_expert.pt` in `digail/experts/weights/`.
+* **Training checkpoints** (`OUT/checkpoints/step_<N>.zip` + `step_<N>.vecnormalize.pkl`): SB3's own format,
+  with the value net, the optimiser state and the running statistics, used only by `--resume`.
+* **Shipped experts** (`*.pt`): the deterministic actor alone, exported as a plain state_dict together with
+  the observation statistics, the env id and the action bounds, loaded with
+  `torch.load(..., weights_only=True)`. They are tiny, pickle-free and need neither SB3 nor the training
+  folder: `load_expert` rebuilds the actor from them. Every expert folder holds `expert.pt` (the latest
+  export) and `best_expert.pt` (the best periodic evaluation); the shipped ones are copies of
+  `best_expert.pt` in `digail/experts/weights/`.
 
 Hyperparameters (`EXPERT_SPECS`) are our own choices, written down with their reasons beside each entry. The
-pendulum settings follow the spirit of the RL-Zoo's tuned PPO entries for those tasks (short horizon discount
-and state-dependent exploration for Pendulum); the locomotion settings follow the large-scale study of on-policy
-design choices by Andrychowicz et al. (2021): separate 256x256 tanh policy and value nets, observation and reward
-normalisation, a learning rate decayed to zero, GAE(0.95), clip 0.2, and several parallel environments, which on
-one CPU core also amortises the per-step network call (8 envs run roughly twice the steps per second of one).
+pendulum settings follow the spirit of the RL-Zoo's tuned PPO entries for those tasks (short horizon
+discount and state-dependent exploration for Pendulum); the locomotion settings follow the large-scale study
+of on-policy design choices by Andrychowicz et al. (2021): separate 256x256 tanh policy and value nets,
+observation and reward normalisation, a learning rate decayed to zero, GAE(0.95), clip 0.2, and several
+parallel environments, which on one CPU core also amortise the per-step network call (8 envs run roughly
+twice the steps per second of one).
 """
 
 from __future__ import annotations
@@ -100,12 +102,14 @@ _LOCOMOTION_PPO: dict[str, Any] = {
 
 EXPERT_SPECS: dict[str, ExpertSpec] = {
     # Pendulum: a short effective horizon (gamma 0.9) makes the swing-up value easy to learn; gSDE explores
-    # smoothly enough to find the swing-up quickly. Optimal play averages about -150 over random starts.
+    # smoothly enough to find the swing-up quickly. Optimal play averages about -150 over random starts. With a
+    # constant learning rate of 1e-3 our first run peaked at -266 after 1e5 steps and then fell apart, so the
+    # rate decays linearly to zero.
     "Pendulum-v1": ExpertSpec(
         steps=200_000, target=-200.0, n_envs=4, gamma=0.9, use_sde=True, norm_reward=False,
-        ppo={"n_steps": 1024, "batch_size": 64, "n_epochs": 10, "learning_rate": 1e-3, "gae_lambda": 0.95,
-             "clip_range": 0.2, "ent_coef": 0.0, "sde_sample_freq": 4},
-        checkpoint_every=20_000, eval_every=20_000, eval_episodes=20, stop_at=-170.0),
+        ppo={"n_steps": 1024, "batch_size": 64, "n_epochs": 10, "learning_rate": ("linear", 1e-3),
+             "gae_lambda": 0.95, "clip_range": 0.2, "ent_coef": 0.0, "sde_sample_freq": 4},
+        checkpoint_every=20_000, eval_every=10_000, eval_episodes=20, stop_at=-170.0),
     # InvertedPendulum: balancing is easy; plain PPO with small nets reaches the 1000-step cap in ~1e5 steps.
     "InvertedPendulum-v5": ExpertSpec(
         steps=300_000, target=1000.0, n_envs=8,
@@ -176,12 +180,13 @@ class ExpertActor(nn.Module):
         self.register_buffer("act_high", torch.ones(act_dim))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        z = ((obs - self.obs_mean) / torch.sqrt(self.obs_var + self.obs_eps)).clamp(-self.obs_clip, self.obs_clip)
+        z = (obs - self.obs_mean) / torch.sqrt(self.obs_var + self.obs_eps)
+        z = z.clamp(-self.obs_clip, self.obs_clip)
         return torch.maximum(torch.minimum(self.net(z), self.act_high), self.act_low)
 
 
 def export_expert(model: Any, vec_normalize: Any, env_id: str, path: Path, meta: dict[str, Any]) -> None:
-    """Write the deterministic actor of an SB3 PPO `model` (+ its obs statistics) as a pickle-free .pt file."""
+    """Write the deterministic actor of an SB3 PPO `model` and its obs statistics as a pickle-free .pt."""
     policy = model.policy
     hidden = tuple(m.out_features for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear))
     activation = "relu" if any(isinstance(m, nn.ReLU) for m in policy.mlp_extractor.policy_net) else "tanh"
@@ -234,13 +239,13 @@ def load_expert_actor(env_id: str, path: str | Path | None = None) -> tuple[Expe
         raise UserError(f"{path} is not a digail expert file ({type(exc).__name__}); pass the expert.pt or "
                         "best_expert.pt written by `digail expert`.") from exc
     if not isinstance(payload, dict) or payload.get("format") != EXPERT_FORMAT:
-        raise UserError(f"{path} is not a digail expert file; pass the expert.pt or best_expert.pt written by "
-                        "`digail expert`.")
+        raise UserError(f"{path} is not a digail expert file; pass the expert.pt or best_expert.pt written "
+                        "by `digail expert`.")
     if payload["env_id"] != env_id:
-        raise UserError(f"expert {path} was trained for {payload['env_id']!r}, not {env_id!r}; pass an expert "
-                        f"made for {env_id}.")
-    actor = ExpertActor(payload["obs_dim"], payload["act_dim"], tuple(payload["hidden"]), payload["activation"],
-                        payload["obs_clip"], payload["obs_eps"])
+        raise UserError(f"expert {path} was trained for {payload['env_id']!r}, not {env_id!r}; pass an "
+                        f"expert made for {env_id}.")
+    actor = ExpertActor(payload["obs_dim"], payload["act_dim"], tuple(payload["hidden"]),
+                        payload["activation"], payload["obs_clip"], payload["obs_eps"])
     actor.load_state_dict(payload["state_dict"])
     actor.eval()
     meta = json.loads(payload.get("meta", "{}"))
@@ -264,8 +269,8 @@ def load_expert(env_id: str, path: str | Path | None = None) -> Callable[[np.nda
         single = obs.ndim == 1
         batch = obs.reshape(1 if single else len(obs), -1)
         if batch.shape[1] != obs_dim:
-            raise UserError(f"the {env_id} expert expects observations of size {obs_dim}, got {batch.shape[1]}; "
-                            "use the env the expert was trained on.")
+            raise UserError(f"the {env_id} expert expects observations of size {obs_dim}, got "
+                            f"{batch.shape[1]}; use the env the expert was trained on.")
         with torch.no_grad():
             act = actor(torch.from_numpy(batch)).numpy()
         return act[0] if single else act
@@ -349,14 +354,16 @@ def _load_model(env_id: str, spec: ExpertSpec, zip_path: Path, seed: int, device
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    venv = VecNormalize.load(str(zip_path.with_suffix(".vecnormalize.pkl")), _make_vec_env(env_id, spec, seed))
+    stats = str(zip_path.with_suffix(".vecnormalize.pkl"))
+    venv = VecNormalize.load(stats, _make_vec_env(env_id, spec, seed))
     venv.training = True
     custom = {"learning_rate": _learning_rate(spec.ppo.get("learning_rate", 3e-4))}
     model = PPO.load(str(zip_path), env=venv, device=device, custom_objects=custom)
     return model, venv
 
 
-def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, seed: int, t_start: float) -> Any:
+def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, seed: int,
+                       t_start: float) -> Any:
     """SB3 callback: progress bar, resumable checkpoints, periodic evaluation, best export, early stop."""
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
@@ -416,7 +423,8 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
             return spec.stop_at is None or res["mean"] < spec.stop_at
 
         def _save_progress(self) -> None:
-            write_json(out / "progress.json", {"env_id": env_id, "seed": seed, "steps": int(self.num_timesteps),
+            write_json(out / "progress.json", {"env_id": env_id, "seed": seed,
+                                               "steps": int(self.num_timesteps),
                                                "wall_s": _wall(out, t_start), "evals": self.history})
 
         def _checkpoint(self) -> None:
@@ -463,7 +471,8 @@ def expert_command(args: ExpertArgs) -> Path:
     existing = _checkpoints(ckpt_dir) if ckpt_dir.is_dir() else []
     if args.resume:
         if not existing:
-            raise UserError(f"nothing to resume in {out}: no checkpoints/step_*.zip; drop --resume to start anew.")
+            raise UserError(f"nothing to resume in {out}: no checkpoints/step_*.zip; drop --resume to start "
+                            "anew.")
         progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
         if progress.get("env_id", args.env) != args.env:
             raise UserError(f"{out} holds an expert for {progress['env_id']!r}, not {args.env!r}; "
@@ -477,9 +486,9 @@ def expert_command(args: ExpertArgs) -> Path:
         out.mkdir(parents=True, exist_ok=True)
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
         model, _ = _build_model(args.env, spec, args.seed, args.device)
+    ppo_kwargs = {k: str(v) if isinstance(v, tuple) else v for k, v in spec.ppo.items()}
     write_json(out / "config.json", {"env_id": args.env, "steps": total, "seed": args.seed,
-                                     "spec": {**spec.__dict__, "ppo": {k: str(v) if isinstance(v, tuple) else v
-                                                                       for k, v in spec.ppo.items()}}})
+                                     "spec": {**spec.__dict__, "ppo": ppo_kwargs}})
     t_start = time.time()
     remaining = total - int(model.num_timesteps)
     if remaining > 0:
@@ -492,7 +501,8 @@ def expert_command(args: ExpertArgs) -> Path:
     result = evaluate_expert(args.env, load_expert(args.env, out / "best_expert.pt"), FINAL_EVAL_EPISODES,
                              FINAL_EVAL_SEED)
     _, meta = load_expert_actor(args.env, out / "best_expert.pt")
-    result.update({"deterministic": True, "expert": str(out / "best_expert.pt"), "expert_steps": meta.get("steps"),
+    result.update({"deterministic": True, "expert": str(out / "best_expert.pt"),
+                   "expert_steps": meta.get("steps"),
                    "total_steps": int(model.num_timesteps), "wall_s": _wall(out, t_start),
                    "target": spec.target, "reached_target": bool(result["mean"] >= spec.target)})
     write_json(out / "eval.json", result)

@@ -14,6 +14,7 @@ import numpy as np
 
 from digail.envs.circle_world import CircleWorldEnv, reference_point
 from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
+from digail.experts.fetch import fetch_expert
 
 
 def _unwrapped(env: gym.Env, cls: type) -> Any:
@@ -53,7 +54,8 @@ def circle_expert(env: gym.Env) -> np.ndarray:
 _SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
     "digail/FourRooms-v0": four_rooms_expert,
     "digail/CircleWorld-v0": circle_expert,
-    # The Fetch pick-and-place controller lives in its own module and is added here under its env id.
+    # The Fetch pick-and-place controller lives in its own module (running it needs gymnasium-robotics).
+    "digail/FetchPickAndPlace-v4": fetch_expert,
 }
 
 

@@ -55,8 +55,9 @@ class SubtaskPolicy(nn.Module):
         """Action distribution for normalised observations and (one-hot or relaxed) codes."""
         out = self.net(torch.cat([obs_n, code_1h], -1))
         if self.action.discrete:
-            return Categorical(logits=out)
-        return Independent(Normal(out, self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)), 1)
+            return Categorical(logits=out, validate_args=False)  # argument checks cost more than the net here
+        std = self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)
+        return Independent(Normal(out, std, validate_args=False), 1, validate_args=False)
 
     def mode(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """Most likely action (argmax or mean)."""

@@ -1,0 +1,147 @@
+"""`digail/FetchPickAndPlace-v4`: Fetch pick-and-place with a flat observation and oracle phase labels.
+
+gymnasium-robotics' `FetchPickAndPlace-v4` observes a dict (`observation`, `achieved_goal`, `desired_goal`).
+The policies here take flat vectors, and the goal must be part of the state (the paper's Fetch policies are
+goal-conditioned), so this env wraps it and observes `concat(observation, desired_goal)`, 28 float64 numbers:
+
+| slice   | content                                                         |
+| ------- | --------------------------------------------------------------- |
+| 0:3     | gripper position (world x, y, z, metres)                        |
+| 3:6     | object position                                                 |
+| 6:9     | object position relative to the gripper (object - gripper)      |
+| 9:11    | finger joint positions (each ~0.05 open, ~0.024 holding the cube) |
+| 11:14   | object rotation (Euler angles)                                  |
+| 14:17   | object linear velocity relative to the gripper (per env step)   |
+| 17:20   | object angular velocity (per env step)                          |
+| 20:23   | gripper linear velocity (per env step)                          |
+| 23:25   | finger joint velocities (per env step)                          |
+| 25:28   | desired goal: target position of the object                     |
+
+`achieved_goal` is dropped: it equals the object position (3:6). Actions, the sparse reward (-1 until the
+object is within 5 cm of the goal, then 0), `info["is_success"]` and the 50-step time limit are the
+original's.
+
+**Oracle phase** in `info["subtask"]` (at reset and after every step): the stage of the pick-and-place
+task the current state is in, 0 reach, 1 grasp, 2 carry, 3 place. It is tracked from the state alone, moving
+at most one stage forward per step and never back within an episode, so every episode's labels run
+0 -> 1 -> 2 -> 3 in order (as far as it gets):
+
+- reach -> grasp: the gripper is centred above the object (within 1 cm horizontally, 0-8 cm above it);
+- grasp -> carry: the gripper is on the object (within 2 cm) with the fingers closed on it;
+- carry -> place: the object is within 2 cm of the goal (place = settle and hold it there).
+
+The scripted controller `digail.experts.fetch.fetch_expert` acts on exactly these phases, so for its
+demonstrations the label is the phase the expert was in when it chose the action.
+
+gymnasium-robotics is imported only when this env is made, so `import digail` works without it.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+FETCH_ENV_ID = "digail/FetchPickAndPlace-v4"
+INNER_ENV_ID = "FetchPickAndPlace-v4"
+MAX_EPISODE_STEPS = 50
+
+GRIP_POS = slice(0, 3)
+OBJECT_POS = slice(3, 6)
+OBJECT_REL_POS = slice(6, 9)
+FINGERS = slice(9, 11)
+GOAL = slice(25, 28)
+OBS_DIM = 28
+
+
+class Phase(IntEnum):
+    """Stages of pick-and-place, the oracle sub-task labels."""
+
+    REACH = 0
+    GRASP = 1
+    CARRY = 2
+    PLACE = 3
+
+
+ABOVE_OBJECT_XY = 0.01
+"""reach -> grasp: horizontal gripper-object distance below this (m)"""
+ABOVE_OBJECT_Z = (0.0, 0.08)
+"""reach -> grasp: gripper height above the object within this range (m)"""
+ON_OBJECT = 0.02
+"""grasp -> carry: gripper-object distance below this (m)"""
+FINGERS_CLOSED = 0.053
+"""grasp -> carry: summed finger opening below this (fully open ~0.10, holding the 5 cm cube ~0.048)"""
+AT_GOAL = 0.02
+"""carry -> place: object-goal distance below this (m); success needs < 0.05"""
+
+
+def next_phase(phase: int, obs: np.ndarray) -> int:
+    """Advance the phase tracker by at most one stage given the flat observation `obs` (see module doc)."""
+    grip, obj, goal = obs[GRIP_POS], obs[OBJECT_POS], obs[GOAL]
+    if phase == Phase.REACH:
+        height = grip[2] - obj[2]
+        above = np.linalg.norm(grip[:2] - obj[:2]) < ABOVE_OBJECT_XY
+        return int(Phase.GRASP) if above and ABOVE_OBJECT_Z[0] < height < ABOVE_OBJECT_Z[1] else phase
+    if phase == Phase.GRASP:
+        holding = np.linalg.norm(grip - obj) < ON_OBJECT and float(obs[FINGERS].sum()) < FINGERS_CLOSED
+        return int(Phase.CARRY) if holding else phase
+    if phase == Phase.CARRY:
+        return int(Phase.PLACE) if np.linalg.norm(obj - goal) < AT_GOAL else phase
+    return phase
+
+
+def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """`concat(observation, desired_goal)` as float64 (layout in the module docstring)."""
+    return np.concatenate([np.asarray(obs["observation"], dtype=np.float64),
+                           np.asarray(obs["desired_goal"], dtype=np.float64)])
+
+
+class FlatFetchPickAndPlace(gym.Env):
+    """FetchPickAndPlace-v4 with flat `concat(observation, desired_goal)` observations and phase labels.
+
+    It holds the original env rather than subclassing `gym.Wrapper`, so that `env.unwrapped` is this object
+    and scripted experts can read the phase (`phase`) and the last observation (`last_obs`) through it.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 25}
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        try:
+            import gymnasium_robotics
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            from digail.errors import UserError
+
+            raise UserError(f"{FETCH_ENV_ID} needs gymnasium-robotics; install it with "
+                            "`pip install 'digail[robotics]'`.") from exc
+        gym.register_envs(gymnasium_robotics)
+        # The original's own wrappers (time limit, checker) are dropped; this env is registered with the limit
+        self.fetch = gym.make(INNER_ENV_ID, render_mode=render_mode, **kwargs).unwrapped
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, **getattr(self.fetch, "metadata", {})}
+        self.action_space = self.fetch.action_space
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float64)
+        self.phase = int(Phase.REACH)
+        self.last_obs = np.zeros(OBS_DIM)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        obs, info = self.fetch.reset(seed=seed, options=options)
+        self.last_obs = flatten_fetch_obs(obs)
+        self.phase = next_phase(int(Phase.REACH), self.last_obs)
+        return self.last_obs.copy(), {**info, "subtask": self.phase}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.fetch.step(action)
+        self.last_obs = flatten_fetch_obs(obs)
+        self.phase = next_phase(self.phase, self.last_obs)
+        info = {**info, "subtask": self.phase}
+        return self.last_obs.copy(), float(reward), bool(terminated), bool(truncated), info
+
+    def render(self) -> Any:
+        return self.fetch.render()
+
+    def close(self) -> None:
+        self.fetch.close()

@@ -1,0 +1,342 @@
+"""Segmentation of demonstrations into sub-task codes, and its scores against oracle labels.
+
+Causal decoding is what the macro-policy does online: c_t = argmax q(. | s_t, c_{t-1}), with c_{-1} the start
+input. `viterbi` is an offline alternative that sees the whole demonstration, actions included.
+
+Metrics (`segmentation_metrics`), computed over all steps of all episodes:
+
+- `accuracy`: share of steps whose code, mapped to a label, equals the oracle label. The mapping is the best
+  one-to-one code-to-label matching (Hungarian) when there are no more codes in use than labels, otherwise
+  many-to-one (each code to its majority label); `matching` says which.
+- `nmi`: normalised mutual information between codes and labels (arithmetic normalisation); invariant to
+  relabelling and defined for any number of codes.
+- `boundary_precision` / `boundary_recall` / `boundary_f1`: a switch is a step t >= 1 whose code differs from step
+  t - 1. A predicted switch is a hit when it lies within `tolerance` steps of a true switch not yet matched (an
+  optimal one-to-one matching in time order). With no true and no predicted switches all three are 1; with no
+  predicted switches precision is 1 (nothing false was claimed); with no true switches recall is 1.
+- `switches_per_episode` (predicted) and `true_switches_per_episode`.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.nets.mlp import one_hot
+from digail.nets.vae import HierarchicalPolicy
+from digail.utils import atomic_write_bytes, write_json
+
+FIGURE_EPISODES = 6
+
+
+# -------------------------------------------------------------------------------------------- decoding
+def _padded_obs(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> tuple[torch.Tensor, np.ndarray]:
+    """(B, T_max, obs_dim) normalised observations s_0 .. s_{T-1} and the lengths T."""
+    lengths = np.array([len(t) for t in trajs])
+    obs = np.zeros((len(trajs), lengths.max(), model.obs_dim), np.float32)
+    for i, t in enumerate(trajs):
+        if int(np.prod(np.shape(t.obs)[1:])) != model.obs_dim:
+            raise UserError(f"the demonstrations have observations of shape {np.shape(t.obs)[1:]} but the model "
+                            f"expects {model.obs_dim} numbers; segment demonstrations of the model's environment.")
+        obs[i, :len(t)] = np.asarray(t.obs[:len(t)], np.float32).reshape(len(t), -1)
+    device = next(model.parameters()).device
+    with torch.no_grad():
+        obs_n = model.normalizer(torch.as_tensor(obs, device=device))
+    return obs_n, lengths
+
+
+@torch.no_grad()
+def segment_many(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> list[np.ndarray]:
+    """Causal codes for many demonstrations at once (batched over demonstrations, one loop over time).
+
+    Returns:
+        One (T_i,) int64 array per demonstration: c_t for the states s_0 .. s_{T_i - 1}.
+    """
+    if len(trajs) == 0:
+        return []
+    obs_n, lengths = _padded_obs(model, trajs)
+    B, T, _ = obs_n.shape
+    codes = torch.empty(B, T, dtype=torch.int64, device=obs_n.device)
+    prev = torch.zeros(B, model.codes, device=obs_n.device)
+    for t in range(T):
+        c = model.next_code(obs_n[:, t], prev)
+        codes[:, t] = c
+        prev = one_hot(c, model.codes)
+    out = codes.cpu().numpy()
+    return [out[i, :n].copy() for i, n in enumerate(lengths)]
+
+
+def segment(model: HierarchicalPolicy, traj: Trajectory) -> np.ndarray:
+    """Causal codes c_t = argmax q(. | s_t, c_{t-1}) of one demonstration: a (T,) int64 array."""
+    return segment_many(model, [traj])[0]
+
+
+@torch.no_grad()
+def viterbi(model: HierarchicalPolicy, traj: Trajectory) -> np.ndarray:
+    """Offline smoothing: the code sequence maximising sum_t log p(c_t | c_{t-1}) + log pi(a_t | s_t, c_t).
+
+    This is the most likely segmentation under the generative half of the model (learned prior and sub-task
+    policies), found exactly by dynamic programming. It uses the actions and the whole episode, so it is not what
+    the macro-policy can do online; it is a diagnostic of what the decoder and prior learned.
+
+    Returns:
+        A (T,) int64 array of codes.
+    """
+    obs_n, _ = _padded_obs(model, [traj])
+    obs_n = obs_n[0]
+    T, K = len(traj), model.codes
+    device = obs_n.device
+    acts = torch.as_tensor(np.asarray(traj.acts), device=device)
+    if not model.action.discrete:
+        acts = acts.float().reshape(T, -1)
+    eye = torch.eye(K, device=device)
+    # log pi(a_t | s_t, c) for every step and code: (T, K)
+    log_pi = torch.stack([model.pi.dist(obs_n, eye[k].expand(T, K)).log_prob(acts) for k in range(K)], -1)
+    log_trans = torch.log_softmax(model.prior.table[:-1], -1)  # (K prev, K next)
+    score = torch.log_softmax(model.prior.table[-1], -1) + log_pi[0]
+    back = torch.empty(T, K, dtype=torch.int64, device=device)
+    for t in range(1, T):
+        total = score[:, None] + log_trans  # (prev, next)
+        score, back[t] = total.max(0)
+        score = score + log_pi[t]
+    path = np.empty(T, np.int64)
+    path[-1] = int(score.argmax())
+    back_np = back.cpu().numpy()
+    for t in range(T - 1, 0, -1):
+        path[t - 1] = back_np[t, path[t]]
+    return path
+
+
+# --------------------------------------------------------------------------------------------- metrics
+def _labels_for_codes(codes: Sequence[np.ndarray], labels: Sequence[np.ndarray]) -> list[np.ndarray]:
+    if len(codes) != len(labels):
+        raise ValueError(f"got codes for {len(codes)} episodes but labels for {len(labels)}")
+    out = []
+    for c, lab in zip(codes, labels, strict=True):
+        lab = np.asarray(lab)
+        if len(lab) < len(c):
+            raise ValueError(f"an episode has {len(c)} codes but only {len(lab)} labels")
+        out.append(lab[:len(c)])  # labels are aligned with obs (T + 1 of them); codes with actions (T)
+    return out
+
+
+def code_label_mapping(codes: np.ndarray, labels: np.ndarray) -> tuple[dict[int, int], str]:
+    """The code -> label map that maximises agreement: Hungarian one-to-one, or many-to-one if more codes."""
+    from scipy.optimize import linear_sum_assignment
+
+    code_values, code_idx = np.unique(codes, return_inverse=True)
+    label_values, label_idx = np.unique(labels, return_inverse=True)
+    counts = np.zeros((len(code_values), len(label_values)), np.int64)
+    np.add.at(counts, (code_idx, label_idx), 1)
+    if len(code_values) <= len(label_values):
+        rows, cols = linear_sum_assignment(-counts)
+        return {int(code_values[r]): int(label_values[c]) for r, c in zip(rows, cols, strict=True)}, "one-to-one"
+    best = counts.argmax(1)
+    return {int(code_values[r]): int(label_values[best[r]]) for r in range(len(code_values))}, "many-to-one"
+
+
+def switch_points(seq: np.ndarray) -> np.ndarray:
+    """Steps t >= 1 where `seq[t] != seq[t - 1]`."""
+    seq = np.asarray(seq)
+    return np.flatnonzero(seq[1:] != seq[:-1]) + 1
+
+
+def boundary_hits(pred: np.ndarray, true: np.ndarray, tolerance: int) -> int:
+    """Largest number of predicted switches matched one-to-one to true switches at most `tolerance` steps away.
+
+    Greedy in time order (each predicted switch takes the earliest unmatched true switch in its window) is
+    optimal for matching points on a line with a fixed window.
+    """
+    hits, j = 0, 0
+    true = np.sort(true)
+    for p in np.sort(pred):
+        while j < len(true) and true[j] < p - tolerance:
+            j += 1
+        if j < len(true) and true[j] <= p + tolerance:
+            hits += 1
+            j += 1
+    return hits
+
+
+def segmentation_metrics(codes: Sequence[np.ndarray], labels: Sequence[np.ndarray],
+                         tolerance: int = 2) -> dict[str, Any]:
+    """Score per-episode codes against oracle labels (see the module docstring for the definitions).
+
+    Args:
+        codes: one (T_i,) int array per episode.
+        labels: one (T_i + 1,) or (T_i,) int array per episode, aligned with the observations; the first T_i
+            are used.
+        tolerance: steps a predicted switch may be away from a true one and still count.
+
+    Returns:
+        `accuracy`, `matching`, `mapping` (code -> label), `nmi`, `boundary_precision`, `boundary_recall`,
+        `boundary_f1`, `switches_per_episode`, `true_switches_per_episode`, `episodes`, `steps`.
+    """
+    from sklearn.metrics import normalized_mutual_info_score
+
+    labels = _labels_for_codes(codes, labels)
+    if sum(len(c) for c in codes) == 0:
+        raise ValueError("no steps to score")
+    all_codes = np.concatenate([np.asarray(c, np.int64) for c in codes])
+    all_labels = np.concatenate([np.asarray(lab, np.int64) for lab in labels])
+    mapping, matching = code_label_mapping(all_codes, all_labels)
+    mapped = np.array([mapping.get(int(c), -1) for c in all_codes]) if len(all_codes) else all_codes
+    hits = n_pred = n_true = 0
+    for c, lab in zip(codes, labels, strict=True):
+        pred, true = switch_points(c), switch_points(lab)
+        hits += boundary_hits(pred, true, tolerance)
+        n_pred += len(pred)
+        n_true += len(true)
+    precision = hits / n_pred if n_pred else 1.0
+    recall = hits / n_true if n_true else 1.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return {
+        "accuracy": float(np.mean(mapped == all_labels)),
+        "matching": matching,
+        "mapping": mapping,
+        "nmi": float(normalized_mutual_info_score(all_labels, all_codes)),
+        "boundary_precision": float(precision),
+        "boundary_recall": float(recall),
+        "boundary_f1": float(f1),
+        "boundary_tolerance": tolerance,
+        "switches_per_episode": n_pred / len(codes),
+        "true_switches_per_episode": n_true / len(codes),
+        "episodes": len(codes),
+        "steps": int(len(all_codes)),
+    }
+
+
+# -------------------------------------------------------------------------------------------- run folder
+def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Trajectory],
+                       demos: str | None = None) -> dict[str, Any]:
+    """Segment `trajs`; write `codes.npz`, `segmentation.json` and `figures/segmentation.png` into `run`.
+
+    Returns:
+        The contents of `segmentation.json`: metrics of causal decoding (and, under `viterbi`, of the offline
+        smoother) when every demonstration has oracle labels, otherwise only the switch count.
+    """
+    run = Path(run)
+    codes = segment_many(model, trajs)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{f"episode_{i:05d}": c for i, c in enumerate(codes)})
+    atomic_write_bytes(run / "codes.npz", buf.getvalue())
+    labeled = all(t.subtasks is not None for t in trajs)
+    result: dict[str, Any] = {"demos": demos, "decoding": "causal argmax q(c_t | s_t, c_{t-1})",
+                              "codes": model.codes, "labels": labeled}
+    if labeled:
+        labels = [np.asarray(t.subtasks) for t in trajs]
+        result.update(segmentation_metrics(codes, labels))
+        smoothed = [viterbi(model, t) for t in trajs]
+        viterbi_metrics = segmentation_metrics(smoothed, labels)
+        result["viterbi"] = {k: viterbi_metrics[k] for k in ("accuracy", "nmi", "boundary_f1",
+                                                            "switches_per_episode")}
+    else:
+        result["episodes"] = len(codes)
+        result["switches_per_episode"] = float(np.mean([len(switch_points(c)) for c in codes]))
+    write_json(run / "segmentation.json", result)
+    plot_segmentation(run / "figures" / "segmentation.png", trajs, codes, result.get("mapping"))
+    return result
+
+
+def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[np.ndarray],
+                      mapping: dict[int, int] | None = None, episodes: int = FIGURE_EPISODES) -> None:
+    """Code strips (coloured by the label each code maps to, when known) above oracle label strips.
+
+    For 2-D observations (Circle-World) a second panel shows the positions coloured by code.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    n = min(episodes, len(trajs))
+    planar = np.shape(trajs[0].obs)[1:] == (2,)
+    cmap = ListedColormap(plt.get_cmap("tab10").colors)
+    norm = BoundaryNorm(np.arange(-0.5, 10.5), cmap.N)
+    fig = plt.figure(figsize=(11 if planar else 8, max(2.5, 0.75 * n + 1)))
+    grid = fig.add_gridspec(1, 2, width_ratios=[2, 1]) if planar else fig.add_gridspec(1, 1)
+    ax = fig.add_subplot(grid[0])
+    t_max = max(len(trajs[i]) for i in range(n))
+    for i in range(n):
+        shown = np.array([mapping.get(int(c), int(c)) for c in codes[i]]) if mapping else codes[i]
+        ax.imshow(shown[None] % 10, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest",
+                  extent=(0, len(codes[i]), 2 * i + 0.9, 2 * i + 0.1))
+        sub = trajs[i].subtasks
+        if sub is not None:
+            ax.imshow(np.asarray(sub[:len(trajs[i])])[None] % 10, aspect="auto", cmap=cmap, norm=norm,
+                      interpolation="nearest", extent=(0, len(trajs[i]), 2 * i + 1.7, 2 * i + 0.9))
+    ax.set_xlim(0, t_max)
+    ax.set_ylim(2 * n, 0)
+    ax.set_yticks([2 * i + 0.9 for i in range(n)], [f"ep {i}" for i in range(n)])
+    ax.set_xlabel("step")
+    upper = "codes (coloured as their matched label)" if mapping else "codes"
+    ax.set_title(f"per episode: {upper} above, oracle labels below" if trajs[0].subtasks is not None else upper)
+    if planar:
+        ax2 = fig.add_subplot(grid[1])
+        for i in range(n):
+            xy = np.asarray(trajs[i].obs[:len(codes[i])], np.float64)
+            ax2.scatter(xy[:, 0], xy[:, 1], c=np.asarray(codes[i]) % 10, cmap=cmap, norm=norm, s=6)
+        ax2.set_aspect("equal")
+        ax2.set_title("positions coloured by code")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def summary_line(metrics: dict[str, Any]) -> str:
+    """One line for the terminal."""
+    if metrics.get("labels") and "accuracy" in metrics:
+        return (f"segmentation of {metrics['episodes']} demos: accuracy {metrics['accuracy']:.3f} "
+                f"({metrics['matching']}), NMI {metrics['nmi']:.3f}, boundary F1 {metrics['boundary_f1']:.3f}, "
+                f"{metrics['switches_per_episode']:.2f} switches/episode "
+                f"(oracle {metrics['true_switches_per_episode']:.2f})")
+    return (f"segmentation of {metrics.get('episodes', 0)} demos: {metrics.get('switches_per_episode', 0):.2f} "
+            "switches/episode (no oracle labels)")
+
+
+# --------------------------------------------------------------------------------------------- command
+def segment_command(run: str | Path, demos: str | None = None) -> dict[str, Any]:
+    """`digail segment RUN [--demos D]`: segment with the run's macro-policy, write codes and scores into RUN.
+
+    Uses the run's training demonstrations (the `demos` entry of RUN/config.json) unless `demos` is given.
+    Returns the metrics written to RUN/segmentation.json.
+    """
+    import json
+
+    from digail.checkpoint import CONFIG_FILE, load_model
+    from digail.data.minari_io import load_dataset
+
+    run = Path(run)
+    if not run.is_dir():
+        raise UserError(f"run folder {run} does not exist; pass a folder made by `digail pretrain` or `digail train`.")
+    model, meta = load_model(run)
+    if demos is None:
+        config_path = run / CONFIG_FILE
+        config = meta["config"]
+        if config_path.is_file():
+            try:
+                config = json.loads(config_path.read_text())
+            except json.JSONDecodeError as exc:
+                raise UserError(f"{config_path} is not valid JSON ({exc}); pass --demos explicitly.") from exc
+        demos = config.get("demos")
+        if not demos:
+            raise UserError(f"{run} does not record its demonstrations; pass --demos.")
+    dataset = load_dataset(demos)
+    if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
+        raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
+                        "demonstrations; pass demonstrations of the model's environment.")
+    metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos))
+    print(summary_line(metrics))
+    print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
+    return metrics

@@ -1,0 +1,103 @@
+"""The training commands end to end on SMOKE settings, their bad input, and a SIGKILL + resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from digail.cli import main
+
+ENV = "digail/CircleWorld-v0"
+
+
+@pytest.fixture(scope="module")
+def smoke_runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli")
+    demos, vae = root / "demos", root / "vae"
+    assert main(["demos", ENV, "--episodes", "6", "--out", str(demos)]) == 0
+    assert main(["pretrain", "--demos", str(demos), "--preset", "smoke", "--out", str(vae)]) == 0
+    return root, demos, vae
+
+
+def test_train_evaluate_compose_segment_smoke(smoke_runs, capsys):
+    root, demos, vae = smoke_runs
+    run = root / "digail"
+    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--out", str(run)]) == 0
+    for name in ("model.pt", "checkpoint.pt", "config.json", "metrics.csv"):
+        assert (run / name).exists(), name
+    header = (run / "metrics.csv").read_text().splitlines()[0]
+    for key in ("losses/policy", "disc/accuracy", "rollout/bonus", "perf/sps"):
+        assert key in header
+    assert main(["evaluate", str(run), "--episodes", "4"]) == 0
+    ev = json.loads((run / "eval.json").read_text())
+    assert ev["episodes"] == 4 and "order_correct_rate" in ev and "radius_error" in ev
+    assert main(["compose", str(run), "--schedule", "1:60,0:60", "--episodes", "3"]) == 0
+    comp = json.loads((run / "compose.json").read_text())
+    assert "order_reversed_rate" in comp and (run / "figures" / "compose.png").exists()
+    gail = root / "gail"
+    assert main(["train", "--method", "gail", "--demos", str(demos), "--preset", "smoke", "--out", str(gail)]) == 0
+    assert json.loads((gail / "config.json").read_text())["method"] == "gail"
+
+
+@pytest.mark.parametrize("argv, phrase", [
+    (["train", "--demos", "/nonexistent/demos", "--vae", "x"], "no Minari dataset"),
+    (["compose", "/nonexistent/run", "--schedule", "1:60"], "no model checkpoint"),
+])
+def test_bad_input_exits_2_with_one_line(argv, phrase, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert phrase in err and len(err.splitlines()) == 1
+
+
+def test_digail_without_vae_and_bad_schedule_exit_2(smoke_runs, tmp_path, capsys):
+    root, demos, vae = smoke_runs
+    out = tmp_path / "nope"
+    assert main(["train", "--demos", str(demos), "--preset", "smoke", "--out", str(out)]) == 2
+    assert "--vae" in capsys.readouterr().err
+    assert not out.exists()  # nothing half-written
+    run = root / "digail"
+    if (run / "model.pt").exists():
+        assert main(["compose", str(run), "--schedule", "7:10"]) == 2
+        assert "codes" in capsys.readouterr().err
+        assert main(["compose", str(run), "--schedule", "banana"]) == 2
+
+
+def test_sigkill_then_resume_completes(smoke_runs, tmp_path):
+    _, demos, vae = smoke_runs
+    run = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "digail.cli", "train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke",
+           "--train.iterations", "40", "--train.checkpoint-every", "2", "--out", str(run)]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                            start_new_session=True)
+    ckpt = run / "checkpoint.pt"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if ckpt.exists():
+            state = torch.load(ckpt, weights_only=True)
+            if state["iteration"] >= 4:
+                break
+        time.sleep(0.05)
+    assert proc.poll() is None, "training finished before it could be killed; raise --train.iterations"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    killed_at = torch.load(ckpt, weights_only=True)["iteration"]
+    assert 4 <= killed_at < 40
+    done = subprocess.run([sys.executable, "-m", "digail.cli", "train", "--resume", str(run)], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"resuming {run} at iteration {killed_at}" in done.stdout
+    final = torch.load(ckpt, weights_only=True)
+    assert final["iteration"] == 40
+    assert final["global_step"] == 40 * 64
+    rows = (run / "metrics.csv").read_text().splitlines()
+    iters = [float(r.split(",")[1]) for r in rows[1:]]
+    assert iters[-1] == 40.0

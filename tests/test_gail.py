@@ -1,0 +1,118 @@
+"""GAIL / Directed-Info GAIL trainer: bonus sign and shape, discriminator, determinism, save/load, learning."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from digail.algos.directed_info_gail import DirectedInfoGAIL, build_trainer
+from digail.algos.gail import GAIL
+from digail.config import PPOConfig, TrainConfig, VAEConfig
+from digail.nets.mlp import one_hot
+from digail.nets.policy import ActionSpec
+from digail.nets.vae import HierarchicalPolicy
+
+SMALL = TrainConfig(iterations=2, ppo=PPOConfig(num_envs=4, batch_size=128, epochs=2, minibatch_size=64))
+
+
+def _vae_model(demos, codes=2, seed=0) -> HierarchicalPolicy:
+    torch.manual_seed(seed)
+    model = HierarchicalPolicy(2, codes, ActionSpec(False, 2))
+    model.normalizer.fit(np.concatenate([t.obs for t in demos]))
+    return model
+
+
+def test_bonus_is_log_q_of_the_chosen_code_and_credited_to_the_producing_transition(circle_demos):
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=None, progress=False)
+    assert isinstance(trainer, DirectedInfoGAIL)
+    batch = trainer.collect()
+    T, N = batch["bonus"].shape
+    assert (T, N) == (32, 4)
+    assert torch.all(batch["bonus"] <= 0)  # log-probabilities
+    # Transition t's bonus is log q(c_{t+1} | s_{t+1}, c_t): recompute it from the stored rollout.
+    q, eye = trainer.model.q, trainer.eye
+    done = batch["terminated"] | batch["truncated"]
+    for t in range(T - 1):
+        ok = ~done[t]
+        logq = torch.log_softmax(q(batch["obs"][t + 1], eye[batch["codes"][t]]), -1)
+        expected = logq.gather(-1, batch["codes"][t + 1][:, None]).squeeze(-1)
+        assert torch.allclose(batch["bonus"][t][ok], expected[ok], atol=1e-5)
+
+
+def test_bonus_sign_raises_reward_for_confident_macro_policy(circle_demos):
+    """Maximised, not minimised: a bigger lambda_1 adds lambda_1 * log q, so reward falls as q gets less sure."""
+    cfg = replace(SMALL, bonus_weight=1.0)
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=None, progress=False)
+    batch = trainer.collect()
+    # Rewards in iterate() are D-reward + bonus_weight * bonus: check the relabelling directly.
+    from digail.nets.critic import generator_reward
+
+    flat = batch["obs"].reshape(-1, 2)
+    logits = trainer.disc(flat, trainer._act_input(batch["acts"].reshape(-1, 2)))
+    r0 = generator_reward(logits, "positive")
+    total = r0 + cfg.bonus_weight * batch["bonus"].reshape(-1)
+    assert torch.all(total <= r0 + 1e-6)
+    # Codes that q finds more likely get strictly more reward than less likely ones at the same state.
+    obs_n = batch["obs"][0]
+    logq = torch.log_softmax(q_logits := trainer.model.q(obs_n, one_hot(torch.full((4,), -1), 2)), -1)
+    assert q_logits.shape == (4, 2)
+    best, worst = logq.max(-1).values, logq.min(-1).values
+    assert torch.all(cfg.bonus_weight * best >= cfg.bonus_weight * worst)
+
+
+def test_gail_has_one_code_and_no_bonus(circle_demos):
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
+                            seed=0, run_dir=None, progress=False)
+    assert type(trainer) is GAIL and trainer.K == 1
+    batch = trainer.collect()
+    assert torch.all(batch["bonus"] == 0) and torch.all(batch["codes"] == 0)
+
+
+def test_discriminator_loss_falls_on_fixed_batches(circle_demos):
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
+                            seed=0, run_dir=None, progress=False)
+    batch = trainer.collect()
+    obs = batch["obs"].reshape(-1, 2)
+    act_in = trainer._act_input(batch["acts"].reshape(-1, 2))
+    first = trainer.update_discriminator(obs, act_in)["disc/loss"]
+    for _ in range(200):
+        last = trainer.update_discriminator(obs, act_in)
+    assert last["disc/loss"] < 0.7 * first
+    assert last["disc/accuracy"] > 0.8
+
+
+def test_same_seed_gives_identical_metrics(circle_demos):
+    runs = []
+    for _ in range(2):
+        trainer = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL,
+                                vae_model=_vae_model(circle_demos), seed=3, run_dir=None, progress=False)
+        out = trainer.train()
+        runs.append({k: v for k, v in out.items() if not k.startswith("perf/")})
+    np.testing.assert_equal(runs[0], runs[1])  # NaN-aware: no episode may have ended yet
+
+
+def test_checkpoint_round_trip_gives_identical_actions(tmp_path, circle_demos):
+    from digail.checkpoint import load_model
+
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=tmp_path, progress=False)
+    trainer.train()
+    model, meta = load_model(tmp_path / "model.pt")
+    assert meta["kind"] == "digail" and meta["env_id"] == "digail/CircleWorld-v0"
+    obs = torch.randn(16, 2)
+    codes = torch.eye(2)[torch.randint(2, (16,))]
+    a = trainer.model.pi.mode(trainer.model.normalizer(obs), codes)
+    b = model.pi.mode(model.normalizer(obs), codes)
+    assert torch.equal(a, b)
+    # and the full trainer state resumes to the same iteration / weights
+    again = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL, vae_model=_vae_model(circle_demos),
+                          seed=0, run_dir=None, progress=False)
+    again.load_checkpoint(tmp_path / "checkpoint.pt")
+    assert again.iteration == trainer.iteration and again.global_step == trainer.global_step
+    for p, q in zip(again.value.parameters(), trainer.value.parameters(), strict=True):
+        assert torch.equal(p, q)
