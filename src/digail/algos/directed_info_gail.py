@@ -55,19 +55,20 @@ class DirectedInfoGAIL(GAIL):
     def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
                       env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it."""
-        logp_all = torch.log_softmax(self.model.q(obs_n, one_hot(prev, self.K)), -1)
-        codes = torch.multinomial(logp_all.exp(), 1, generator=self.gen).squeeze(-1)
-        replay_envs = env_idx < self.n_replay
-        if replay_envs.any():
-            rows = np.flatnonzero(replay_envs)
-            demo = self.codes_state.replay_idx[env_idx[rows]]
-            steps = t_ep[rows]
-            in_range = steps < self.replay_codes.shape[1]
-            replayed = np.full(len(rows), -1, dtype=np.int64)
-            replayed[in_range] = self.replay_codes[demo[in_range], steps[in_range]]
-            use = replayed >= 0
+        if self._q_snap is not None:  # inside a rollout: the weight snapshot, prev given as integers
+            logits = self._q_snap(obs_n, prev)
+        else:
+            logits = self.model.q(obs_n, one_hot(prev, self.K))
+        logp_all = torch.log_softmax(logits, -1)
+        gumbel = -torch.log(-torch.log(torch.rand(logp_all.shape, generator=self.gen).clamp_(1e-20, 1.0)))
+        codes = (logp_all + gumbel).argmax(-1)  # a sample of q (Gumbel-max)
+        if self.n_replay:
+            length = self.replay_codes.shape[1]
+            replayed = self.replay_codes[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, length - 1)]
+            use = (env_idx < self.n_replay) & (t_ep < length) & (replayed >= 0)
             if use.any():
-                codes[torch.as_tensor(rows[use])] = torch.as_tensor(replayed[use], device=self.device)
+                codes = torch.where(torch.from_numpy(use).to(self.device),
+                                    torch.from_numpy(replayed).to(self.device), codes)
         return codes, logp_all.gather(-1, codes[:, None]).squeeze(-1)
 
 

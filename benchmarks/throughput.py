@@ -1,0 +1,149 @@
+"""Training throughput on one machine, in one run: env alone, rollouts, full DI-GAIL, Stable-Baselines3 PPO.
+
+    python benchmarks/throughput.py [--env Hopper-v5] [--num-envs 8] [--batch 4096] [--iterations 2] [--rounds 3]
+
+Writes benchmarks/throughput.json with environment steps per second:
+- random_sps: the vector env stepping random actions (the ceiling for any trainer);
+- rollout_sps: digail's rollout (macro-policy q + sub-task policy pi + value), no learning;
+- train_sps: full Directed-Info GAIL iterations (rollout, discriminator, reward relabelling, PPO epochs);
+- sb3_ppo_sps: Stable-Baselines3 PPO with the same envs, batch, epochs, minibatch and 64x64 networks.
+Absolute numbers drift by +-25% on a shared 2-core machine; the ratios measured in one run are what to quote.
+Demonstrations are random-action rollouts: throughput does not depend on their quality.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def random_demos(env_id: str, episodes: int, seed: int = 0):  # type: ignore[no-untyped-def]
+    from digail.data.minari_io import make_env
+    from digail.data.trajectory import Trajectory
+
+    env = make_env(env_id)
+    env.action_space.seed(seed)
+    out = []
+    for e in range(episodes):
+        o, _ = env.reset(seed=seed + e)
+        obs, acts = [o], []
+        while True:
+            a = env.action_space.sample()
+            o, _, term, trunc, _ = env.step(a)
+            obs.append(o)
+            acts.append(a)
+            if term or trunc or len(acts) >= 200:
+                break
+        out.append(Trajectory(np.asarray(obs, np.float32), np.asarray(acts, np.float32), terminated=bool(term)))
+    env.close()
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--env", default="Hopper-v5")
+    parser.add_argument("--num-envs", type=int, default=8)
+    parser.add_argument("--batch", type=int, default=4096)
+    parser.add_argument("--minibatch", type=int, default=512)
+    parser.add_argument("--epochs", type=int, default=10)
+    parser.add_argument("--iterations", type=int, default=2)
+    parser.add_argument("--codes", type=int, default=4)
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved repetitions; medians are reported")
+    parser.add_argument("--out", default=str(Path(__file__).with_name("throughput.json")))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    import digail
+    from digail.algos.directed_info_gail import DirectedInfoGAIL
+    from digail.algos.rollout import VecEnv
+    from digail.config import PPOConfig, TrainConfig
+    from digail.nets.policy import ActionSpec
+    from digail.nets.vae import HierarchicalPolicy
+
+    steps = args.batch * args.iterations
+    results: dict[str, object] = {"env": args.env, "num_envs": args.num_envs, "batch": args.batch,
+                                  "minibatch": args.minibatch, "epochs": args.epochs, "iterations": args.iterations,
+                                  "rounds": args.rounds, "codes": args.codes, "torch_threads": 1,
+                                  "machine": platform.machine(), "cpus": os.cpu_count(), "digail": digail.__version__}
+
+    # the env alone
+    venv = VecEnv.of(args.env, args.num_envs)
+    venv.reset(list(range(args.num_envs)))
+    space = venv.single_action_space
+    space.seed(0)
+    acts = np.stack([space.sample() for _ in range(args.num_envs)])
+
+    def random_steps() -> None:
+        for _ in range(steps // args.num_envs):
+            venv.step(acts)
+
+    # digail rollouts and full iterations (an untrained K-code model: speed does not depend on the weights)
+    demos = random_demos(args.env, 20)
+    obs_dim = demos[0].obs.shape[1]
+    model = HierarchicalPolicy(obs_dim, args.codes, ActionSpec.from_space(space))
+    model.normalizer.fit(np.concatenate([t.obs for t in demos]))
+    ppo = PPOConfig(num_envs=args.num_envs, batch_size=args.batch, epochs=args.epochs,
+                    minibatch_size=args.minibatch)
+    cfg = TrainConfig(iterations=args.iterations, ppo=ppo, disc_minibatch_size=args.minibatch)
+    trainer = DirectedInfoGAIL(args.env, demos, model, cfg, seed=0, progress=False)
+    trainer.collect()  # warm-up: first resets, allocations
+
+    def rollouts() -> None:
+        for _ in range(args.iterations):
+            trainer.collect()
+
+    def train() -> None:
+        for _ in range(args.iterations):
+            trainer.iterate()
+
+    # Stable-Baselines3 PPO at matched settings
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+
+    sb3_env = make_vec_env(args.env, n_envs=args.num_envs, seed=0)
+    model_sb3 = PPO("MlpPolicy", sb3_env, n_steps=args.batch // args.num_envs, batch_size=args.minibatch,
+                    n_epochs=args.epochs, policy_kwargs=dict(net_arch=[64, 64]), device="cpu", seed=0, verbose=0)
+    model_sb3.learn(total_timesteps=args.batch)  # warm-up iteration
+
+    def sb3() -> None:
+        model_sb3.learn(total_timesteps=steps, reset_num_timesteps=False)
+
+    # Rounds interleave the four measurements so that drifting load on a shared machine hits all of them alike.
+    runs = {"random_sps": random_steps, "rollout_sps": rollouts, "train_sps": train, "sb3_ppo_sps": sb3}
+    samples: dict[str, list[float]] = {k: [] for k in runs}
+    for r in range(args.rounds):
+        for name, fn in runs.items():
+            t0 = time.perf_counter()
+            fn()
+            samples[name].append(steps / (time.perf_counter() - t0))
+        print(f"round {r + 1}: " + ", ".join(f"{k} {v[-1]:.0f}" for k, v in samples.items()), flush=True)
+    for name, vals in samples.items():
+        results[name] = float(np.median(vals))
+    results["samples"] = samples
+    venv.close()
+
+    # Ratios within a round share its load; their median is steadier than a ratio of medians.
+    def ratio(a: str, b: str) -> float:
+        return float(np.median(np.array(samples[a]) / np.array(samples[b])))
+
+    results["train_over_sb3"] = ratio("train_sps", "sb3_ppo_sps")
+    results["train_over_rollout"] = ratio("train_sps", "rollout_sps")
+    results["rollout_over_random"] = ratio("rollout_sps", "random_sps")
+    results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, bonus) that SB3 PPO does not do; "
+                       "quote ratios from one run, absolute numbers drift +-25% on a shared machine.")
+    Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
+    print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in results.items()}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""Fetch pick-and-place: the flat-observation env, its oracle phases and the scripted controller."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import digail  # noqa: F401  (registers the envs)
+from digail.envs.fetch import FETCH_ENV_ID, OBS_DIM, Phase, next_phase
+
+pytestmark = pytest.mark.mujoco
+
+
+def _make():
+    pytest.importorskip("gymnasium_robotics")
+    from digail.data.minari_io import make_env
+
+    return make_env(FETCH_ENV_ID)
+
+
+def _episode(env, seed: int) -> tuple[list[int], bool, list[np.ndarray]]:
+    from digail.experts.fetch import fetch_expert
+
+    obs, info = env.reset(seed=seed)
+    labels, observations = [info["subtask"]], [obs]
+    while True:
+        obs, _, terminated, truncated, info = env.step(fetch_expert(env))
+        labels.append(info["subtask"])
+        observations.append(obs)
+        if terminated or truncated:
+            return labels, bool(info["is_success"]), observations
+
+
+def test_import_digail_does_not_import_gymnasium_robotics() -> None:
+    code = "import sys, digail; assert 'gymnasium_robotics' not in sys.modules, 'imported eagerly'"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_flat_observation_is_observation_then_desired_goal() -> None:
+    env = _make()
+    obs, info = env.reset(seed=3)
+    inner = env.unwrapped.fetch._get_obs()
+    assert env.observation_space.shape == (OBS_DIM,) and obs.shape == (OBS_DIM,)
+    np.testing.assert_allclose(obs[:25], inner["observation"])
+    np.testing.assert_allclose(obs[25:28], inner["desired_goal"])
+    np.testing.assert_allclose(obs[3:6], inner["achieved_goal"])  # the object position
+    assert info["subtask"] == Phase.REACH
+    _, _, _, _, info = env.step(env.action_space.sample())
+    assert "subtask" in info and "is_success" in info
+    env.close()
+
+
+def test_scripted_expert_succeeds_and_phases_run_in_order() -> None:
+    env = _make()
+    successes = 0
+    for seed in range(20):
+        labels, success, _ = _episode(env, seed=1000 + seed)
+        assert len(labels) == 51  # 50-step time limit, one label per observation
+        steps = np.diff(labels)
+        assert labels[0] == Phase.REACH and set(steps.tolist()) <= {0, 1}, f"seed {seed}: {labels}"
+        if success:
+            successes += 1
+            assert labels[-1] == Phase.PLACE, f"seed {seed}: a success must end in place"
+            assert sorted(set(labels)) == [0, 1, 2, 3]
+    env.close()
+    assert successes >= 18, f"scripted expert succeeded on {successes}/20 episodes"
+
+
+def test_phase_tracker_is_monotone_and_advances_one_stage_at_a_time() -> None:
+    obs = np.zeros(OBS_DIM)
+    obs[0:3] = [1.3, 0.7, 0.435]  # gripper 1 cm right above the object
+    obs[3:6] = [1.3, 0.7, 0.425]
+    obs[9:11] = 0.022  # fingers closed on it
+    obs[25:28] = obs[3:6]  # ... which already sits on the goal
+    assert next_phase(Phase.REACH, obs) == Phase.GRASP  # only one stage, although all conditions hold
+    assert next_phase(Phase.GRASP, obs) == Phase.CARRY
+    assert next_phase(Phase.CARRY, obs) == Phase.PLACE
+    far = obs.copy()
+    far[3:6] = [1.1, 0.5, 0.425]
+    assert next_phase(Phase.PLACE, far) == Phase.PLACE  # never back within an episode
+    open_fingers = obs.copy()
+    open_fingers[9:11] = 0.05
+    assert next_phase(Phase.GRASP, open_fingers) == Phase.GRASP
+
+
+def test_fetch_expert_refuses_other_envs() -> None:
+    import gymnasium as gym
+
+    from digail.experts.fetch import fetch_expert
+
+    with pytest.raises(TypeError, match="FlatFetchPickAndPlace"):
+        fetch_expert(gym.make("Pendulum-v1"))

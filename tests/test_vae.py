@@ -1,0 +1,285 @@
+"""VAE pre-training: Gumbel-softmax chain, KL, smoothing term, learning, determinism, checkpoints."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from digail.algos.vae_pretrain import (
+    categorical_kl,
+    gumbel_softmax_chain,
+    pad_demos,
+    pretrain,
+    smoothing_penalty,
+    vae_loss,
+)
+from digail.checkpoint import load_model, save_model
+from digail.config import VAEConfig
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.eval.segmentation import segment_many, segmentation_metrics
+from digail.nets.policy import ActionSpec
+from digail.nets.vae import HierarchicalPolicy, MacroPolicy
+
+
+@pytest.fixture(autouse=True)
+def _one_thread() -> None:
+    torch.set_num_threads(1)
+
+
+def two_phase_demos(n: int = 24, half: int = 10, seed: int = 0) -> list[Trajectory]:
+    """Walk right `half` steps, then retrace to the start: the same states, opposite actions.
+
+    The state alone cannot tell the phase on the way back, so the encoder has to remember its previous code.
+    """
+    rng = np.random.default_rng(seed)
+    trajs = []
+    for _ in range(n):
+        y = rng.uniform(-1.0, 1.0)
+        x = np.r_[np.arange(half + 1), np.arange(half - 1, -1, -1)].astype(np.float32)
+        obs = np.stack([x, np.full_like(x, y)], 1) + rng.normal(0.0, 0.05, (len(x), 2)).astype(np.float32)
+        acts = np.r_[np.tile([1.0, 0.0], (half, 1)), np.tile([-1.0, 0.0], (half, 1))].astype(np.float32)
+        labels = np.r_[np.zeros(half, np.int64), np.ones(half + 1, np.int64)]
+        trajs.append(Trajectory(obs.astype(np.float32), acts, None, labels, False))
+    return trajs
+
+
+def _chain_with_autograd(q: MacroPolicy, obs_n: torch.Tensor, noise: torch.Tensor, tau: float,
+                         hard: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """The obvious step-by-step implementation, differentiated by autograd: the reference for the fast one."""
+    B, T, _ = obs_n.shape
+    K = q.codes
+    prev = torch.zeros(B, K, dtype=obs_n.dtype)
+    logits_steps, codes = [], []
+    for t in range(T):
+        logits = q(obs_n[:, t], prev)
+        y = ((logits + noise[:, t]) / tau).softmax(-1)
+        if hard:
+            y = F.one_hot(y.argmax(-1), K).to(y.dtype) + y - y.detach()
+        logits_steps.append(logits)
+        codes.append(y)
+        prev = y
+    return torch.stack(logits_steps, 1), torch.stack(codes, 1)
+
+
+@pytest.mark.parametrize("hard", [False, True])
+def test_fast_chain_matches_autograd(hard: bool) -> None:
+    torch.manual_seed(0)
+    q = MacroPolicy(3, 4, hidden=(8, 7, 6)).double()
+    obs_n = torch.randn(5, 9, 3, dtype=torch.float64)
+    gumbel = -torch.log(-torch.log(torch.rand(5, 9, 4, dtype=torch.float64)))
+    weights = torch.randn(5, 9, 4, dtype=torch.float64)
+
+    def grads(logits: torch.Tensor, codes: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        loss = (logits * weights).sum() + ((codes * weights.flip(-1)).sum(-1) ** 2).sum()
+        return torch.autograd.grad(loss, list(q.parameters()))
+
+    logits, codes = gumbel_softmax_chain(q, obs_n, tau=0.7, hard=hard, gumbel=gumbel)
+    ref_logits, ref_codes = _chain_with_autograd(q, obs_n, gumbel, 0.7, hard)
+    torch.testing.assert_close(logits, ref_logits)
+    torch.testing.assert_close(codes, ref_codes)
+    for g, r in zip(grads(logits, codes), grads(ref_logits, ref_codes), strict=True):
+        torch.testing.assert_close(g, r)
+
+
+def test_hard_samples_are_one_hot_and_gradients_reach_encoder() -> None:
+    torch.manual_seed(1)
+    q = MacroPolicy(2, 3)
+    obs_n = torch.randn(4, 12, 2)
+    logits, codes = gumbel_softmax_chain(q, obs_n, tau=1.0, hard=True)
+    assert torch.all((codes == 0) | (codes == 1))
+    torch.testing.assert_close(codes.sum(-1), torch.ones(4, 12))
+    (codes * torch.randn_like(codes)).sum().backward()
+    for p in q.parameters():
+        assert p.grad is not None and p.grad.abs().sum() > 0
+
+
+def test_soft_samples_are_distributions_that_sharpen_with_low_temperature() -> None:
+    torch.manual_seed(2)
+    q = MacroPolicy(2, 3)
+    obs_n = torch.randn(8, 10, 2)
+    _, hot = gumbel_softmax_chain(q, obs_n, tau=5.0, generator=torch.Generator().manual_seed(0))
+    _, cold = gumbel_softmax_chain(q, obs_n, tau=0.1, generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(hot.sum(-1), torch.ones(8, 10))
+    assert cold.max(-1).values.mean() > 0.9 > hot.max(-1).values.mean()
+
+
+def test_kl_is_zero_when_q_equals_prior_and_positive_otherwise() -> None:
+    logits = torch.randn(6, 4)
+    torch.testing.assert_close(categorical_kl(logits, logits + 3.0), torch.zeros(6), atol=1e-6, rtol=0)
+    assert torch.all(categorical_kl(logits, torch.randn(6, 4)) > 0)
+
+
+def test_kl_term_vanishes_when_encoder_matches_prior() -> None:
+    """A model whose q ignores its input and equals the prior's start row has zero KL on the first step."""
+    model = HierarchicalPolicy(2, 3, ActionSpec(False, 2))
+    with torch.no_grad():
+        for p in model.q.parameters():
+            p.zero_()
+        model.q.net[-1].bias.copy_(torch.tensor([0.3, -1.0, 2.0]))
+        model.prior.table.zero_()
+        model.prior.table[:] = torch.tensor([0.3, -1.0, 2.0])  # every row: p(. | c_{t-1}) = q(. | s_t, c_{t-1})
+    batch = pad_demos(two_phase_demos(n=3), model, torch.device("cpu"))
+    _, parts = vae_loss(model, batch, VAEConfig(codes=3), tau=1.0)
+    assert abs(parts["losses/kl"]) < 1e-6
+
+
+def test_smoothing_is_zero_for_constant_codes_and_grows_with_switches() -> None:
+    eye = torch.eye(3)
+    constant = eye[[1] * 10]
+    assert smoothing_penalty(constant).sum() == 0
+    penalties = [smoothing_penalty(eye[seq]).sum().item()
+                 for seq in ([0] * 5 + [1] * 5, [0, 0, 1, 1, 2, 2, 0, 0, 1, 1], [0, 1] * 5)]
+    assert penalties == [1.0, 4.0, 9.0]
+    soft = torch.full((10, 3), 1 / 3)  # undecided codes cost something too: they are not one-hot
+    assert 0 < smoothing_penalty(soft).sum() < 9
+
+
+def test_pretrain_learns_two_phase_segmentation() -> None:
+    trajs = two_phase_demos()
+    cfg = VAEConfig(codes=2, epochs=60, batch_size=8, lr=3e-3, tau0=1.0, tau_decay=0.03, smoothing_weight=0.1)
+    model, history = pretrain(trajs, cfg, seed=0, progress=False)
+    metrics = segmentation_metrics(segment_many(model, trajs), [t.subtasks for t in trajs])
+    assert metrics["accuracy"] >= 0.9, metrics
+    assert history["losses/recon"][-1] < history["losses/recon"][0]
+    assert len(history["epoch"]) == 60 and history["vae/tau"][0] == 1.0
+
+
+def test_pretrain_is_deterministic_under_a_seed(tmp_path: Path) -> None:
+    trajs = two_phase_demos(n=6)
+    cfg = VAEConfig(codes=2, epochs=3, batch_size=4)
+    m1, h1 = pretrain(trajs, cfg, seed=3, progress=False, log_dir=tmp_path)
+    m2, h2 = pretrain(trajs, cfg, seed=3, progress=False)
+    m3, h3 = pretrain(trajs, cfg, seed=4, progress=False)
+    assert h1["losses/total"] == h2["losses/total"] != h3["losses/total"]
+    for (k, a), b in zip(m1.state_dict().items(), m2.state_dict().values(), strict=True):
+        assert torch.equal(a, b), k
+    lines = (tmp_path / "losses.csv").read_text().splitlines()
+    assert lines[0].startswith("epoch,losses/total") and len(lines) == 4
+
+
+def test_pretrain_handles_discrete_actions_and_uneven_lengths() -> None:
+    rng = np.random.default_rng(0)
+    trajs = [Trajectory(rng.normal(size=(n + 1, 3)).astype(np.float32), rng.integers(0, 4, n)) for n in (5, 9, 2)]
+    model, history = pretrain(trajs, VAEConfig(codes=3, epochs=2, batch_size=2), progress=False)
+    assert model.action == ActionSpec(True, 4)
+    assert all(np.isfinite(history["losses/total"]))
+    assert [len(c) for c in segment_many(model, trajs)] == [5, 9, 2]
+
+
+def test_padding_does_not_change_the_loss() -> None:
+    """A batch of a short and a long demonstration scores the step-weighted mean of the two scored alone."""
+    torch.manual_seed(0)
+    long = two_phase_demos(n=1)[0]
+    short = Trajectory(long.obs[:8], long.acts[:7])
+    model = HierarchicalPolicy(2, 2, ActionSpec(False, 2))
+    cfg = VAEConfig(codes=2, smoothing_weight=0.5)
+    cpu = torch.device("cpu")
+    gumbel = -torch.log(-torch.log(torch.rand(2, len(long), 2)))
+    both, _ = vae_loss(model, pad_demos([short, long], model, cpu), cfg, 1.0, gumbel=gumbel)
+    alone_s, _ = vae_loss(model, pad_demos([short], model, cpu), cfg, 1.0, gumbel=gumbel[:1, :7])
+    alone_l, _ = vae_loss(model, pad_demos([long], model, cpu), cfg, 1.0, gumbel=gumbel[1:])
+    torch.testing.assert_close(both, (alone_s * 7 + alone_l * len(long)) / (7 + len(long)))
+
+
+def test_bad_input_is_a_user_error() -> None:
+    with pytest.raises(UserError, match="no demonstrations"):
+        pretrain([], VAEConfig(epochs=1), progress=False)
+    a = Trajectory(np.zeros((3, 2), np.float32), np.zeros((2, 2), np.float32))
+    b = Trajectory(np.zeros((3, 4), np.float32), np.zeros((2, 2), np.float32))
+    with pytest.raises(UserError, match="observation sizes"):
+        pretrain([a, b], VAEConfig(epochs=1), progress=False)
+    with pytest.raises(UserError, match="discrete"):
+        pretrain([a], VAEConfig(epochs=1), action_spec=ActionSpec(True, 3), progress=False)
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+def test_checkpoint_round_trip_gives_identical_segmentations(tmp_path: Path) -> None:
+    trajs = two_phase_demos(n=6)
+    model, _ = pretrain(trajs, VAEConfig(codes=3, epochs=2, batch_size=3), progress=False)
+    path = save_model(tmp_path / "model.pt", model, kind="vae", config={"vae": {"codes": 3}}, env_id="toy-v0",
+                      extra={"step": 7})
+    loaded, meta = load_model(tmp_path)  # a run folder works too
+    assert meta["kind"] == "vae" and meta["env_id"] == "toy-v0" and meta["config"] == {"vae": {"codes": 3}}
+    assert meta["extra"] == {"step": 7} and meta["action"] == model.action and path.name == "model.pt"
+    for a, b in zip(segment_many(model, trajs), segment_many(loaded, trajs), strict=True):
+        np.testing.assert_array_equal(a, b)
+    torch.testing.assert_close(loaded.normalizer.mean, model.normalizer.mean)
+    obs_n = loaded.normalizer(torch.as_tensor(trajs[0].obs[:-1]))
+    code = torch.eye(3)[[0] * len(obs_n)]
+    torch.testing.assert_close(loaded.pi.mode(obs_n, code), model.pi.mode(model.normalizer(
+        torch.as_tensor(trajs[0].obs[:-1])), code))
+
+
+def test_checkpoint_errors_are_user_errors(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match="no model checkpoint"):
+        load_model(tmp_path / "missing.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(UserError, match="cannot read"):
+        load_model(bad)
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(2)}, other)
+    with pytest.raises(UserError, match="not a digail model"):
+        load_model(other)
+    model = HierarchicalPolicy(2, 2, ActionSpec(False, 2))
+    save_model(tmp_path / "m.pt", model, kind="vae", config={}, env_id=None)
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    payload["codes"] = 5
+    torch.save(payload, tmp_path / "m.pt")
+    with pytest.raises(UserError, match="does not match"):
+        load_model(tmp_path / "m.pt")
+
+
+# ----------------------------------------------------------------------------------------------- command
+@dataclasses.dataclass
+class _FakeDataset:
+    trajs: list[Trajectory]
+    env_id: str | None
+    observation_space: object
+    action_space: object
+    dataset_id: str
+    path: Path
+
+
+def fake_minari(monkeypatch: pytest.MonkeyPatch, trajs: list[Trajectory], env_id: str = "toy/TwoPhase-v0") -> None:
+    """Replace the Minari reader with one that returns `trajs` for any dataset name."""
+    import gymnasium as gym
+
+    module = types.ModuleType("digail.data.minari_io")
+    space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    module.load_dataset = lambda ref: _FakeDataset(trajs, env_id, space, space, "toy/two-phase-v0", Path(ref))  # type: ignore[attr-defined]
+    module.dataset_env_id = lambda ref: env_id  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "digail.data.minari_io", module)
+
+
+def test_pretrain_cli_writes_a_complete_run_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import json
+
+    from digail.cli import main
+
+    fake_minari(monkeypatch, two_phase_demos(n=6))
+    run = tmp_path / "run"
+    argv = ["pretrain", "--demos", "toy", "--preset", "smoke", "--codes", "3", "--out", str(run), "--seed", "2"]
+    assert main(argv) == 0
+    names = {p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file()}
+    assert {"model.pt", "config.json", "losses.csv", "codes.npz", "segmentation.json",
+            "figures/segmentation.png"} <= names
+    config = json.loads((run / "config.json").read_text())
+    assert config["vae"]["codes"] == 3 and config["seed"] == 2 and config["demos"] == "toy"
+    assert config["env_id"] == "toy/TwoPhase-v0" and config["vae"]["epochs"] == 5
+    seg = json.loads((run / "segmentation.json").read_text())
+    assert 0.0 <= seg["accuracy"] <= 1.0 and seg["episodes"] == 6
+    model, meta = load_model(run)
+    assert model.codes == 3 and meta["kind"] == "vae"
+    assert main(argv) == 2  # the folder exists now: refused without --force
+    assert main([*argv, "--force"]) == 0
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folders left
