@@ -7,7 +7,16 @@
 #   usage: scripts/train_experts.sh [ENV ...]      (default: all four, cheapest first)
 #   log:   experts_work/<env>/train.log; result: experts_work/<env>/eval.json and best_expert.pt
 #
-# Shipping a trained expert: cp experts_work/<env>/best_expert.pt src/digail/experts/weights/<env>.pt
+# After a run finishes (eval.json written), its best_expert.pt is copied to src/digail/experts/weights/<env>.pt
+# and its 50-episode evaluation recorded in src/digail/experts/weights/EXPERTS.json (digail.experts.rl.ship_expert).
+# The shipped demonstrations are then made with (commands also in src/digail/datasets/MANIFEST.json):
+#   digail demos Pendulum-v1 --episodes 25 --seed 0 --out src/digail/datasets/digail/pendulum/expert-v0
+#   digail demos InvertedPendulum-v5 --episodes 25 --seed 0 --out src/digail/datasets/digail/invertedpendulum/expert-v0
+#   digail demos Hopper-v5 --episodes 50 --seed 0 --out src/digail/datasets/digail/hopper/expert-v0
+#   digail demos Walker2d-v5 --episodes 50 --seed 0 --out src/digail/datasets/digail/walker2d/expert-v0
+#   digail demos digail/FetchPickAndPlace-v4 --episodes 500 --seed 0 \
+#       --out src/digail/datasets/digail/fetchpickandplace/expert-v0
+#   python -m digail.data.demos        # rewrites MANIFEST.json (merges EXPERTS.json's evaluations)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DIGAIL=${DIGAIL:-.venv/bin/digail}
@@ -29,4 +38,6 @@ for env in "${envs[@]}"; do
     # The exact training command (seed 0, the env's default budget from digail.experts.rl.EXPERT_SPECS):
     "${DIGAIL}" expert "${env}" --out "${out}" --seed 0 "${resume[@]}" >>"${out}/train.log" 2>&1
     echo "$(date -u +%FT%TZ) done ${env}" | tee -a "${out}/train.log"
+    "$(dirname "${DIGAIL}")/python" -c "import sys; from digail.experts.rl import ship_expert; \
+print('shipped', ship_expert(sys.argv[1], sys.argv[2]))" "${env}" "${out}" | tee -a "${out}/train.log"
 done

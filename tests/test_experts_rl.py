@@ -24,7 +24,8 @@ from digail.experts.rl import (
 )
 
 MUJOCO_ENVS = {"InvertedPendulum-v5", "Hopper-v5", "Walker2d-v5"}
-SANITY_RETURN = {"Pendulum-v1": -400.0, "InvertedPendulum-v5": 1000.0, "Hopper-v5": 2000.0, "Walker2d-v5": 2500.0}
+SANITY_RETURN = {"Pendulum-v1": -400.0, "InvertedPendulum-v5": 1000.0, "Hopper-v5": 2000.0,
+                 "Walker2d-v5": 2500.0}
 """mean over 3 episodes a working shipped expert clears easily (random play: about -1200, 5, 20, 0)"""
 
 SHIPPED_DATASETS = {

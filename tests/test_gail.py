@@ -116,3 +116,19 @@ def test_checkpoint_round_trip_gives_identical_actions(tmp_path, circle_demos):
     assert again.iteration == trainer.iteration and again.global_step == trainer.global_step
     for p, q in zip(again.value.parameters(), trainer.value.parameters(), strict=True):
         assert torch.equal(p, q)
+
+
+def test_nan_loss_stops_with_clear_error_and_keeps_last_good_checkpoint(tmp_path, circle_demos):
+    from digail.errors import TrainingError
+
+    cfg = replace(SMALL, checkpoint_every=1)
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=tmp_path, progress=False)
+    trainer.train(2)
+    with torch.no_grad():
+        trainer.disc.net[0].weight.fill_(float("nan"))  # poisons the rewards, then the losses
+    with pytest.raises(TrainingError, match="non-finite"):
+        trainer.train(4)
+    state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)
+    assert state["iteration"] == 2
+    assert all(torch.isfinite(v).all() for v in state["disc"].values())

@@ -108,8 +108,8 @@ class EvaluateArgs:
     """evaluation episodes (paper: 300)"""
     seed: int = 10_000
     """seed of the first evaluation episode"""
-    deterministic: bool = False
-    """use the mean / most likely action instead of sampling"""
+    stochastic: bool = False
+    """sample actions from pi instead of taking its mean / most likely action (the default, as in SB3)"""
     video: bool = False
     """also record a video of the first episodes into RUN/videos"""
 
@@ -117,7 +117,7 @@ class EvaluateArgs:
 def cmd_evaluate(args: EvaluateArgs) -> None:
     from digail.eval.returns import evaluate_command
 
-    evaluate_command(args.run, episodes=args.episodes, seed=args.seed, deterministic=args.deterministic,
+    evaluate_command(args.run, episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic,
                      video=args.video)
 
 

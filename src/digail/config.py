@@ -114,6 +114,12 @@ class TrainConfig:
     """samples per discriminator gradient step (half agent, half expert)"""
     reward: Literal["positive", "negative", "logit"] = "positive"
     """generator reward from D: positive = -log(1 - D), negative = log D, logit = log D - log(1 - D)"""
+    value_warmup: int = 0
+    """first iterations train only V and D, the policy held still: a random critic's noisy advantages would
+    otherwise undo the VAE initialisation before GAIL has a useful signal"""
+    min_init_log_std: float = -1.6
+    """continuous actions: raise the initial policy's log-std to at least this (std 0.2) - a VAE decoder
+    trained to tiny noise makes PPO's probability ratios explode on the first update"""
     init_from_vae: bool = True
     """initialise the sub-task policy from the VAE decoder"""
     hidden: tuple[int, ...] = (64, 64)

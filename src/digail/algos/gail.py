@@ -106,6 +106,9 @@ class GAIL:
         self.model.prior.requires_grad_(False)
         self.model.normalizer.requires_grad_(False)
         self.K = model.codes
+        if not model.action.discrete:
+            with torch.no_grad():
+                model.pi.log_std.clamp_(min=cfg.min_init_log_std)
         self.eye = torch.eye(self.K, device=self.device)
         obs_dim = model.obs_dim
 
@@ -207,6 +210,9 @@ class GAIL:
         a = acts.numpy() if acts.device.type == "cpu" else acts.cpu().numpy()
         if self.discrete:
             return a
+        if not np.isfinite(a).all():
+            raise TrainingError(f"the policy produced non-finite actions at iteration {self.iteration + 1}; the last "
+                                "good checkpoint is kept - lower the learning rate or check the demonstrations.")
         return np.clip(a, self.act_low, self.act_high)
 
     def _normalize(self, obs: np.ndarray) -> torch.Tensor:
@@ -349,7 +355,7 @@ class GAIL:
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
         losses = ppo_update(self.model.pi, self.value, self.optimizer, ppo_batch, self.cfg.ppo, self.gen,
                             bc_loss=self._bc_loss if self.cfg.bc_weight > 0 else None,
-                            bc_weight=self.cfg.bc_weight)
+                            bc_weight=self.cfg.bc_weight, train_policy=self.iteration >= self.cfg.value_warmup)
         if not all(math.isfinite(v) for v in (*losses.values(), *stats.values())):
             bad = [k for k, v in {**losses, **stats}.items() if not math.isfinite(v)]
             raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {self.iteration + 1}; the last "

@@ -57,11 +57,13 @@ class PPOBatch:
 
 def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Optimizer, batch: PPOBatch,
                cfg: PPOConfig, generator: torch.Generator,
-               bc_loss: Callable[[], torch.Tensor] | None = None, bc_weight: float = 0.0) -> dict[str, float]:
+               bc_loss: Callable[[], torch.Tensor] | None = None, bc_weight: float = 0.0,
+               train_policy: bool = True) -> dict[str, float]:
     """Clipped-surrogate PPO epochs over `batch`; returns mean losses and diagnostics.
 
     Pure apart from the parameters and optimiser it is handed: no hidden state, no env access. `bc_loss`, when
-    given, is evaluated once per minibatch on fresh expert samples and added with `bc_weight`.
+    given, is evaluated once per minibatch on fresh expert samples and added with `bc_weight`. With
+    `train_policy=False` only the value loss is minimised (critic warm-up).
     """
     params = [p for g in optimizer.param_groups for p in g["params"]]
     n = len(batch)
@@ -82,8 +84,8 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
             pg_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
             v_loss = 0.5 * (value(batch.obs[idx], batch.codes[idx]) - batch.returns[idx]).pow(2).mean()
             entropy = entropy.mean()
-            loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
-            if bc_loss is not None and bc_weight > 0:
+            loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy if train_policy else v_loss
+            if train_policy and bc_loss is not None and bc_weight > 0:
                 bc = bc_loss()
                 loss = loss + bc_weight * bc
                 stats["bc"] += bc.item()

@@ -41,7 +41,7 @@ import torch
 from torch import nn
 
 from digail.errors import UserError
-from digail.utils import set_torch_threads, write_json
+from digail.utils import resolve_device, set_torch_threads, write_json
 
 if TYPE_CHECKING:
     from digail.cli import ExpertArgs
@@ -432,7 +432,8 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
             ckpt_dir.mkdir(parents=True, exist_ok=True)
             stem = ckpt_dir / f"step_{self.num_timesteps}"
             self.model.save(str(stem) + ".zip")
-            self.training_env.save(str(stem) + ".vecnormalize.pkl")
+            vec_normalize: Any = self.training_env  # a VecNormalize, which adds save()
+            vec_normalize.save(str(stem) + ".vecnormalize.pkl")
             self._save_progress()
             for _, old in _checkpoints(ckpt_dir)[:-2]:  # keep the last two
                 old.unlink(missing_ok=True)
@@ -462,6 +463,7 @@ def expert_command(args: ExpertArgs) -> Path:
     `best_expert.pt`, deterministic actions). Returns OUT.
     """
     spec = _spec(args.env)
+    device = str(resolve_device(args.device))  # an unavailable CUDA is a UserError here, not deep inside SB3
     set_torch_threads(1)
     out = Path(args.out) if args.out is not None else Path("experts_work") / safe_name(args.env)
     total = int(args.steps if args.steps is not None else spec.steps)
@@ -478,14 +480,14 @@ def expert_command(args: ExpertArgs) -> Path:
             raise UserError(f"{out} holds an expert for {progress['env_id']!r}, not {args.env!r}; "
                             "resume with the same env or choose another --out.")
         (out / "wall_before_resume.txt").write_text(str(progress.get("wall_s", 0.0)))
-        model, _ = _load_model(args.env, spec, existing[-1][1], args.seed, args.device)
+        model, _ = _load_model(args.env, spec, existing[-1][1], args.seed, device)
     else:
         if existing or (out / "expert.pt").exists():
             raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
                             "another --out.")
         out.mkdir(parents=True, exist_ok=True)
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
-        model, _ = _build_model(args.env, spec, args.seed, args.device)
+        model, _ = _build_model(args.env, spec, args.seed, device)
     ppo_kwargs = {k: str(v) if isinstance(v, tuple) else v for k, v in spec.ppo.items()}
     write_json(out / "config.json", {"env_id": args.env, "steps": total, "seed": args.seed,
                                      "spec": {**spec.__dict__, "ppo": ppo_kwargs}})
