@@ -62,6 +62,12 @@ def test_expert_file_for_another_env_or_not_an_expert_is_refused(tmp_path: Path)
         load_expert("Pendulum-v1", junk)
     with pytest.raises(UserError, match="does not exist"):
         load_expert("Pendulum-v1", tmp_path / "missing.pt")
+    # through the CLI: exit status 2, no dataset written (an expert labelled for Hopper, demos of Pendulum)
+    hopper = tmp_path / "hopper.pt"
+    export_expert(model, venv, "Hopper-v5", hopper, {"steps": 0})
+    out = tmp_path / "demos"
+    assert main(["demos", "Pendulum-v1", "--episodes", "1", "--out", str(out), "--expert", str(hopper)]) == 2
+    assert not out.exists()
 
 
 def test_resume_without_checkpoints_is_refused(tmp_path: Path) -> None:

@@ -41,8 +41,9 @@ class VAEConfig:
     """temperature floor"""
     hard: bool = False
     """straight-through hard one-hot samples in the forward pass"""
-    bptt: bool = True
-    """backpropagate through q's previous-code input (exact gradient); False stops the gradient there (faster)"""
+    bptt: bool = False
+    """also backpropagate through q's previous-code input (the exact gradient of the sequential samples); the
+    default stops the gradient there, which measured faster and less prone to collapsing onto one code"""
     learn_prior: bool = True
     """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
 
@@ -102,6 +103,8 @@ class TrainConfig:
     """lambda_1, weight of the directed-info bonus log q(c_t | s_t, c_{t-1}) (paper Table 3 'posterior lambda')"""
     replay_fraction: float = 0.5
     """share of envs whose codes replay q's segmentation of a random expert demonstration; the rest closed-loop"""
+    closed_loop_codes: Literal["sample", "argmax"] = "sample"
+    """closed-loop envs: sample c_t ~ q (DESIGN.md) or take argmax q, what evaluation and segmentation do"""
     bc_weight: float = 0.0
     """weight of the BC / L2 term on expert (s, c_E) -> a_E (paper's Fetch experiment); 0 disables it"""
     bc_batch_size: int = 256

@@ -60,8 +60,11 @@ class DirectedInfoGAIL(GAIL):
         else:
             logits = self.model.q(obs_n, one_hot(prev, self.K))
         logp_all = torch.log_softmax(logits, -1)
-        gumbel = -torch.log(-torch.log(torch.rand(logp_all.shape, generator=self.gen).clamp_(1e-20, 1.0)))
-        codes = (logp_all + gumbel).argmax(-1)  # a sample of q (Gumbel-max)
+        if self.cfg.closed_loop_codes == "argmax":
+            codes = logp_all.argmax(-1)
+        else:
+            gumbel = -torch.log(-torch.log(torch.rand(logp_all.shape, generator=self.gen).clamp_(1e-20, 1.0)))
+            codes = (logp_all + gumbel).argmax(-1)  # a sample of q (Gumbel-max)
         if self.n_replay:
             length = self.replay_codes.shape[1]
             replayed = self.replay_codes[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, length - 1)]

@@ -123,7 +123,7 @@ def pad_demos(trajs: Sequence[Trajectory], model: HierarchicalPolicy, device: to
 # ------------------------------------------------------------------------------------------------ loss
 def gumbel_softmax_chain(q: nn.Module, obs_n: torch.Tensor, tau: float, hard: bool = False,
                          generator: torch.Generator | None = None,
-                         gumbel: torch.Tensor | None = None, bptt: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+                         gumbel: torch.Tensor | None = None, bptt: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Draw relaxed codes c~_0 .. c~_{T-1} sequentially from q(. | s_t, c~_{t-1}).
 
     Args:
@@ -134,10 +134,10 @@ def gumbel_softmax_chain(q: nn.Module, obs_n: torch.Tensor, tau: float, hard: bo
             the backward pass the relaxed sample's gradient.
         generator: source of the Gumbel noise.
         gumbel: (B, T, K) Gumbel(0, 1) noise to use instead of drawing it (tests, reproductions).
-        bptt: backpropagate through q's previous-code input too (the exact gradient of the sequential samples).
-            False draws the chain without gradient, then recomputes every step's logits from the sampled previous
-            codes in one batched pass: the same samples and the same gradient except the path through
-            c~_{t-1} into q(. | s_t, c~_{t-1}); about twice as fast.
+        bptt: backpropagate through q's previous-code input too: the exact gradient of the sequential samples,
+            through a hand-written backward loop. False (the default) draws the chain without gradient, then
+            recomputes every step's logits from the sampled previous codes in one batched pass: the same samples
+            and the same gradient except the path from c~_{t-1} into q(. | s_t, c~_{t-1}).
 
     Returns:
         `(logits, codes)`, both (B, T, K): q's logits at each step (given the sampled previous code) and the

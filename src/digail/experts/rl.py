@@ -132,7 +132,8 @@ def supported_envs() -> list[str]:
 
 def _spec(env_id: str) -> ExpertSpec:
     if env_id not in EXPERT_SPECS:
-        raise UserError(f"no RL expert recipe for {env_id!r}; supported envs are {', '.join(EXPERT_SPECS)}.")
+        raise UserError(f"no RL expert recipe for {env_id!r}; supported envs are {', '.join(EXPERT_SPECS)} "
+                        "(digail's own envs and Fetch have scripted experts, used by `digail demos`).")
     return EXPERT_SPECS[env_id]
 
 
