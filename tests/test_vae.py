@@ -154,7 +154,7 @@ def test_pretrain_learns_two_phase_segmentation() -> None:
     metrics = segmentation_metrics(segment_many(model, trajs), [t.subtasks for t in trajs])
     assert metrics["accuracy"] >= 0.9, metrics
     assert metrics["switches_per_episode"] <= 1.5, metrics
-    assert min(history["losses/recon"][-10:]) < history["losses/recon"][0] - 1.0
+    assert min(history["losses/recon"][-10:]) < history["losses/recon"][0] - 0.5
     assert len(history["epoch"]) == 100 and history["vae/tau"][0] == 1.0
 
 
