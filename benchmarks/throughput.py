@@ -18,7 +18,6 @@ import json
 import os
 import platform
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -139,7 +138,8 @@ def main() -> None:
     results["train_over_sb3"] = ratio("train_sps", "sb3_ppo_sps")
     results["train_over_rollout"] = ratio("train_sps", "rollout_sps")
     results["rollout_over_random"] = ratio("rollout_sps", "random_sps")
-    results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, bonus) that SB3 PPO does not do; "
+    results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, "
+                       "bonus) that SB3 PPO does not do; "
                        "quote ratios from one run, absolute numbers drift +-25% on a shared machine.")
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in results.items()}, indent=2))

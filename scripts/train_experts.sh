@@ -20,7 +20,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DIGAIL=${DIGAIL:-.venv/bin/digail}
-export PYTHONWARNINGS=ignore MUJOCO_GL=${MUJOCO_GL:-egl}
+export PYTHONWARNINGS=ignore MUJOCO_GL=${MUJOCO_GL:-egl} OMP_NUM_THREADS=1  # torch threads fight under load
 
 envs=("$@")
 [ ${#envs[@]} -eq 0 ] && envs=(Pendulum-v1 InvertedPendulum-v5 Hopper-v5 Walker2d-v5)

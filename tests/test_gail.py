@@ -10,7 +10,7 @@ import torch
 
 from digail.algos.directed_info_gail import DirectedInfoGAIL, build_trainer
 from digail.algos.gail import GAIL
-from digail.config import PPOConfig, TrainConfig, VAEConfig
+from digail.config import PPOConfig, TrainConfig
 from digail.nets.mlp import one_hot
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy

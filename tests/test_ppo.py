@@ -47,7 +47,8 @@ def test_ppo_update_raises_probability_of_positive_advantage_actions():
     adv = (acts == 2).float() * 2 - 1  # action 2 is good, the rest bad
     batch = PPOBatch(obs, codes, acts, logp, adv, torch.zeros(256))
     before = policy.dist(obs, codes).probs[:, 2].mean().item()
-    stats = ppo_update(policy, value, opt, batch, PPOConfig(epochs=4, minibatch_size=64), torch.Generator().manual_seed(0))
+    cfg = PPOConfig(epochs=4, minibatch_size=64)
+    stats = ppo_update(policy, value, opt, batch, cfg, torch.Generator().manual_seed(0))
     after = policy.dist(obs, codes).probs[:, 2].mean().item()
     assert after > before + 0.1
     assert stats["clip_frac"] > 0  # the clip engaged: the ratio moved past 1 +- 0.2

@@ -7,7 +7,6 @@ went. Bad input raises `UserError`, printed as one sentence with exit status 2.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -250,7 +249,8 @@ def _first_line(cls: type) -> str:
 
 
 def _usage() -> str:
-    lines = ["usage: digail COMMAND [ARGS] ...", "", "Directed-Info GAIL: sub-task discovery and hierarchical imitation.",
+    lines = ["usage: digail COMMAND [ARGS] ...", "",
+             "Directed-Info GAIL: sub-task discovery and hierarchical imitation.",
              "", "commands:"]
     width = max(map(len, COMMANDS))
     lines += [f"  {name:<{width}}  {_first_line(cls)}" for name, (cls, _) in COMMANDS.items()]

@@ -55,10 +55,9 @@ class DirectedInfoGAIL(GAIL):
     def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
                       env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it."""
-        if self._q_snap is not None:  # inside a rollout: the weight snapshot, prev given as integers
-            logits = self._q_snap(obs_n, prev)
-        else:
-            logits = self.model.q(obs_n, one_hot(prev, self.K))
+        # inside a rollout q runs from its weight snapshot, which takes prev as integers
+        snap = self._q_snap
+        logits = snap(obs_n, prev) if snap is not None else self.model.q(obs_n, one_hot(prev, self.K))
         logp_all = torch.log_softmax(logits, -1)
         if self.cfg.closed_loop_codes == "argmax":
             codes = logp_all.argmax(-1)

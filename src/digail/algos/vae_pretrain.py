@@ -161,13 +161,32 @@ def gumbel_softmax_chain(q: nn.Module, obs_n: torch.Tensor, tau: float, hard: bo
         logits = F.linear(h_last, last.weight, last.bias)
         return logits.transpose(0, 1), codes.transpose(0, 1)
     with torch.no_grad():
-        fed, _ = _GumbelChain.apply(hard, pre, first.weight[:, D:], last.weight / tau, noise, *mids)
+        fed = _sample_chain(hard, pre, first.weight[:, D:], last.weight / tau, noise, *mids)
     prev = torch.cat([torch.zeros_like(fed[:1]), fed[:-1]]).transpose(0, 1)
     logits = q(obs_n, prev)
     codes = ((logits + gumbel_tm.transpose(0, 1)) / tau).softmax(-1)
     if hard:
         codes = F.one_hot(codes.argmax(-1), K).to(codes.dtype) + (codes - codes.detach())
     return logits, codes
+
+
+def _sample_chain(hard: bool, pre: torch.Tensor, w_prev: torch.Tensor, w_out: torch.Tensor, noise: torch.Tensor,
+                  *mids: torch.Tensor) -> torch.Tensor:
+    """The sampling loop of `_GumbelChain` alone (no gradient, nothing kept): the codes fed forward (T, B, K)."""
+    K = w_out.shape[0]
+    pairs = [(mids[i].t(), mids[i + 1]) for i in range(0, len(mids), 2)]
+    w_prev_t, w_out_t = w_prev.t(), w_out.t()
+    prev = pre.new_zeros(pre.shape[1], K)
+    fed = []
+    for pre_t, noise_t in zip(pre.unbind(0), noise.unbind(0), strict=True):
+        h = torch.addmm(pre_t, prev, w_prev_t).relu_()
+        for w_t, b in pairs:
+            h = torch.addmm(b, h, w_t).relu_()
+        prev = torch.addmm(noise_t, h, w_out_t).softmax(-1)
+        if hard:
+            prev = F.one_hot(prev.argmax(-1), K).to(prev.dtype)
+        fed.append(prev)
+    return torch.stack(fed)
 
 
 class _GumbelChain(torch.autograd.Function):

@@ -530,6 +530,7 @@ def record_expert(env_id: str, entry: dict[str, Any]) -> None:
     record = _read_record()
     record[env_id] = entry
     write_json(RECORD_FILE, dict(sorted(record.items())))
+    RECORD_FILE.chmod(0o644)
 
 
 def shipped_expert_eval(env_id: str) -> dict[str, Any] | None:
