@@ -293,6 +293,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     cls, handler = COMMANDS[name]
     os.environ.setdefault("MUJOCO_GL", "egl")
+    from digail.utils import set_torch_threads
+
+    set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     try:
         default = _preset_defaults(cls, rest)
         args = tyro.cli(cls, args=rest, prog=f"digail {name}", default=default,
