@@ -44,4 +44,4 @@ def circle_demos() -> list[Trajectory]:
 
 @pytest.fixture(scope="session")
 def rooms_demos() -> list[Trajectory]:
-    return expert_trajectories("digail/FourRooms-v0", 60)
+    return expert_trajectories("digail/FourRooms-v0", 100)
