@@ -46,6 +46,12 @@ class VAEConfig:
     default stops the gradient there, which measured faster and less prone to collapsing onto one code"""
     learn_prior: bool = True
     """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
+    warmup_epochs: int = 0
+    """epochs over which the KL and smoothing weights rise linearly from 0 (against collapse onto the prior)"""
+
+    def warmup(self, epoch: int) -> float:
+        """Factor in [0, 1] on the KL and smoothing weights at `epoch`."""
+        return 1.0 if self.warmup_epochs <= 0 else min(1.0, epoch / self.warmup_epochs)
 
     def tau(self, epoch: int) -> float:
         """Gumbel-softmax temperature at `epoch`."""

@@ -95,13 +95,15 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 def write_json(path: Path, obj: Any) -> None:
     """Atomically write `obj` as indented JSON (NumPy scalars and arrays converted)."""
 
-    def default(o: Any) -> Any:
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, Path):
-            return str(o)
-        raise TypeError(f"not JSON serialisable: {type(o)}")
+    atomic_write_bytes(Path(path), (json.dumps(obj, indent=2, default=json_default) + "\n").encode())
 
-    atomic_write_bytes(Path(path), (json.dumps(obj, indent=2, default=default) + "\n").encode())
+
+def json_default(o: Any) -> Any:
+    """`json.dumps(default=...)` for NumPy scalars and arrays and paths."""
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -285,11 +285,12 @@ def smoothing_penalty(codes: torch.Tensor) -> torch.Tensor:
 
 
 def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: float,
-             generator: torch.Generator | None = None,
-             gumbel: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
+             generator: torch.Generator | None = None, gumbel: torch.Tensor | None = None,
+             warmup: float = 1.0) -> tuple[torch.Tensor, dict[str, float]]:
     """The VAE loss of one padded batch (per-step average) and its parts for logging.
 
-    `generator` / `gumbel` are passed to `gumbel_softmax_chain`.
+    `generator` / `gumbel` are passed to `gumbel_softmax_chain`; `warmup` (in [0, 1]) scales the KL and smoothing
+    weights (`VAEConfig.warmup`).
     """
     logits, codes = gumbel_softmax_chain(model.q, batch.obs_n, tau, cfg.hard, generator, gumbel, cfg.bptt)
     prev = torch.cat([torch.zeros_like(codes[:, :1]), codes[:, :-1]], 1)
@@ -298,9 +299,9 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
     recon = -(model.pi.dist(batch.obs_n, codes).log_prob(batch.acts) * mask).sum() / n_steps
     kl = (categorical_kl(logits, model.prior(prev)) * mask).sum() / n_steps
     smooth = (smoothing_penalty(codes) * mask[:, 1:]).sum() / n_steps
-    total = recon + cfg.kl_weight * kl
+    total = recon + warmup * cfg.kl_weight * kl
     if cfg.smoothing_weight:
-        total = total + cfg.smoothing_weight * smooth
+        total = total + warmup * cfg.smoothing_weight * smooth
     parts = {"losses/total": total.item(), "losses/recon": recon.item(), "losses/kl": kl.item(),
              "losses/smooth": smooth.item()}
     return total, parts
@@ -319,7 +320,7 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         seed: seeds the initial weights, the batch order and the Gumbel noise; same seed, same result (on CPU).
         device: torch device.
         progress: show a tqdm bar with epoch, losses and temperature.
-        log_dir: when given, write `losses.csv` (one row per epoch) there.
+        log_dir: when given, write `losses.csv` (one row per epoch) and TensorBoard events (`tb/`) there.
 
     Returns:
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
@@ -339,7 +340,7 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     opt = _adam(params, cfg.lr)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
-    n = len(trajs)
+    n, total_steps = len(trajs), float(data.mask.sum().item())
     start = time.perf_counter()
     bar = _progress_bar(cfg.epochs, progress)
     for epoch in range(cfg.epochs):
@@ -348,13 +349,18 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         for b in range(0, n, cfg.batch_size):
             batch = data[order[b:b + cfg.batch_size].to(dev)]
-            loss, parts = vae_loss(model, batch, cfg, tau, gen)
+            loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch))
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            weight = float(batch.mask.sum().item()) / float(data.mask.sum().item())
+            weight = float(batch.mask.sum().item()) / total_steps
             for k in LOSS_KEYS:
                 sums[k] += parts[k] * weight
+        if not math.isfinite(sums["losses/total"]):
+            if bar is not None:
+                bar.close()
+            raise UserError(f"VAE training diverged (non-finite loss at epoch {epoch}); lower --vae.lr or check "
+                            "the demonstrations for extreme values.")
         history["epoch"].append(epoch)
         for k in LOSS_KEYS:
             history[k].append(sums[k])
@@ -366,10 +372,9 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
                             smooth=f"{sums['losses/smooth']:.3f}", tau=f"{tau:.2f}", refresh=False)
     if bar is not None:
         bar.close()
-    if not all(math.isfinite(v) for v in history["losses/total"]):
-        raise UserError("VAE training diverged (NaN loss); lower --vae.lr or check the demonstrations.")
     if log_dir is not None:
         write_losses_csv(Path(log_dir) / "losses.csv", history)
+        write_tensorboard(Path(log_dir), history)
     return model.eval(), history
 
 
@@ -397,6 +402,18 @@ def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
         writer = csv.writer(f)
         writer.writerow(keys)
         writer.writerows(zip(*(history[k] for k in keys), strict=True))
+
+
+def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
+    """Mirror the per-epoch history to TensorBoard under `log_dir/tb` (skipped when tensorboard is missing)."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except Exception:  # tensorboard not installed or broken: the CSV has everything
+        return
+    with SummaryWriter(str(Path(log_dir) / "tb")) as writer:
+        for i, epoch in enumerate(history["epoch"]):
+            for key in (*LOSS_KEYS, "vae/tau"):
+                writer.add_scalar(key, history[key][i], int(epoch))
 
 
 # ---------------------------------------------------------------------------------------------- command

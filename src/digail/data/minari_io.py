@@ -34,7 +34,7 @@ import numpy as np
 
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
-from digail.utils import atomic_dir
+from digail.utils import atomic_dir, json_default
 
 SHIPPED_ROOT = Path(__file__).resolve().parent.parent / "datasets"
 """Minari root of the datasets shipped inside the package (ids resolve here first)."""
@@ -404,16 +404,6 @@ def _same_action_space(a: gym.Space, b: gym.Space) -> bool:
 
 
 # ------------------------------------------------------------------------------------------------ writing
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
 @contextlib.contextmanager
 def _minari_root_at(root: Path) -> Iterator[None]:
     """Point Minari's root at `root` for the block (Minari reads the variable at every call)."""
@@ -526,7 +516,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
                for i, t in enumerate(trajs)]
     record = {"rewards_recorded": all(t.rews is not None for t in trajs), **(extra_metadata or {})}
     try:
-        record = json.loads(json.dumps(record, default=_json_default))
+        record = json.loads(json.dumps(record, default=json_default))
     except (TypeError, ValueError) as exc:
         raise UserError(f"extra dataset metadata is not JSON-serialisable ({_one_line(exc)}).") from exc
 

@@ -116,7 +116,9 @@ def task_metrics(episodes: list[Episode]) -> dict[str, float]:
     for key in MEAN_KEYS:
         vals = [float(f[key]) for f in finals if key in f]
         if vals:
-            out[key] = float(np.mean(vals))
+            # capped at 1 per episode: a half drawn as a straight line scores inf and would swamp the mean
+            out[key] = float(np.mean(np.minimum(vals, 1.0)))
+            out[f"{key}_median"] = float(np.median(vals))
     ratios = [e.length / e.reset_info["shortest_path_length"] for e in episodes
               if e.final_info.get("is_success") and e.reset_info.get("shortest_path_length")]
     if any("shortest_path_length" in e.reset_info for e in episodes):
