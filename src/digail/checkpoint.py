@@ -90,11 +90,13 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
     if path.is_dir():
         path = path / MODEL_FILE
     if not path.is_file():
-        raise UserError(f"no model checkpoint at {path}; pass a run folder made by `digail pretrain` or `digail train`.")
+        raise UserError(f"no model checkpoint at {path}; pass a run folder made by `digail pretrain` or "
+                        "`digail train`.")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
-        raise UserError(f"cannot read checkpoint {path} (corrupt or not a torch file: {exc}); re-create the run.") from exc
+        raise UserError(f"cannot read checkpoint {path} (corrupt or not a torch file: {exc}); "
+                        "re-create the run.") from exc
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise UserError(f"{path} is not a digail model checkpoint; pass the model.pt of a digail run folder.")
     if payload.get("format_version") != FORMAT_VERSION:

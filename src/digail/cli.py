@@ -19,15 +19,13 @@ import tyro
 from digail.config import TrainConfig, VAEConfig, get_preset
 from digail.errors import UserError
 
-Positional = tyro.conf.Positional
-
 
 # ----------------------------------------------------------------------------------------------- demos
 @dataclass(frozen=True)
 class DemosArgs:
     """Record expert demonstrations as a Minari dataset (oracle labels kept under infos['subtask'])."""
 
-    env: Positional[str]
+    env: Annotated[str, tyro.conf.Positional]
     """environment id, e.g. digail/CircleWorld-v0"""
     episodes: int | None = None
     """number of episodes (default: the paper's size for this env)"""
@@ -84,7 +82,7 @@ def cmd_pretrain(args: PretrainArgs) -> None:
 class SegmentArgs:
     """Segment demonstrations with a run's macro-policy and score against oracle labels where present."""
 
-    run: Positional[Path]
+    run: Annotated[Path, tyro.conf.Positional]
     """run folder holding a VAE or trained policy"""
     demos: str | None = None
     """dataset to segment (default: the run's training demonstrations)"""
@@ -101,7 +99,7 @@ def cmd_segment(args: SegmentArgs) -> None:
 class EvaluateArgs:
     """Roll out a run's hierarchical policy (closed-loop macro-policy) and write eval.json."""
 
-    run: Positional[Path]
+    run: Annotated[Path, tyro.conf.Positional]
     """run folder"""
     episodes: int = 300
     """evaluation episodes (paper: 300)"""
@@ -163,7 +161,7 @@ def cmd_train(args: TrainArgs) -> None:
 class ComposeArgs:
     """Run the sub-task policies under a code schedule instead of the learned macro-policy."""
 
-    run: Positional[Path]
+    run: Annotated[Path, tyro.conf.Positional]
     """run folder of a trained policy"""
     schedule: str = "1:60,0:60"
     """code:steps pairs, e.g. '1:60,0:60' (Circle-World reversed circles)"""
@@ -212,7 +210,7 @@ def cmd_run(args: RunArgs) -> None:
 class ExpertArgs:
     """Train a Stable-Baselines3 expert for a MuJoCo / classic-control env (checkpoints, resume)."""
 
-    env: Positional[str]
+    env: Annotated[str, tyro.conf.Positional]
     """environment id: Pendulum-v1, InvertedPendulum-v5, Hopper-v5, Walker2d-v5"""
     out: Path | None = None
     """expert folder (default: experts_work/<env>)"""

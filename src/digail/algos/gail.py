@@ -38,7 +38,7 @@ def action_transform(env: gym.Env) -> Any:
     Box actions are clipped to their bounds; an env may also define `canonical_action(acts)` (a batch function,
     e.g. Circle-World normalises directions), so D cannot tell agent from expert by a detail the env discards.
     """
-    space = env.action_space
+    space: Any = env.action_space
     canonical = getattr(env.unwrapped, "canonical_action", None)
     if isinstance(space, gym.spaces.Discrete):
         return None
@@ -115,12 +115,13 @@ class GAIL:
         self.envs = VecEnv.of(env_id, cfg.ppo.num_envs)
         probe = self.envs.envs[0]
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
-        self.n_actions = int(probe.action_space.n) if self.discrete else 0
+        self.n_actions = int(getattr(probe.action_space, "n", 0))
         if not self.discrete:
-            self.act_low = probe.action_space.low.astype(np.float32)
-            self.act_high = probe.action_space.high.astype(np.float32)
+            box: Any = probe.action_space
+            self.act_low = box.low.astype(np.float32)
+            self.act_high = box.high.astype(np.float32)
         self._act_transform = action_transform(probe)
-        act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape))
+        act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
@@ -463,7 +464,7 @@ def _np_state_to_tensors(rng: np.random.Generator) -> dict[str, Any]:
 
 
 def _np_state_from_tensors(rng: np.random.Generator, data: dict[str, Any]) -> None:
-    st = rng.bit_generator.state
+    st = dict(rng.bit_generator.state)
     st["state"] = {"state": int(data["state"]), "inc": int(data["inc"])}
     st["has_uint32"], st["uinteger"] = int(data["has_uint32"]), int(data["uinteger"])
     rng.bit_generator.state = st

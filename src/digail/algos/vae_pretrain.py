@@ -38,7 +38,7 @@ from digail.config import VAEConfig, get_preset, to_dict
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec
-from digail.nets.vae import HierarchicalPolicy
+from digail.nets.vae import HierarchicalPolicy, MacroPolicy
 from digail.utils import resolve_device, seed_everything, set_torch_threads
 
 if TYPE_CHECKING:
@@ -121,7 +121,7 @@ def pad_demos(trajs: Sequence[Trajectory], model: HierarchicalPolicy, device: to
 
 
 # ------------------------------------------------------------------------------------------------ loss
-def gumbel_softmax_chain(q: nn.Module, obs_n: torch.Tensor, tau: float, hard: bool = False,
+def gumbel_softmax_chain(q: MacroPolicy, obs_n: torch.Tensor, tau: float, hard: bool = False,
                          generator: torch.Generator | None = None,
                          gumbel: torch.Tensor | None = None, bptt: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Draw relaxed codes c~_0 .. c~_{T-1} sequentially from q(. | s_t, c~_{t-1}).
@@ -446,7 +446,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     check_new_dir(run, args.force)
     action_spec = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
     demos_ref = str(Path(args.demos).resolve()) if Path(args.demos).exists() else args.demos
-    config = {
+    config: dict[str, Any] = {
         "kind": "vae",
         "demos": demos_ref,
         "dataset_id": dataset.dataset_id,

@@ -50,9 +50,10 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
     model.eval()
     device = next(model.parameters()).device
     envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(min(num_envs, episodes))]
-    discrete = isinstance(envs[0].action_space, gym.spaces.Discrete)
-    low = None if discrete else envs[0].action_space.low
-    high = None if discrete else envs[0].action_space.high
+    space: Any = envs[0].action_space
+    discrete = isinstance(space, gym.spaces.Discrete)
+    low = None if discrete else space.low
+    high = None if discrete else space.high
     K = model.codes
     eye = torch.eye(K, device=device)
     results: list[Episode | None] = [None] * episodes
@@ -114,11 +115,11 @@ def task_metrics(episodes: list[Episode]) -> dict[str, float]:
         if vals:
             out[name] = float(np.mean(vals))
     for key in MEAN_KEYS:
-        vals = [float(f[key]) for f in finals if key in f]
-        if vals:
+        nums = [float(f[key]) for f in finals if key in f]
+        if nums:
             # capped at 1 per episode: a half drawn as a straight line scores inf and would swamp the mean
-            out[key] = float(np.mean(np.minimum(vals, 1.0)))
-            out[f"{key}_median"] = float(np.median(vals))
+            out[key] = float(np.mean(np.minimum(nums, 1.0)))
+            out[f"{key}_median"] = float(np.median(nums))
     ratios = [e.length / e.reset_info["shortest_path_length"] for e in episodes
               if e.final_info.get("is_success") and e.reset_info.get("shortest_path_length")]
     if any("shortest_path_length" in e.reset_info for e in episodes):

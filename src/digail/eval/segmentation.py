@@ -225,7 +225,8 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
     run = Path(run)
     codes = segment_many(model, trajs)
     buf = io.BytesIO()
-    np.savez_compressed(buf, **{f"episode_{i:05d}": c for i, c in enumerate(codes)})
+    arrays: dict[str, Any] = {f"episode_{i:05d}": c for i, c in enumerate(codes)}
+    np.savez_compressed(buf, **arrays)
     atomic_write_bytes(run / "codes.npz", buf.getvalue())
     labeled = all(t.subtasks is not None for t in trajs)
     result: dict[str, Any] = {"demos": demos, "decoding": "causal argmax q(c_t | s_t, c_{t-1})",
@@ -259,7 +260,7 @@ def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[n
 
     n = min(episodes, len(trajs))
     planar = np.shape(trajs[0].obs)[1:] == (2,)
-    cmap = ListedColormap(plt.get_cmap("tab10").colors)
+    cmap = ListedColormap([plt.get_cmap("tab10")(i) for i in range(10)])
     norm = BoundaryNorm(np.arange(-0.5, 10.5), cmap.N)
     fig = plt.figure(figsize=(11 if planar else 8, max(2.5, 0.75 * n + 1)))
     grid = fig.add_gridspec(1, 2, width_ratios=[2, 1]) if planar else fig.add_gridspec(1, 1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -20,7 +21,7 @@ def record_video(model, env_id: str, path: Path, seed: int = 0, episodes: int = 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     env = make_env(env_id, render_mode="rgb_array")
-    frames = []
+    frames: list[Any] = []
     for e in range(episodes):
         obs, _ = env.reset(seed=seed + e)
         prev = torch.tensor([-1])
