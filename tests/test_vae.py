@@ -135,6 +135,20 @@ def test_kl_term_vanishes_when_encoder_matches_prior() -> None:
     assert abs(parts["losses/kl"]) < 1e-6
 
 
+def test_warmup_scales_the_regularisers_only() -> None:
+    cfg = VAEConfig(codes=2, smoothing_weight=0.5, warmup_epochs=4)
+    assert [cfg.warmup(e) for e in range(6)] == [0.0, 0.25, 0.5, 0.75, 1.0, 1.0]
+    assert VAEConfig().warmup(0) == 1.0
+    model = HierarchicalPolicy(2, 2, ActionSpec(False, 2))
+    batch = pad_demos(two_phase_demos(n=3), model, torch.device("cpu"))
+    gumbel = -torch.log(-torch.log(torch.rand(3, batch.mask.shape[1], 2)))
+    off, parts = vae_loss(model, batch, cfg, 1.0, gumbel=gumbel, warmup=0.0)
+    half, _ = vae_loss(model, batch, cfg, 1.0, gumbel=gumbel, warmup=0.5)
+    assert off.item() == pytest.approx(parts["losses/recon"])
+    expected = parts["losses/recon"] + 0.5 * (parts["losses/kl"] + 0.5 * parts["losses/smooth"])
+    assert half.item() == pytest.approx(expected, rel=1e-5)
+
+
 def test_smoothing_is_zero_for_constant_codes_and_grows_with_switches() -> None:
     eye = torch.eye(3)
     constant = eye[[1] * 10]
@@ -170,13 +184,23 @@ def test_pretrain_is_deterministic_under_a_seed(tmp_path: Path) -> None:
     assert lines[0].startswith("epoch,losses/total") and len(lines) == 4
 
 
-def test_pretrain_handles_discrete_actions_and_uneven_lengths() -> None:
+def test_pretrain_handles_discrete_actions_uneven_lengths_and_a_decoder_view(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     trajs = [Trajectory(rng.normal(size=(n + 1, 3)).astype(np.float32), rng.integers(0, 4, n)) for n in (5, 9, 2)]
-    model, history = pretrain(trajs, VAEConfig(codes=3, epochs=2, batch_size=2), progress=False)
-    assert model.action == ActionSpec(True, 4)
+    cfg = VAEConfig(codes=3, epochs=2, batch_size=2, decoder_obs=(0, 2), entropy_weight=0.1, smoothing_weight=0.1)
+    model, history = pretrain(trajs, cfg, progress=False)
+    assert model.action == ActionSpec(True, 4) and model.pi_obs == (0, 2)
+    assert model.pi.net[0].in_features == 2 + 3  # two observation features and the code
     assert all(np.isfinite(history["losses/total"]))
     assert [len(c) for c in segment_many(model, trajs)] == [5, 9, 2]
+    save_model(tmp_path / "model.pt", model, kind="vae", config={}, env_id=None)
+    loaded, meta = load_model(tmp_path / "model.pt")
+    assert loaded.pi_obs == (0, 2) and meta["pi_obs"] == (0, 2)
+    obs_n = loaded.normalizer(torch.as_tensor(trajs[1].obs[:-1]))
+    code = torch.eye(3)[[1] * len(obs_n)]
+    torch.testing.assert_close(loaded.pi.mode(obs_n, code), model.pi.mode(obs_n, code))
+    with pytest.raises(UserError, match="decoder_obs"):
+        pretrain(trajs, VAEConfig(epochs=1, decoder_obs=(2, 5)), progress=False)
 
 
 def test_padding_does_not_change_the_loss() -> None:

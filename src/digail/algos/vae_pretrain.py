@@ -8,14 +8,31 @@ as the next step's previous code, and the loss is
     L = - sum_t log pi(a_t | s_t, c~_t)
         + beta * sum_t KL(q(. | s_t, c~_{t-1}) || p(. | c~_{t-1}))
         + lambda_s * sum_{t>=1} [1 - c~_{t-1} . c~_t / max(|c~_{t-1}|, |c~_t|)]
+        - eta * sum_t H(q(. | s_t, c~_{t-1}))
 
-The last term is the smoothing penalty of the paper's appendix (Circle-World): zero while the code stays put, about
-one per switch. The KL is the exact categorical KL (no sampling). Every sum is divided by the number of steps in
-the batch, so the logged numbers are per-step averages; Adam does not care about the overall scale.
+The third term is the smoothing penalty of the paper's appendix (Circle-World): zero while the code stays put, one
+per switch between one-hots. The KL is the exact categorical KL (no sampling). Every sum is divided by the number
+of steps in the batch, so the logged numbers are per-step averages; Adam does not care about the overall scale.
+
+Choices beyond the paper, each measured on the shipped Circle-World demonstrations (100 episodes, K = 2, 1000
+epochs, the paper's temperature schedule; "collapse" = one code for whole episodes, accuracy 0.5):
+
+- Gradient through the previous code (`VAEConfig.bptt`, default off). The samples are always drawn sequentially;
+  by default the gradient stops at q's previous-code input (q's logits at every step are recomputed in one batched
+  pass from the sampled previous codes). Exact backpropagation through the chain (`bptt=True`, hand-written in
+  `_GumbelChain`) was slower (about 90 s instead of 60 s) and less reliable: 0 of 5 runs ended segmented (most
+  left the plateau, then collapsed), against 2 of 3 with the same settings and the gradient stopped.
+- Warm-up (`warmup_epochs`) of the KL and smoothing weights from 0, and a small entropy bonus eta on q
+  (`entropy_weight`). Without them about half the runs collapsed: q sits on the learned prior while the decoder
+  ignores the codes, or, with a warm-up alone, q turns into a saturated constant just as the switch forms. With a
+  warm-up of 200 epochs and eta = 0.03 (the circle-world preset), 6 of 6 seeds found the clockwise /
+  counter-clockwise split; eta = 0.1 kept q too undecided for the decoder to use the codes.
+- The circle-world preset's smoothing weight is 0.1: at 1.0 the penalty on undecided (soft) codes pushed q onto a
+  single code (2 of 2 runs).
 
 Speed: only the sampling chain is sequential. The first layer of q is split into its state and code parts; the
 state part for every step, the Gumbel noise and the output bias are computed before the time loop, so each step
-costs two small matrix products per layer and a softmax. The decoder, the KL and the smoothing term are then
+costs one small matrix product per layer and a softmax. The decoder, the KL, the smoothing and entropy terms are
 evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and masked.
 """
 
@@ -302,6 +319,10 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
     total = recon + warmup * cfg.kl_weight * kl
     if cfg.smoothing_weight:
         total = total + warmup * cfg.smoothing_weight * smooth
+    if cfg.entropy_weight:
+        log_q = logits.log_softmax(-1)
+        entropy = -((log_q.exp() * log_q).sum(-1) * mask).sum() / n_steps
+        total = total - cfg.entropy_weight * entropy
     parts = {"losses/total": total.item(), "losses/recon": recon.item(), "losses/kl": kl.item(),
              "losses/smooth": smooth.item()}
     return total, parts
@@ -332,7 +353,11 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     dev = resolve_device(str(device))
     seed_everything(seed)
     gen = torch.Generator(device=dev).manual_seed(seed)
-    model = HierarchicalPolicy(obs_dim, cfg.codes, action_spec, cfg.hidden, cfg.learn_prior)
+    if cfg.decoder_obs is not None and not 0 <= cfg.decoder_obs[0] < cfg.decoder_obs[1] <= obs_dim:
+        raise UserError(f"decoder_obs {cfg.decoder_obs} is not a feature range within the {obs_dim} observation "
+                        "features; give (start, stop) with 0 <= start < stop <= obs size.")
+    model = HierarchicalPolicy(obs_dim, cfg.codes, action_spec, cfg.hidden, cfg.learn_prior,
+                               pi_obs=None if cfg.decoder_obs is None else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
     data = pad_demos(trajs, model, dev)
@@ -352,6 +377,8 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
             loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch))
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            if cfg.max_grad_norm is not None:
+                nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
             opt.step()
             weight = float(batch.mask.sum().item()) / total_steps
             for k in LOSS_KEYS:

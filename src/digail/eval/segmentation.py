@@ -248,9 +248,11 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
 
 def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[np.ndarray],
                       mapping: dict[int, int] | None = None, episodes: int = FIGURE_EPISODES) -> None:
-    """Code strips (coloured by the label each code maps to, when known) above oracle label strips.
+    """Per episode, a strip of codes above a strip of oracle labels (when present).
 
-    For 2-D observations (Circle-World) a second panel shows the positions coloured by code.
+    With a one-to-one code -> label mapping, codes take the colour of their label, so agreement reads as equal
+    colours; otherwise codes keep their own colours. For 2-D observations (Circle-World) a second panel shows the
+    positions coloured the same way; later codes are drawn smaller on top, so retraced paths show both.
     """
     import matplotlib
 
@@ -259,32 +261,48 @@ def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[n
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     n = min(episodes, len(trajs))
+    labeled = all(trajs[i].subtasks is not None for i in range(n))
     planar = np.shape(trajs[0].obs)[1:] == (2,)
+    injective = mapping is not None and len(set(mapping.values())) == len(mapping)
     cmap = ListedColormap([plt.get_cmap("tab10")(i) for i in range(10)])
     norm = BoundaryNorm(np.arange(-0.5, 10.5), cmap.N)
-    fig = plt.figure(figsize=(11 if planar else 8, max(2.5, 0.75 * n + 1)))
+
+    def colours(c: np.ndarray) -> np.ndarray:
+        if injective and mapping is not None:
+            c = np.array([mapping.get(int(k), int(k)) for k in c])
+        return np.asarray(c) % 10
+
+    rows = 2 if labeled else 1
+    fig = plt.figure(figsize=(11 if planar else 8, max(2.5, 0.45 * rows * n + 1.2)))
     grid = fig.add_gridspec(1, 2, width_ratios=[2, 1]) if planar else fig.add_gridspec(1, 1)
     ax = fig.add_subplot(grid[0])
-    t_max = max(len(trajs[i]) for i in range(n))
+    ticks, names = [], []
     for i in range(n):
-        shown = np.array([mapping.get(int(c), int(c)) for c in codes[i]]) if mapping else codes[i]
-        ax.imshow(shown[None] % 10, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest",
-                  extent=(0, len(codes[i]), 2 * i + 0.9, 2 * i + 0.1))
-        sub = trajs[i].subtasks
-        if sub is not None:
-            ax.imshow(np.asarray(sub[:len(trajs[i])])[None] % 10, aspect="auto", cmap=cmap, norm=norm,
-                      interpolation="nearest", extent=(0, len(trajs[i]), 2 * i + 1.7, 2 * i + 0.9))
-    ax.set_xlim(0, t_max)
-    ax.set_ylim(2 * n, 0)
-    ax.set_yticks([2 * i + 0.9 for i in range(n)], [f"ep {i}" for i in range(n)])
+        top = i * (rows + 0.6)
+        strips = [("code", colours(codes[i]))]
+        if labeled:
+            strips.append(("oracle", np.asarray(trajs[i].subtasks)[:len(codes[i])] % 10))
+        for r, (name, values) in enumerate(strips):
+            y0 = top + r
+            ax.imshow(values[None], aspect="auto", cmap=cmap, norm=norm, interpolation="nearest",
+                      extent=(0, len(values), y0 + 0.9, y0))
+            ticks.append(y0 + 0.45)
+            names.append(f"ep {i} {name}" if r == 0 else name)
+    ax.set_xlim(0, max(len(codes[i]) for i in range(n)))
+    ax.set_ylim(n * (rows + 0.6), -0.1)
+    ax.set_yticks(ticks, names)
     ax.set_xlabel("step")
-    upper = "codes (coloured as their matched label)" if mapping else "codes"
-    ax.set_title(f"per episode: {upper} above, oracle labels below" if trajs[0].subtasks is not None else upper)
+    ax.set_title("codes (coloured as their matched label) and oracle labels" if injective and labeled
+                 else "codes and oracle labels" if labeled else "codes")
     if planar:
         ax2 = fig.add_subplot(grid[1])
         for i in range(n):
             xy = np.asarray(trajs[i].obs[:len(codes[i])], np.float64)
-            ax2.scatter(xy[:, 0], xy[:, 1], c=np.asarray(codes[i]) % 10, cmap=cmap, norm=norm, s=6)
+            shade = colours(codes[i])
+            for rank, k in enumerate(np.unique(codes[i])):
+                sel = codes[i] == k
+                ax2.scatter(xy[sel, 0], xy[sel, 1], c=shade[sel], cmap=cmap, norm=norm, s=max(4, 22 - 9 * rank),
+                            linewidths=0)
         ax2.set_aspect("equal")
         ax2.set_title("positions coloured by code")
     fig.tight_layout()

@@ -48,16 +48,25 @@ class SubtaskPolicy(nn.Module):
     """pi_theta(a_t | s_t, c_t) on normalised observations and one-hot codes (paper section 3.1, decoder)."""
 
     def __init__(self, obs_dim: int, codes: int, action: ActionSpec, hidden: Sequence[int] = (64, 64),
-                 init_log_std: float = -0.5) -> None:
+                 init_log_std: float = -0.5, obs_slice: tuple[int, int] | None = None) -> None:
         super().__init__()
         self.codes, self.action = codes, action
-        self.net = mlp(obs_dim + codes, action.dim, hidden, out_gain=0.01)
+        self.obs_slice = obs_slice
+        """the observation features [start, stop) this policy sees (None: all); e.g. Four Rooms' agent position,
+        leaving the goal to the macro-policy so that the code has to say where to go"""
+        seen = obs_dim if obs_slice is None else obs_slice[1] - obs_slice[0]
+        self.net = mlp(seen + codes, action.dim, hidden, out_gain=0.01)
         if not action.discrete:
             self.log_std = nn.Parameter(torch.full((action.dim,), init_log_std))
 
+    def _inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
+        if self.obs_slice is not None:
+            obs_n = obs_n[..., self.obs_slice[0]:self.obs_slice[1]]
+        return torch.cat([obs_n, code_1h], -1)
+
     def dist(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> Distribution:
         """Action distribution for normalised observations and (one-hot or relaxed) codes."""
-        out = self.net(torch.cat([obs_n, code_1h], -1))
+        out = self.net(self._inputs(obs_n, code_1h))
         if self.action.discrete:
             return Categorical(logits=out, validate_args=False)  # argument checks cost more than the net here
         std = self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)
@@ -66,7 +75,7 @@ class SubtaskPolicy(nn.Module):
     def log_prob_entropy(self, obs_n: torch.Tensor, code_1h: torch.Tensor, acts: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
         """log pi(a | s, c) and the entropy, computed in closed form (the PPO hot path; no Distribution objects)."""
-        out = self.net(torch.cat([obs_n, code_1h], -1))
+        out = self.net(self._inputs(obs_n, code_1h))
         if self.action.discrete:
             logp_all = torch.log_softmax(out, -1)
             return logp_all.gather(-1, acts.long()[..., None]).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
@@ -78,5 +87,5 @@ class SubtaskPolicy(nn.Module):
 
     def mode(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """Most likely action (argmax or mean)."""
-        out = self.net(torch.cat([obs_n, code_1h], -1))
+        out = self.net(self._inputs(obs_n, code_1h))
         return out.argmax(-1) if self.action.discrete else out

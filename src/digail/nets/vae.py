@@ -48,14 +48,15 @@ class HierarchicalPolicy(nn.Module):
     """Normaliser + macro-policy q + prior p + sub-task policy pi, all on raw observations from outside."""
 
     def __init__(self, obs_dim: int, codes: int, action: ActionSpec, hidden: Sequence[int] = (64, 64),
-                 learn_prior: bool = True) -> None:
+                 learn_prior: bool = True, pi_obs: tuple[int, int] | None = None) -> None:
         super().__init__()
         self.obs_dim, self.codes, self.action = obs_dim, codes, action
-        self.hidden, self.learn_prior = tuple(hidden), learn_prior  # kept so checkpoints can rebuild the model
+        # kept so that checkpoints can rebuild the model
+        self.hidden, self.learn_prior, self.pi_obs = tuple(hidden), learn_prior, pi_obs
         self.normalizer = ObsNormalizer(obs_dim)
         self.q = MacroPolicy(obs_dim, codes, hidden)
         self.prior = CodePrior(codes, learn_prior)
-        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden)
+        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, obs_slice=pi_obs)
 
     @torch.no_grad()
     def next_code(self, obs_n: torch.Tensor, prev: torch.Tensor, sample: bool = False,
