@@ -31,3 +31,12 @@ def test_actor_critic_matches_modules_continuous_and_discrete():
         assert torch.allclose(value, v(obs, torch.eye(3)[codes]), atol=1e-5)
         _, ent = pi.log_prob_entropy(obs, torch.eye(3)[codes], acts)
         assert torch.allclose(ent, pi.dist(obs, torch.eye(3)[codes]).entropy(), atol=1e-5)
+
+
+def test_actor_critic_handles_a_policy_that_sees_part_of_the_observation():
+    torch.manual_seed(0)
+    pi, v = SubtaskPolicy(5, 3, ActionSpec(False, 2), obs_slice=(1, 4)), ValueNet(5, 3)
+    ac = ActorCritic(pi, v, 5)
+    obs, codes = torch.randn(9, 5), torch.randint(3, (9,))
+    out = ac(obs, codes)
+    assert torch.allclose(out[:, :2], pi.mode(obs, torch.eye(3)[codes]), atol=1e-5)

@@ -27,11 +27,23 @@ def _linears(seq: nn.Sequential) -> list[nn.Linear]:
 class CodeMLP:
     """Snapshot of `mlp(obs_dim + K, out)` taking (obs_n, integer codes); code -1 is the zero (start) input."""
 
-    def __init__(self, seqs: list[nn.Sequential], obs_dim: int) -> None:
+    def __init__(self, seqs: list[nn.Sequential], obs_dim: int,
+                 obs_slices: list[tuple[int, int] | None] | None = None) -> None:
         layers = [_linears(s) for s in seqs]
+        slices = obs_slices or [None] * len(seqs)
         with torch.no_grad():
             first = [ls[0] for ls in layers]
-            w_first = torch.cat([f.weight for f in first], 0).t()  # (obs_dim + K, H_total)
+            # a net that sees only a slice of the observation gets zero weights for the rest
+            w_full = []
+            for f, sl in zip(first, slices, strict=True):
+                if sl is None:
+                    w_full.append(f.weight)
+                else:
+                    w = f.weight.new_zeros(f.weight.shape[0], obs_dim + f.weight.shape[1] - (sl[1] - sl[0]))
+                    w[:, sl[0]:sl[1]] = f.weight[:, : sl[1] - sl[0]]
+                    w[:, obs_dim:] = f.weight[:, sl[1] - sl[0]:]
+                    w_full.append(w)
+            w_first = torch.cat(w_full, 0).t()  # (obs_dim + K, H_total)
             b_first = torch.cat([f.bias for f in first], 0)
             self.w_obs = w_first[:obs_dim].contiguous()
             codes_rows = w_first[obs_dim:] + b_first  # row k: code k's contribution plus the bias
@@ -56,7 +68,7 @@ class ActorCritic:
     """pi and V together: `sample(obs_n, codes)` -> actions, log-probabilities and values."""
 
     def __init__(self, pi: SubtaskPolicy, value: ValueNet, obs_dim: int) -> None:
-        self.net = CodeMLP([pi.net, value.net], obs_dim)
+        self.net = CodeMLP([pi.net, value.net], obs_dim, [getattr(pi, "obs_slice", None), None])
         self.discrete = pi.action.discrete
         self.act_dim = pi.action.dim
         if not self.discrete:
