@@ -469,6 +469,3 @@ def _np_state_from_tensors(rng: np.random.Generator, data: dict[str, Any]) -> No
     st["has_uint32"], st["uinteger"] = int(data["has_uint32"]), int(data["uinteger"])
     rng.bit_generator.state = st
 
-
-def make_probe_env(env_id: str) -> gym.Env:
-    return make_env(env_id)
