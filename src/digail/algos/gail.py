@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
-from digail.algos.rollout import VecEnv, make_env
+from digail.algos.rollout import VecEnv
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import TrainingError
