@@ -332,7 +332,8 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
 def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: ActionSpec | None = None, seed: int = 0,
              device: str | torch.device = "cpu", progress: bool = True,
              log_dir: str | Path | None = None) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
-    """Fit the hierarchical policy (q, p, pi and the observation normaliser) to demonstrations as a VAE.
+    """Fit the hierarchical policy (q, p, pi and the observation normaliser) to demonstrations as a VAE, then
+    `polish` it when `cfg.polish_steps` > 0.
 
     Args:
         trajs: the demonstrations (unsegmented; oracle labels, if any, are not used).
@@ -399,10 +400,64 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
                             smooth=f"{sums['losses/smooth']:.3f}", tau=f"{tau:.2f}", refresh=False)
     if bar is not None:
         bar.close()
+    if cfg.polish_steps > 0:
+        polish(model, trajs, cfg, seed=seed, progress=progress)
     if log_dir is not None:
         write_losses_csv(Path(log_dir) / "losses.csv", history)
         write_tensorboard(Path(log_dir), history)
     return model.eval(), history
+
+
+def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfig, *, seed: int = 0,
+           progress: bool = True, minibatch: int = 256) -> HierarchicalPolicy:
+    """Sharpen pi and q on the VAE's own causal segmentation of `trajs` (`VAEConfig.polish_steps`); in place.
+
+    The VAE's joint objective stops at a loose decoder (its few thousand steps share the codes' noise), and q
+    only ever saw the expert's exact states. With the codes fixed to `segment_many`'s causal decoding, pi is
+    fitted by maximum likelihood and q by cross-entropy on states jittered by `cfg.q_noise` feature stds.
+    """
+    from digail.eval.segmentation import segment_many
+
+    dev = next(model.parameters()).device
+    codes_per_demo = segment_many(model, trajs)
+    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32).reshape(len(t.acts), -1)
+                                          for t in trajs]), device=dev)
+    acts = torch.as_tensor(np.concatenate([np.asarray(t.acts) for t in trajs]), device=dev)
+    if not model.action.discrete:
+        acts = acts.float().reshape(len(acts), -1)
+    codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
+    start = model.codes  # index of the zero row: c_{-1}
+    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
+    table = torch.cat([torch.eye(model.codes, device=dev), torch.zeros(1, model.codes, device=dev)])
+    with torch.no_grad():
+        obs_n = model.normalizer(obs)
+    code_1h, prev_1h = table[codes], table[prevs]
+    model.train()
+    params = [*model.pi.parameters(), *model.q.parameters()]
+    opt = _adam(params, cfg.polish_lr)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.polish_steps)
+    gen = torch.Generator(device=dev).manual_seed(seed + 7919)
+    bar = _progress_bar(cfg.polish_steps, progress, desc="polish", unit="step")
+    for step in range(cfg.polish_steps):
+        idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
+        log_pi, _ = model.pi.log_prob_entropy(obs_n[idx], code_1h[idx], acts[idx])
+        noisy = obs_n[idx]
+        if cfg.q_noise > 0:
+            noisy = noisy + cfg.q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
+        loss = -log_pi.mean() + F.cross_entropy(model.q(noisy, prev_1h[idx]), codes[idx])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        schedule.step()
+        if bar is not None and step % 200 == 0:
+            bar.update(min(200, cfg.polish_steps - step))
+            bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
+    if bar is not None:
+        bar.close()
+    if not all(torch.isfinite(p).all() for p in params):
+        raise UserError("the VAE polish diverged (non-finite weights); lower --vae.polish-lr or set "
+                        "--vae.polish-steps 0.")
+    return model.eval()
 
 
 def _adam(params: list[nn.Parameter], lr: float) -> torch.optim.Optimizer:
@@ -413,12 +468,12 @@ def _adam(params: list[nn.Parameter], lr: float) -> torch.optim.Optimizer:
         return torch.optim.Adam(params, lr=lr)
 
 
-def _progress_bar(total: int, enabled: bool) -> Any:
+def _progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="VAE", unit="epoch", mininterval=0.5, dynamic_ncols=True)
+    return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
@@ -487,9 +542,10 @@ def pretrain_command(args: PretrainArgs) -> Path:
     print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} (K = {cfg.codes}, "
           f"{cfg.epochs} epochs)")
     with atomic_dir(run, force=args.force) as tmp:
-        model, history = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
-                                  log_dir=tmp)
-        config["train_time_s"] = round(history["time/s"][-1], 2) if history["time/s"] else 0.0
+        started = time.perf_counter()
+        model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
+                            log_dir=tmp)
+        config["train_time_s"] = round(time.perf_counter() - started, 2)
         save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=dataset.env_id)
         write_json(tmp / CONFIG_FILE, config)
         metrics = write_segmentation(tmp, model, dataset.trajs, demos=demos_ref)
