@@ -2,13 +2,17 @@
 
     python benchmarks/results.py fourrooms    [--seeds 0 1 2] [--episodes 300]
     python benchmarks/results.py circleworld  [--seeds 0 1 2] [--episodes 300]
+    python benchmarks/results.py circleworld  --seeds 1 --only-seeds     (one seed's runs; no table written)
 
 Each seed runs exactly what a user would type (printed as it goes):
     digail pretrain --demos D --seed S --out R/vae_sS
     digail evaluate R/vae_sS --episodes N                      (the VAE behaviour-cloning baseline)
     digail train --method digail --demos D --vae R/vae_sS --seed S --out R/digail_sS
     digail evaluate R/digail_sS --episodes N
-and on Circle-World also plain GAIL and `digail compose R/digail_sS --schedule 1:60,0:60`.
+and on Circle-World also Directed-Info GAIL + L2 (`--bc-weight 100`), plain GAIL, and
+`digail compose RUN --schedule <ccw>:60,<cw>:60` on the VAE and DI-GAIL runs, where <ccw> and <cw> are the codes
+the VAE's segmentation matched to the counter-clockwise and clockwise labels (code ids are arbitrary).
+Finished runs are reused, so seeds can run in parallel (`--only-seeds`) and a final call collects them.
 Writes benchmarks/results/<name>.json with every seed's numbers and their medians.
 """
 
@@ -29,9 +33,9 @@ HERE = Path(__file__).resolve().parent
 DIGAIL = [sys.executable, "-m", "digail.cli"]
 
 TASKS = {
-    "fourrooms": dict(env="digail/FourRooms-v0", demos="digail/fourrooms/expert-v0", gail=False, compose=None),
+    "fourrooms": dict(env="digail/FourRooms-v0", demos="digail/fourrooms/expert-v0", gail=False, compose=False),
     "circleworld": dict(env="digail/CircleWorld-v0", demos="digail/circleworld/expert-v0", gail=True,
-                        compose="1:60,0:60"),
+                        compose=True),
 }
 
 
@@ -46,40 +50,55 @@ def load(path: Path) -> dict[str, Any]:
     return json.loads(path.read_text())
 
 
+def reversed_schedule(vae: Path) -> str:
+    """Counter-clockwise first, then clockwise, in the code ids the VAE's segmentation matched to those labels."""
+    mapping = {int(code): int(label) for code, label in load(vae / "segmentation.json")["mapping"].items()}
+    by_label = {label: code for code, label in mapping.items()}
+    return f"{by_label[1]}:60,{by_label[0]}:60"
+
+
+def run_seed(task: dict[str, Any], root: Path, seed: int, episodes: int) -> dict[str, Any]:
+    rec: dict[str, Any] = {}
+    vae = root / f"vae_s{seed}"
+    if not (vae / "model.pt").exists():
+        sh(["pretrain", "--demos", task["demos"], "--seed", str(seed), "--out", str(vae), "--force"])
+    rec["segmentation"] = load(vae / "segmentation.json")
+    rec["vae_time_s"] = load(vae / "config.json").get("train_time_s")
+    variants: list[tuple[str, list[str]]] = [("digail", ["--method", "digail", "--vae", str(vae)])]
+    if task["gail"]:
+        variants += [("digail_l2", ["--method", "digail", "--vae", str(vae), "--bc-weight", "100"]),
+                     ("gail", ["--method", "gail"])]
+    runs = {"vae": vae}
+    for name, flags in variants:
+        run = root / f"{name}_s{seed}"
+        runs[name] = run
+        if not (run / "model.pt").exists():
+            sh(["train", *flags, "--demos", task["demos"], "--seed", str(seed), "--out", str(run), "--force"])
+    for name, run in runs.items():
+        if not (run / "eval.json").exists() or load(run / "eval.json").get("episodes") != episodes:
+            sh(["evaluate", str(run), "--episodes", str(episodes)])
+        rec[name] = load(run / "eval.json")
+    if task["compose"]:
+        schedule = reversed_schedule(vae)
+        for name in ("vae", "digail"):
+            sh(["compose", str(runs[name]), "--schedule", schedule, "--episodes", "100"])
+            rec[f"compose_{name}"] = load(runs[name] / "compose.json")
+    return rec
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("task", choices=sorted(TASKS))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=300)
     parser.add_argument("--root", default="runs/results")
+    parser.add_argument("--only-seeds", action="store_true", help="run the seeds, write no table")
     args = parser.parse_args()
     task = TASKS[args.task]
     root = Path(args.root) / args.task
-    per_seed: dict[str, dict[str, Any]] = {}
-    for seed in args.seeds:
-        rec: dict[str, Any] = {}
-        vae, dig, gail = root / f"vae_s{seed}", root / f"digail_s{seed}", root / f"gail_s{seed}"
-        if not (vae / "model.pt").exists():
-            sh(["pretrain", "--demos", task["demos"], "--seed", str(seed), "--out", str(vae), "--force"])
-        sh(["evaluate", str(vae), "--episodes", str(args.episodes)])
-        rec["segmentation"] = load(vae / "segmentation.json")
-        rec["vae"] = load(vae / "eval.json")
-        rec["vae_time_s"] = load(vae / "config.json").get("train_time_s")
-        if not (dig / "model.pt").exists():
-            sh(["train", "--method", "digail", "--demos", task["demos"], "--vae", str(vae), "--seed", str(seed),
-                "--out", str(dig), "--force"])
-        sh(["evaluate", str(dig), "--episodes", str(args.episodes)])
-        rec["digail"] = load(dig / "eval.json")
-        if task["compose"]:
-            sh(["compose", str(dig), "--schedule", task["compose"], "--episodes", "100"])
-            rec["compose"] = load(dig / "compose.json")
-        if task["gail"]:
-            if not (gail / "model.pt").exists():
-                sh(["train", "--method", "gail", "--demos", task["demos"], "--seed", str(seed), "--out", str(gail),
-                    "--force"])
-            sh(["evaluate", str(gail), "--episodes", str(args.episodes)])
-            rec["gail"] = load(gail / "eval.json")
-        per_seed[str(seed)] = rec
+    per_seed = {str(seed): run_seed(task, root, seed, args.episodes) for seed in args.seeds}
+    if args.only_seeds:
+        return
     summary = summarize(per_seed)
     out = HERE / "results" / f"{args.task}.json"
     out.parent.mkdir(exist_ok=True)
