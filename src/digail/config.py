@@ -175,7 +175,8 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any]) -> 
 PRESETS: dict[str, Preset] = {
     # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch.
     "four-rooms": _preset(
-        dict(codes=4, epochs=500, batch_size=32),
+        # The polish lifts DI-GAIL's success from 0.93 to 0.97 (seed 0, 300 episodes, deterministic).
+        dict(codes=4, epochs=500, batch_size=32, polish_steps=20000),
         # The episode ends at the apple, so a survival reward -log(1 - D) would teach the agent to avoid it:
         # log D (a step cost) keeps the expert's incentive to finish (measured: success 0.04 vs 1.0).
         dict(iterations=1000, bonus_weight=0.1, reward="negative"),
