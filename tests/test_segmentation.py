@@ -214,3 +214,12 @@ def test_segment_command_writes_codes_metrics_and_figure(tmp_path: Path, monkeyp
         segment_command(run)
     with pytest.raises(UserError, match="does not exist"):
         segment_command(tmp_path / "nowhere")
+
+
+def test_composed_schedules_follow_the_segmentations_code_matching() -> None:
+    from digail.pipeline import COMPOSE_SCHEDULES, schedule_in_codes
+
+    reversed_circles = COMPOSE_SCHEDULES["digail/CircleWorld-v0"]
+    assert schedule_in_codes(reversed_circles, {"0": 0, "1": 1}) == "1:60,0:60"
+    assert schedule_in_codes(reversed_circles, {"0": 1, "1": 0}) == "0:60,1:60"
+    assert schedule_in_codes(reversed_circles, {"0": 0, "1": 0}) is None  # collapsed: no counter-clockwise code

@@ -164,7 +164,8 @@ class ComposeArgs:
     run: Annotated[Path, tyro.conf.Positional]
     """run folder of a trained policy"""
     schedule: str = "1:60,0:60"
-    """code:steps pairs, e.g. '1:60,0:60' (Circle-World reversed circles)"""
+    """code:steps pairs, e.g. '1:60,0:60' (Circle-World reversed circles when code 1 is the counter-clockwise one:
+    code ids are arbitrary, `mapping` in the run's segmentation.json says which code matched which sub-task)"""
     episodes: int = 100
     """episodes to roll out"""
     seed: int = 20_000

@@ -18,7 +18,21 @@ if TYPE_CHECKING:
     from digail.cli import RunArgs
 
 # What `digail compose` runs at the end of the pipeline, per env: the schedule of an undemonstrated behaviour.
-COMPOSE_SCHEDULES = {"digail/CircleWorld-v0": "1:60,0:60"}
+COMPOSE_SCHEDULES = {"digail/CircleWorld-v0": ((1, 60), (0, 60))}
+"""Composed behaviour per env as (oracle label, steps) pairs: Circle-World counter-clockwise first, then clockwise
+(never demonstrated). The run translates labels into its own code ids through the segmentation's matching."""
+
+
+def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int]) -> str | None:
+    """'code:steps,...' for label-level `pairs`, using a segmentation's code -> label `mapping`; None when some
+    label has no code of its own (a collapsed segmentation cannot be composed)."""
+    by_label: dict[int, int] = {}
+    for code, label in mapping.items():
+        by_label.setdefault(int(label), int(code))
+    if any(label not in by_label for label, _ in pairs) or len({by_label[lb] for lb, _ in pairs}) < len(
+            {lb for lb, _ in pairs}):
+        return None
+    return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)
 
 
 def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
@@ -102,8 +116,12 @@ def run_pipeline(args: RunArgs) -> Path:
     t0 = time.perf_counter()
     seg = write_segmentation(run_dir, model, trajs, demos=demos_ref)
     composed = None
-    if args.env in COMPOSE_SCHEDULES:
-        schedule = COMPOSE_SCHEDULES[args.env]
+    schedule = None
+    if args.env in COMPOSE_SCHEDULES and seg and "mapping" in seg:
+        schedule = schedule_in_codes(COMPOSE_SCHEDULES[args.env], seg["mapping"])
+        if schedule is None:
+            print("      composition skipped: the segmentation did not give every sub-task a code of its own")
+    if schedule is not None:
         composed, eps = compose(model, args.env, parse_schedule(schedule, model.codes), min(episodes, 100),
                                 20_000)
         composed["schedule"] = schedule

@@ -1,7 +1,8 @@
 """Composition: run the learned sub-task policies under a code schedule instead of the macro-policy.
 
-The paper's reversed-circles experiment: on Circle-World, schedule "1:60,0:60" asks for the counter-clockwise
-policy first and the clockwise one second, an order never demonstrated.
+The paper's reversed-circles experiment: on Circle-World, schedule "1:60,0:60" asks for code 1's policy first and
+code 0's second. Which code learned which circle is arbitrary (`mapping` in the run's segmentation.json); with code
+1 the counter-clockwise one, this is the order never demonstrated. `digail run` translates for you.
 """
 
 from __future__ import annotations
