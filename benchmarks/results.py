@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from digail.pipeline import COMPOSE_SCHEDULES, schedule_in_codes
+
 HERE = Path(__file__).resolve().parent
 DIGAIL = [sys.executable, "-m", "digail.cli"]
 
@@ -52,9 +54,11 @@ def load(path: Path) -> dict[str, Any]:
 
 def reversed_schedule(vae: Path) -> str:
     """Counter-clockwise first, then clockwise, in the code ids the VAE's segmentation matched to those labels."""
-    mapping = {int(code): int(label) for code, label in load(vae / "segmentation.json")["mapping"].items()}
-    by_label = {label: code for code, label in mapping.items()}
-    return f"{by_label[1]}:60,{by_label[0]}:60"
+    schedule = schedule_in_codes(COMPOSE_SCHEDULES[TASKS["circleworld"]["env"]],
+                                 load(vae / "segmentation.json")["mapping"])
+    if schedule is None:
+        raise SystemExit(f"{vae}: the segmentation gave no code of its own to each circle; nothing to compose")
+    return schedule
 
 
 def run_seed(task: dict[str, Any], root: Path, seed: int, episodes: int) -> dict[str, Any]:

@@ -55,6 +55,13 @@ def two_phase_demos(n: int = 24, steps: int = 10, seed: int = 0) -> list[Traject
     return trajs
 
 
+TWO_PHASE_VAE = VAEConfig(codes=2, epochs=100, batch_size=8, lr=3e-3, tau0=1.0, tau_decay=0.01,
+                          smoothing_weight=0.1, warmup_epochs=20, entropy_weight=0.03)
+"""VAE settings that segment `two_phase_demos`. The warm-up and entropy bonus are the Circle-World preset's:
+without them seed 0 collapses onto one code on some CPUs (measured: AMD EPYC); with them 4 of 4 seeds are
+perfect."""
+
+
 def _chain_with_autograd(q: MacroPolicy, obs_n: torch.Tensor, noise: torch.Tensor, tau: float,
                          hard: bool, bptt: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """The obvious step-by-step implementation, differentiated by autograd: the reference for the fast one."""
@@ -163,10 +170,7 @@ def test_smoothing_is_zero_for_constant_codes_and_grows_with_switches() -> None:
 
 def test_pretrain_learns_two_phase_segmentation() -> None:
     trajs = two_phase_demos()
-    # the warm-up and entropy bonus of the Circle-World preset: without them seed 0 collapses onto one code on
-    # some CPUs (measured: AMD EPYC), with them 4 of 4 seeds segment perfectly
-    cfg = VAEConfig(codes=2, epochs=100, batch_size=8, lr=3e-3, tau0=1.0, tau_decay=0.01, smoothing_weight=0.1,
-                    warmup_epochs=20, entropy_weight=0.03)
+    cfg = TWO_PHASE_VAE
     model, history = pretrain(trajs, cfg, seed=0, progress=False)
     metrics = segmentation_metrics(segment_many(model, trajs), [t.subtasks for t in trajs])
     assert metrics["accuracy"] >= 0.9, metrics
@@ -319,10 +323,7 @@ def test_pretrain_cli_writes_a_complete_run_folder(tmp_path: Path, monkeypatch: 
 
 def test_polish_sharpens_pi_keeps_the_segmentation_and_widens_q_switching() -> None:
     trajs = two_phase_demos()
-    # the warm-up and entropy bonus of the Circle-World preset: without them seed 0 collapses onto one code on
-    # some CPUs (measured: AMD EPYC), with them 4 of 4 seeds segment perfectly
-    cfg = VAEConfig(codes=2, epochs=100, batch_size=8, lr=3e-3, tau0=1.0, tau_decay=0.01, smoothing_weight=0.1,
-                    warmup_epochs=20, entropy_weight=0.03)
+    cfg = TWO_PHASE_VAE
     model, _ = pretrain(trajs, cfg, seed=0, progress=False)
     codes = segment_many(model, trajs)
 
