@@ -19,7 +19,7 @@ from digail.algos.gail import GAIL
 from digail.config import TrainConfig, from_dict, to_dict
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
-from digail.nets.mlp import one_hot
+from digail.nets.fast import CodeMLP, log_softmax
 from digail.nets.vae import HierarchicalPolicy
 
 if TYPE_CHECKING:
@@ -54,24 +54,24 @@ class DirectedInfoGAIL(GAIL):
 
     def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
                       env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-        """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it."""
-        # inside a rollout q runs from its weight snapshot, which takes prev as integers
-        snap = self._q_snap
-        logits = snap(obs_n, prev) if snap is not None else self.model.q(obs_n, one_hot(prev, self.K))
-        logp_all = torch.log_softmax(logits, -1)
+        """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it.
+
+        The rollout hot path, so it runs in NumPy: q from its weight snapshot (the rollout's, else a fresh one),
+        which takes prev as integers, and the Gumbel noise of sampled codes from `np_rng`.
+        """
+        snap = self._q_snap if self._q_snap is not None else CodeMLP([self.model.q.net], self.model.obs_dim)
+        logp_all = log_softmax(snap(obs_n.cpu().numpy(), prev.cpu().numpy()))
         if self.cfg.closed_loop_codes == "argmax":
             codes = logp_all.argmax(-1)
         else:
-            gumbel = -torch.log(-torch.log(torch.rand(logp_all.shape, generator=self.gen).clamp_(1e-20, 1.0)))
-            codes = (logp_all + gumbel).argmax(-1)  # a sample of q (Gumbel-max)
+            codes = (logp_all + self.np_rng.gumbel(size=logp_all.shape)).argmax(-1)  # a sample of q (Gumbel-max)
         if self.n_replay:
             length = self.replay_codes.shape[1]
             replayed = self.replay_codes[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, length - 1)]
             use = (env_idx < self.n_replay) & (t_ep < length) & (replayed >= 0)
-            if use.any():
-                codes = torch.where(torch.from_numpy(use).to(self.device),
-                                    torch.from_numpy(replayed).to(self.device), codes)
-        return codes, logp_all.gather(-1, codes[:, None]).squeeze(-1)
+            codes = np.where(use, replayed, codes)
+        logq = logp_all[np.arange(len(codes)), codes]
+        return torch.from_numpy(codes).to(obs_n.device), torch.from_numpy(logq).to(obs_n.device)
 
 
 # -------------------------------------------------------------------------------------------- the command

@@ -226,65 +226,82 @@ class GAIL:
     def collect(self) -> dict[str, torch.Tensor]:
         """One rollout of `steps_per_env` steps in every env: the on-policy batch, env rewards and the bonus.
 
-        The hot path: networks run from weight snapshots (`digail.nets.fast`), one forward for pi and V together.
+        The hot path runs in NumPy, where a step costs a few microseconds per array operation instead of torch's
+        dispatch per op: the networks run from float32 weight snapshots (`digail.nets.fast`, one forward for pi
+        and V together), the action noise is drawn from `np_rng` once per rollout, and the batch fills
+        preallocated arrays that become tensors once at the end. `_choose_codes` sees CPU tensors sharing memory
+        with those arrays; the previous codes live in an array during the rollout and go back to
+        `codes_state.prev` at its end.
         """
         from digail.nets.fast import ActorCritic, CodeMLP
 
         cfg = self.cfg.ppo
-        T, N = cfg.steps_per_env, self.envs.num_envs
-        self._ac = ActorCritic(self.model.pi, self.value, self.model.obs_dim)
-        self._q_snap = CodeMLP([self.model.q.net], self.model.obs_dim) if self.K > 1 else None
+        T, N, obs_dim = cfg.steps_per_env, self.envs.num_envs, self.model.obs_dim
+        ac = ActorCritic(self.model.pi, self.value, obs_dim)
+        self._q_snap = CodeMLP([self.model.q.net], obs_dim) if self.K > 1 else None
         if self._obs is None:
             self._obs = self._reset_envs()
-        dev, obs_dim = self.device, self.model.obs_dim
-        b_obs = torch.zeros(T, N, obs_dim, device=dev)
-        b_codes = torch.zeros(T, N, dtype=torch.long, device=dev)
-        b_acts = torch.zeros(T, N, *(() if self.discrete else self.exp_acts.shape[1:]), device=dev,
-                             dtype=torch.long if self.discrete else torch.float32)
-        b_logp, b_values, b_bonus, b_final_values = (torch.zeros(T, N, device=dev) for _ in range(4))
-        b_term = torch.zeros(T, N, dtype=torch.bool, device=dev)
-        b_trunc = torch.zeros(T, N, dtype=torch.bool, device=dev)
-        ac, state = self._ac, self.codes_state
-        all_idx = np.arange(N)
-        obs_n = self._obs
-        codes = self._codes
+        norm = self.model.normalizer
+        mean, std, clip = norm.mean.cpu().numpy(), norm.std.cpu().numpy(), float(norm.clip)
+
+        def normalize(obs: np.ndarray) -> np.ndarray:  # ObsNormalizer.forward, op for op
+            x = obs - mean
+            x /= std
+            np.maximum(x, -clip, out=x)
+            return np.minimum(x, clip, out=x)
+
+        def choose(obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray, idx: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+            codes, logq = self._choose_codes(torch.from_numpy(obs_n), torch.from_numpy(prev), t_ep, idx)
+            return codes.cpu().numpy(), logq.cpu().numpy()
+
+        b_obs = np.empty((T, N, obs_dim), np.float32)
+        b_codes = np.empty((T, N), np.int64)
+        b_acts = (np.empty((T, N), np.int64) if ac.discrete else np.empty((T, N, ac.act_dim), np.float32))
+        b_logp, b_values, b_bonus = (np.empty((T, N), np.float32) for _ in range(3))
+        b_final_values = np.zeros((T, N), np.float32)
+        b_term, b_trunc = np.empty((T, N), bool), np.empty((T, N), bool)
+        noise = ac.sample_noise(self.np_rng, (T, N))
+        state, all_idx = self.codes_state, np.arange(N)
+        obs_n, codes = self._obs.cpu().numpy(), self._codes.cpu().numpy()
+        prev = state.prev.cpu().numpy().copy()
         for t in range(T):
-            act, logp, val = ac.sample(obs_n, codes, self.gen)
-            b_obs[t], b_codes[t], b_acts[t], b_logp[t], b_values[t] = obs_n, codes, act, logp, val
-            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(act))
+            acts, b_logp[t], b_values[t] = ac.sample(obs_n, codes, noise[t])
+            b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, acts
+            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(torch.from_numpy(acts)))
             self.ep_returns += rews
             self.ep_lengths += 1
             state.t_ep += 1
-            next_obs_n = self._normalize(next_obs)
+            next_n = normalize(next_obs)
             if final:
                 done = np.fromiter(final, dtype=np.int64, count=len(final))
-                done_t = torch.from_numpy(done).to(dev)
-                final_obs_n = self._normalize(np.stack([final[i][0] for i in done]))
-                bonus_obs_n = next_obs_n.clone()
-                bonus_obs_n[done_t] = final_obs_n
-                new_codes, logq = self._choose_codes(bonus_obs_n, state.prev, state.t_ep, all_idx)
-                trunc_mask = torch.from_numpy(truncs[done]).to(dev)
-                if bool(trunc_mask.any()):
-                    tr = done_t[trunc_mask]
-                    b_final_values[t, tr] = ac.value(final_obs_n[trunc_mask], new_codes[tr])
+                final_n = normalize(np.stack([final[i][0] for i in done]))
+                # the bonus scores the state the step produced: the final observation where an episode ended
+                bonus_obs = next_n.copy()
+                bonus_obs[done] = final_n
+                codes, b_bonus[t] = choose(bonus_obs, prev, state.t_ep, all_idx)
+                tr = truncs[done]
+                if tr.any():  # a time limit is bootstrapped from V(final obs, its code)
+                    b_final_values[t, done[tr]] = ac.value(final_n[tr], codes[done[tr]])
                 for i in done:
                     self._episode_done(int(i))
                 self._start_episodes(done)
-                start_codes, _ = self._choose_codes(next_obs_n[done_t], state.prev[done_t], state.t_ep[done], done)
-                new_codes[done_t] = start_codes
+                prev[done] = -1
+                codes[done], _ = choose(next_n[done], prev[done], state.t_ep[done], done)
             else:
-                new_codes, logq = self._choose_codes(next_obs_n, state.prev, state.t_ep, all_idx)
-            b_bonus[t] = logq
-            b_term[t] = torch.from_numpy(terms)
-            b_trunc[t] = torch.from_numpy(truncs)
-            state.prev = new_codes
-            codes = new_codes
-            obs_n = next_obs_n
-        self._obs, self._codes = obs_n, codes
-        last_values = ac.value(obs_n, codes)
+                codes, b_bonus[t] = choose(next_n, prev, state.t_ep, all_idx)
+            b_term[t], b_trunc[t] = terms, truncs
+            prev[:] = codes
+            obs_n = next_n
+        dev = self.device
+        self._obs, self._codes = torch.from_numpy(obs_n).to(dev), torch.from_numpy(codes).to(dev)
+        state.prev = torch.from_numpy(prev).to(dev)
+        self._q_snap = None
         self.global_step += T * N
-        return dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
-                    final_values=b_final_values, terminated=b_term, truncated=b_trunc, last_values=last_values)
+        batch = dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
+                     final_values=b_final_values, terminated=b_term, truncated=b_trunc,
+                     last_values=ac.value(obs_n, codes))
+        return {k: torch.from_numpy(v).to(dev) for k, v in batch.items()}
 
     def _episode_done(self, i: int) -> None:
         self.recent_returns.append(float(self.ep_returns[i]))
