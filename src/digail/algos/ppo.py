@@ -72,17 +72,20 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
     updates = 0
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)
+        # one gather per epoch: the minibatches are then contiguous views (the same rows as indexing each one)
+        e_obs, e_codes, e_acts, e_logp, e_adv, e_returns = (
+            t[perm] for t in (batch.obs, batch.codes, batch.acts, batch.logp, batch.adv, batch.returns))
         kl_sum, kl_count = 0.0, 0
         for start in range(0, n - mb + 1, mb):
-            idx = perm[start:start + mb]
-            logp, entropy = policy.log_prob_entropy(batch.obs[idx], batch.codes[idx], batch.acts[idx])
-            log_ratio = logp - batch.logp[idx]
+            mb_obs, mb_codes = e_obs[start:start + mb], e_codes[start:start + mb]
+            logp, entropy = policy.log_prob_entropy(mb_obs, mb_codes, e_acts[start:start + mb])
+            log_ratio = logp - e_logp[start:start + mb]
             ratio = log_ratio.exp()
-            adv = batch.adv[idx]
-            if cfg.norm_adv and len(idx) > 1:
+            adv = e_adv[start:start + mb]
+            if cfg.norm_adv and mb > 1:
                 adv = (adv - adv.mean()) / (adv.std() + 1e-8)
             pg_loss = -torch.min(ratio * adv, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * adv).mean()
-            v_loss = 0.5 * (value(batch.obs[idx], batch.codes[idx]) - batch.returns[idx]).pow(2).mean()
+            v_loss = 0.5 * (value(mb_obs, mb_codes) - e_returns[start:start + mb]).pow(2).mean()
             entropy = entropy.mean()
             loss = pg_loss + cfg.vf_coef * v_loss - cfg.ent_coef * entropy if train_policy else v_loss
             if train_policy and bc_loss is not None and bc_weight > 0:

@@ -69,7 +69,7 @@ class CodeMLP:
 
     def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
         h = obs_n @ self.w_obs
-        h += self.code_table[codes]
+        h += self.code_table.take(codes, 0)
         np.maximum(h, 0.0, out=h)
         for w, b in self.rest[:-1]:
             h = h @ w
