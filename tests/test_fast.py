@@ -1,13 +1,17 @@
 """The rollout's NumPy weight snapshots compute what the modules compute."""
 
 import numpy as np
+import pytest
 import torch
 
+from digail.algos.directed_info_gail import DirectedInfoGAIL
+from digail.algos.rollout import make_env
+from digail.config import PPOConfig, TrainConfig
 from digail.nets.critic import ValueNet
 from digail.nets.fast import ActorCritic, CodeMLP, log_softmax
 from digail.nets.mlp import one_hot
 from digail.nets.policy import ActionSpec, SubtaskPolicy
-from digail.nets.vae import MacroPolicy
+from digail.nets.vae import HierarchicalPolicy, MacroPolicy
 
 
 def _close(a: np.ndarray, b: torch.Tensor) -> bool:
@@ -90,3 +94,91 @@ def test_actor_critic_handles_a_policy_that_sees_part_of_the_observation():
     out = ac(obs.numpy(), codes.numpy())
     assert _close(out[:, :2], pi.mode(obs, torch.eye(3)[codes]))
     assert _close(out[:, 2], v(obs, torch.eye(3)[codes]))
+
+
+@pytest.mark.parametrize("env_id, demos_fixture, pi_obs", [("digail/FourRooms-v0", "rooms_demos", (0, 2)),
+                                                           ("digail/CircleWorld-v0", "circle_demos", None)])
+def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, request):
+    """Every number `collect` stores, recomputed from the torch modules and the envs' own final observations.
+
+    With argmax codes the macro-policy is deterministic, so the test can say which code each state gets: the
+    replayed demonstration's code while it lasts (first half of the envs), else argmax q(. | s, c_prev). Episodes
+    end inside the rollout (time limits at 64 / 120 steps), so the bonus on the final observation, the start
+    code of the next episode and the truncation bootstrap are all checked.
+    """
+    demos = request.getfixturevalue(demos_fixture)
+    torch.manual_seed(0)
+    obs_dim = demos[0].obs.shape[1]
+    probe = make_env(env_id)
+    model = HierarchicalPolicy(obs_dim, 3, ActionSpec.from_space(probe.action_space), pi_obs=pi_obs)
+    model.normalizer.fit(np.concatenate([t.obs for t in demos]))
+    T, N = 150, 4
+    cfg = TrainConfig(ppo=PPOConfig(num_envs=N, batch_size=T * N), closed_loop_codes="argmax")
+    trainer = DirectedInfoGAIL(env_id, demos, model, cfg, seed=0, progress=False)
+    with torch.no_grad():
+        for p in [*model.q.parameters(), *model.pi.parameters()]:  # confident, varied codes and actions
+            p.add_(0.5 * torch.randn_like(p))
+        model.q.net[0].weight[:, obs_dim:] += 3.0 * torch.randn(64, 3)  # the previous code matters
+
+    demo_of: list[list[int]] = [[] for _ in range(N)]  # the demonstration each episode of each env replays
+    start = trainer._start_episodes
+
+    def recording_start(idx):
+        start(idx)
+        for i in idx:
+            demo_of[int(i)].append(int(trainer.codes_state.replay_idx[i]))
+
+    finals: dict[tuple[int, int], np.ndarray] = {}
+    step, t_now = trainer.envs.step, [0]
+
+    def recording_step(acts):
+        out = step(acts)
+        for i, (o, _) in out[5].items():
+            finals[(t_now[0], i)] = o
+        t_now[0] += 1
+        return out
+
+    trainer._start_episodes, trainer.envs.step = recording_start, recording_step
+    b = trainer.collect()
+    done = (b["terminated"] | b["truncated"]).numpy()
+    assert done.sum() >= N and b["truncated"].any()
+
+    eye, q, pi, v, norm = trainer.eye, model.q, model.pi, trainer.value, model.normalizer
+    flat = b["obs"].reshape(T * N, -1)
+    code_1h = eye[b["codes"].reshape(-1)]
+    acts = b["acts"].reshape(T * N, *b["acts"].shape[2:])
+    with torch.no_grad():
+        ref_logp, _ = pi.log_prob_entropy(flat, code_1h, acts)
+        assert torch.allclose(b["logp"].reshape(-1), ref_logp, atol=1e-4)
+        assert torch.allclose(b["values"].reshape(-1), v(flat, code_1h), atol=1e-4)
+
+    def expected_code(i: int, episode: int, t_ep: int, s_n: torch.Tensor, prev: int) -> tuple[int, float]:
+        logq = torch.log_softmax(q(s_n[None], one_hot(torch.tensor([prev]), 3)), -1)[0]
+        code = int(logq.argmax())
+        seq = trainer.replay_codes[demo_of[i][episode]]
+        if i < trainer.n_replay and t_ep < len(seq) and seq[t_ep] >= 0:
+            code = int(seq[t_ep])
+        return code, float(logq[code])
+
+    with torch.no_grad():
+        for i in range(N):
+            episode, t_ep = 0, 0
+            assert int(b["codes"][0, i]) == expected_code(i, 0, 0, b["obs"][0, i], -1)[0]
+            for t in range(T):
+                prev, t_ep = int(b["codes"][t, i]), t_ep + 1
+                s_n = norm(torch.from_numpy(finals[(t, i)])) if done[t, i] else (
+                    b["obs"][t + 1, i] if t + 1 < T else trainer._obs[i])
+                code, logq = expected_code(i, episode, t_ep, s_n, prev)
+                assert abs(float(b["bonus"][t, i]) - logq) < 1e-4, (i, t)
+                if b["truncated"][t, i]:
+                    assert abs(float(b["final_values"][t, i]) - float(v(s_n[None], eye[[code]]))) < 1e-4
+                else:
+                    assert float(b["final_values"][t, i]) == 0.0
+                if done[t, i]:
+                    episode, t_ep = episode + 1, 0
+                    if t + 1 < T:
+                        code = expected_code(i, episode, 0, b["obs"][t + 1, i], -1)[0]
+                if t + 1 < T:
+                    assert int(b["codes"][t + 1, i]) == code, (i, t)
+    # the replayed episodes really replay (first half), the others follow q
+    assert trainer.n_replay == N // 2 and all(d >= 0 for i in range(N // 2) for d in demo_of[i])

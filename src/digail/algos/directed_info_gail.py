@@ -44,10 +44,16 @@ class DirectedInfoGAIL(GAIL):
     def __init__(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
         super().__init__(*args, **kwargs)
         self.n_replay = int(round(self.cfg.replay_fraction * self.envs.num_envs))
+        # q's segmentations with a column of -1 (past a demonstration's end) and a row of -1 (the replay index of
+        # closed-loop envs): a code is replayed where the table holds one, with no further checks per step
+        length = self.replay_codes.shape[1]
+        self._replay_table = np.full((len(self.replay_codes) + 1, length + 1), -1, dtype=np.int64)
+        self._replay_table[:-1, :length] = self.replay_codes
 
     def _start_episodes(self, idx: np.ndarray) -> None:
         super()._start_episodes(idx)
-        self.codes_state.replay_idx[idx] = self.np_rng.integers(len(self.replay_codes), size=len(idx))
+        demo = self.np_rng.integers(len(self.replay_codes), size=len(idx))
+        self.codes_state.replay_idx[idx] = np.where(idx < self.n_replay, demo, -1)
 
     def _is_closed_loop(self, i: int) -> bool:
         return i >= self.n_replay
@@ -66,10 +72,9 @@ class DirectedInfoGAIL(GAIL):
         else:
             codes = (logp_all + self.np_rng.gumbel(size=logp_all.shape)).argmax(-1)  # a sample of q (Gumbel-max)
         if self.n_replay:
-            length = self.replay_codes.shape[1]
-            replayed = self.replay_codes[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, length - 1)]
-            use = (env_idx < self.n_replay) & (t_ep < length) & (replayed >= 0)
-            codes = np.where(use, replayed, codes)
+            table = self._replay_table
+            replayed = table[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, table.shape[1] - 1)]
+            codes = np.where(replayed >= 0, replayed, codes)
         logq = logp_all[np.arange(len(codes)), codes]
         return torch.from_numpy(codes).to(obs_n.device), torch.from_numpy(logq).to(obs_n.device)
 
