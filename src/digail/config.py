@@ -92,7 +92,10 @@ class PPOConfig:
     minibatch_size: int = 128
     """samples per gradient step"""
     lr: float = 3e-4
-    """Adam learning rate (policy and value)"""
+    """Adam learning rate of the value net (and of the policy unless `policy_lr` is set)"""
+    policy_lr: float | None = None
+    """Adam learning rate of the policy (None: `lr`); fine-tuning a precise behaviour-cloning policy wants it
+    small, since Adam moves every weight by about the learning rate whatever the gradient's signal-to-noise"""
     gamma: float = 0.99
     """discount"""
     gae_lambda: float = 0.95

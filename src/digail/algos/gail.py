@@ -35,26 +35,47 @@ CHECKPOINT_VERSION = 1
 def action_transform(env: gym.Env) -> Any:
     """The map from a sampled action to what the env executes, as the discriminator should see it.
 
-    Box actions are clipped to their bounds; an env may also define `canonical_action(acts)` (a batch function,
-    e.g. Circle-World normalises directions), so D cannot tell agent from expert by a detail the env discards.
+    Box actions are clipped to their bounds, or mapped by the env's `canonical_action(acts)` where it has one (a
+    batch function, e.g. Circle-World normalises directions), so D cannot tell agent from expert by a detail the
+    env discards.
     """
     space: Any = env.action_space
     canonical = getattr(env.unwrapped, "canonical_action", None)
     if isinstance(space, gym.spaces.Discrete):
         return None
+    if canonical is not None:
+        return canonical  # what the env executes (see `env_action_fn`), no clipping first
     low = torch.as_tensor(space.low, dtype=torch.float32)
     high = torch.as_tensor(space.high, dtype=torch.float32)
 
     def transform(acts: torch.Tensor) -> torch.Tensor:
-        out = torch.max(torch.min(acts, high), low)
-        return canonical(out) if canonical is not None else out
+        return torch.max(torch.min(acts, high), low)
 
     return transform
 
 
-def adam(params: list[torch.nn.Parameter], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
+def env_action_fn(env: gym.Env) -> Any:
+    """The map from a batch of sampled NumPy actions to what is passed to `env.step` (None: as they are).
+
+    Box actions are clipped to their bounds, unless the env defines `canonical_action`, which is then applied
+    instead and must land in the bounds itself: Circle-World executes only the direction of an action, and
+    clipping a sampled vector to the box before that bends the direction whenever a component passes +-1 - a
+    bias of a degree or two at the policy's noise level, which the deterministic policy (never clipped) then
+    carries as a systematic turn, enough to ruin a drawn circle within a few PPO updates (measured).
+    """
+    space: Any = env.action_space
+    if isinstance(space, gym.spaces.Discrete):
+        return None
+    canonical = getattr(env.unwrapped, "canonical_action", None)
+    if canonical is not None:
+        return lambda acts: np.asarray(canonical(acts), dtype=np.float32)
+    low, high = space.low.astype(np.float32), space.high.astype(np.float32)
+    return lambda acts: np.clip(acts, low, high)
+
+
+def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
     """Adam with the fused kernel where this torch build has it (about 1.6x faster PPO epochs for 2x64 nets on
-    CPU, measured), else the default implementation; the maths is the same."""
+    CPU, measured), else the default implementation; the maths is the same. `params` may be parameter groups."""
     try:
         return torch.optim.Adam(params, lr=lr, eps=eps, fused=True)
     except (RuntimeError, TypeError):
@@ -116,16 +137,15 @@ class GAIL:
         probe = self.envs.envs[0]
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
         self.n_actions = int(getattr(probe.action_space, "n", 0))
-        if not self.discrete:
-            box: Any = probe.action_space
-            self.act_low = box.low.astype(np.float32)
-            self.act_high = box.high.astype(np.float32)
+        self._to_env_actions = env_action_fn(probe)
         self._act_transform = action_transform(probe)
         act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        self.optimizer = adam([*self.model.pi.parameters(), *self.value.parameters()], lr=cfg.ppo.lr, eps=1e-5)
+        policy_lr = cfg.ppo.lr if cfg.ppo.policy_lr is None else cfg.ppo.policy_lr
+        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": policy_lr},
+                               {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
         self._load_expert(demos)
@@ -214,7 +234,7 @@ class GAIL:
         if not np.isfinite(a).all():
             raise TrainingError(f"the policy produced non-finite actions at iteration {self.iteration + 1}; the last "
                                 "good checkpoint is kept - lower the learning rate or check the demonstrations.")
-        return np.clip(a, self.act_low, self.act_high)
+        return self._to_env_actions(a)
 
     def _normalize(self, obs: np.ndarray) -> torch.Tensor:
         """Raw NumPy observations -> normalised tensor (the normaliser is fixed during training)."""

@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from digail.algos.gail import env_action_fn
 from digail.algos.rollout import make_env
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
@@ -50,10 +51,7 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
     model.eval()
     device = next(model.parameters()).device
     envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(min(num_envs, episodes))]
-    space: Any = envs[0].action_space
-    discrete = isinstance(space, gym.spaces.Discrete)
-    low = None if discrete else space.low
-    high = None if discrete else space.high
+    to_env = env_action_fn(envs[0])
     K = model.codes
     eye = torch.eye(K, device=device)
     results: list[Episode | None] = [None] * episodes
@@ -76,8 +74,8 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
         code_1h = eye[codes]
         acts = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
         acts_np = acts.cpu().numpy()
-        if not discrete:
-            acts_np = np.clip(acts_np, low, high)
+        if to_env is not None:
+            acts_np = to_env(acts_np)
         keep: list[dict[str, Any]] = []
         for s, a, c in zip(slots, acts_np, codes.tolist(), strict=True):
             obs, r, term, trunc, info = s["env"].step(a)
