@@ -227,8 +227,8 @@ class GAIL:
         self.codes_state.prev = self._codes.clone()
         return obs_n
 
-    def _env_actions(self, acts: torch.Tensor) -> np.ndarray:
-        a = acts.numpy() if acts.device.type == "cpu" else acts.cpu().numpy()
+    def _env_actions(self, a: np.ndarray) -> np.ndarray:
+        """Sampled actions -> what the envs execute; non-finite continuous actions stop the run."""
         if self.discrete:
             return a
         if not np.isfinite(a).all():
@@ -288,7 +288,7 @@ class GAIL:
         for t in range(T):
             acts, b_logp[t], b_values[t] = ac.sample(obs_n, codes, noise[t])
             b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, acts
-            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(torch.from_numpy(acts)))
+            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(acts))
             self.ep_returns += rews
             self.ep_lengths += 1
             state.t_ep += 1
