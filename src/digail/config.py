@@ -110,6 +110,9 @@ class PPOConfig:
     """gradient-norm clip"""
     norm_adv: bool = True
     """normalise advantages per minibatch"""
+    anneal_lr: bool = False
+    """decay the policy and value learning rates linearly to 0 over the training's iterations (the final policy
+    then settles instead of being whatever the last noisy update left)"""
     target_kl: float | None = None
     """stop the epoch loop early once the approximate KL exceeds this (None: never)"""
 
@@ -183,7 +186,11 @@ PRESETS: dict[str, Preset] = {
         # The episode ends at the apple, so a survival reward -log(1 - D) would teach the agent to avoid it:
         # log D (a step cost) keeps the expert's incentive to finish (measured: success 0.04 vs 1.0).
         dict(iterations=1000, bonus_weight=0.1, reward="negative"),
-        dict(batch_size=256, minibatch_size=64, ent_coef=0.01),
+        # The deterministic policy fails by looping between two cells, which the stochastic training policy
+        # escapes. No entropy bonus and a learning rate decayed to 0 let the final policy settle: deterministic
+        # success of the last iterate, 300 episodes, seeds 0 / 1 / 2 - 0.94 / 0.97 / 0.94 without the bonus at a
+        # constant rate, 0.99 / 0.98 / 0.98 with the decay (seed 2 with ent_coef 0.01: 0.90 constant, 0.96 decayed).
+        dict(batch_size=256, minibatch_size=64, ent_coef=0.0, anneal_lr=True),
     ),
     "circle-world": _preset(
         # smoothing_weight 1.0 (and 0.1 alone) collapsed onto one code in about half the seeds; with the KL and

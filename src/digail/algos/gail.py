@@ -146,6 +146,8 @@ class GAIL:
         policy_lr = cfg.ppo.lr if cfg.ppo.policy_lr is None else cfg.ppo.policy_lr
         self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": policy_lr},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
+        self._base_lrs = [float(g["lr"]) for g in self.optimizer.param_groups]
+        self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
         self._load_expert(demos)
@@ -389,6 +391,10 @@ class GAIL:
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
                                    batch["final_values"], batch["last_values"], self.cfg.ppo.gamma,
                                    self.cfg.ppo.gae_lambda)
+        if self.cfg.ppo.anneal_lr:
+            frac = max(0.0, 1.0 - self.iteration / max(self._total_iterations, 1))
+            for group, base in zip(self.optimizer.param_groups, self._base_lrs, strict=True):
+                group["lr"] = base * frac
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
         losses = ppo_update(self.model.pi, self.value, self.optimizer, ppo_batch, self.cfg.ppo, self.gen,
@@ -420,6 +426,7 @@ class GAIL:
         from tqdm import tqdm
 
         total = self.cfg.iterations if iterations is None else iterations
+        self._total_iterations = total
         if self.run_dir is not None and self._logger is None:
             self._logger = ScalarLogger(self.run_dir)
         last: dict[str, float] = {}
