@@ -199,10 +199,14 @@ PRESETS: dict[str, Preset] = {
         # q noise 0.08 letting the macro-policy switch near the origin, not only on it, order_correct 0.41 -> 0.88.
         dict(codes=2, epochs=1000, batch_size=16, smoothing_weight=0.1, warmup_epochs=200, entropy_weight=0.03,
              polish_steps=20000, q_noise=0.08),
-        # Drawing needs precise directions: a smaller noise floor, a longer critic warm-up and a KL guard keep
-        # PPO from wrecking the VAE initialisation in its first updates (measured on an oracle-initialised run).
-        dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-2.3),
-        dict(batch_size=512, minibatch_size=128, target_kl=0.03),
+        # The drawing's radius is set by sub-degree directions near the origin (README, Results), and PPO at the
+        # paper's rate turns the mean direction by about a degree per update. Fine-tuning therefore keeps the
+        # policy close to the VAE's: exploration noise of 0.01 (0.6 degrees), a policy learning rate of 1e-5
+        # decayed to 0, a critic warm-up and a KL guard. Seeds 0 / 1 / 2, 100 episodes: order_correct
+        # 0.94 / 0.92 / 0.82 and radius error 0.11 / 0.09 / 0.09, against 0.47 / 0.41 / 0.00 and 0.23-0.33
+        # with noise 0.1 at the paper's rate.
+        dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6),
+        dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),
     ),
     "pendulum": _preset(
         dict(codes=4, epochs=1000, batch_size=16),
