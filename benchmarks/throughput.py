@@ -1,6 +1,6 @@
 """Training throughput on one machine, in one run: env alone, rollouts, full DI-GAIL, Stable-Baselines3 PPO.
 
-    python benchmarks/throughput.py [--env Hopper-v5] [--num-envs 8] [--batch 4096] [--iterations 2] [--rounds 3]
+    python benchmarks/throughput.py [--env Hopper-v5] [--num-envs 8] [--batch 4096] [--iterations 3] [--rounds 5]
 
 Writes benchmarks/throughput.json with environment steps per second:
 - random_sps: the vector env stepping random actions (the ceiling for any trainer);
@@ -55,9 +55,9 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--minibatch", type=int, default=512)
     parser.add_argument("--epochs", type=int, default=10)
-    parser.add_argument("--iterations", type=int, default=2)
+    parser.add_argument("--iterations", type=int, default=3)
     parser.add_argument("--codes", type=int, default=4)
-    parser.add_argument("--rounds", type=int, default=3, help="interleaved repetitions; medians are reported")
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved repetitions; medians are reported")
     parser.add_argument("--out", default=str(Path(__file__).with_name("throughput.json")))
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -93,7 +93,8 @@ def main() -> None:
     model.normalizer.fit(np.concatenate([t.obs for t in demos]))
     ppo = PPOConfig(num_envs=args.num_envs, batch_size=args.batch, epochs=args.epochs,
                     minibatch_size=args.minibatch)
-    cfg = TrainConfig(iterations=args.iterations, ppo=ppo, disc_minibatch_size=args.minibatch)
+    # value_warmup=0: every measured iteration updates the policy too (the default warm-up would skip its backward)
+    cfg = TrainConfig(iterations=args.iterations, ppo=ppo, disc_minibatch_size=args.minibatch, value_warmup=0)
     trainer = DirectedInfoGAIL(args.env, demos, model, cfg, seed=0, progress=False)
     trainer.collect()  # warm-up: first resets, allocations
 
