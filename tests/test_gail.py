@@ -189,3 +189,14 @@ def test_policy_learning_rate_and_linear_annealing(circle_demos):
     np.testing.assert_allclose(lrs, [[1e-4 * f, 1e-3 * f] for f in (1.0, 0.75, 0.5, 0.25)], rtol=1e-6)
     policy_group = {id(p) for p in trainer.optimizer.param_groups[0]["params"]}
     assert policy_group == {id(p) for p in trainer.model.pi.parameters()}
+
+
+def test_resuming_a_checkpoint_of_another_format_version_says_so(tmp_path, circle_demos):
+    from digail.errors import UserError
+
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=None, progress=False)
+    state = trainer.state_dict()
+    state["version"] = 1
+    with pytest.raises(UserError, match="format version 1.*start the training again"):
+        trainer.load_state_dict(state)

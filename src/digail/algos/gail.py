@@ -23,13 +23,14 @@ from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
 from digail.algos.rollout import VecEnv
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
-from digail.errors import TrainingError
+from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
 from digail.utils import atomic_write_bytes
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+"""2: the PPO optimiser holds two parameter groups (policy, value), for `PPOConfig.policy_lr`"""
 
 
 def action_transform(env: gym.Env) -> Any:
@@ -470,6 +471,11 @@ class GAIL:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        version = int(state.get("version", 0))
+        if version != CHECKPOINT_VERSION:
+            raise UserError(f"this training checkpoint has format version {version}, but this digail resumes "
+                            f"version {CHECKPOINT_VERSION}; start the training again (its model.pt still "
+                            "evaluates).")
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])
