@@ -117,6 +117,11 @@ class PPOConfig:
     """stop the epoch loop early once the approximate KL exceeds this (None: never)"""
 
     @property
+    def policy_learning_rate(self) -> float:
+        """the policy's Adam learning rate: `policy_lr`, or `lr` when that is None"""
+        return self.lr if self.policy_lr is None else self.policy_lr
+
+    @property
     def steps_per_env(self) -> int:
         """rollout length per env per iteration"""
         return max(1, self.batch_size // self.num_envs)

@@ -58,15 +58,15 @@ class DirectedInfoGAIL(GAIL):
     def _is_closed_loop(self, i: int) -> bool:
         return i >= self.n_replay
 
-    def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
-                      env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def _choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
+                      env_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it.
 
         The rollout hot path, so it runs in NumPy: q from its weight snapshot (the rollout's, else a fresh one),
         which takes prev as integers, and the Gumbel noise of sampled codes from `np_rng`.
         """
         snap = self._q_snap if self._q_snap is not None else CodeMLP([self.model.q.net], self.model.obs_dim)
-        logp_all = log_softmax(snap(obs_n.cpu().numpy(), prev.cpu().numpy()))
+        logp_all = log_softmax(snap(obs_n, prev))
         if self.cfg.closed_loop_codes == "argmax":
             codes = logp_all.argmax(-1)
         else:
@@ -76,7 +76,7 @@ class DirectedInfoGAIL(GAIL):
             replayed = table[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, table.shape[1] - 1)]
             codes = np.where(replayed >= 0, replayed, codes)
         logq = logp_all[np.arange(len(codes)), codes]
-        return torch.from_numpy(codes).to(obs_n.device), torch.from_numpy(logq).to(obs_n.device)
+        return codes, logq
 
 
 # -------------------------------------------------------------------------------------------- the command

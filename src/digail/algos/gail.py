@@ -20,7 +20,7 @@ import torch
 from torch import nn
 
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
-from digail.algos.rollout import VecEnv
+from digail.algos.rollout import VecEnv, env_action_fn
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import TrainingError, UserError
@@ -45,7 +45,7 @@ def action_transform(env: gym.Env) -> Any:
     if isinstance(space, gym.spaces.Discrete):
         return None
     if canonical is not None:
-        return canonical  # what the env executes (see `env_action_fn`), no clipping first
+        return canonical  # what the env executes (see `digail.algos.rollout.env_action_fn`), no clipping first
     low = torch.as_tensor(space.low, dtype=torch.float32)
     high = torch.as_tensor(space.high, dtype=torch.float32)
 
@@ -53,25 +53,6 @@ def action_transform(env: gym.Env) -> Any:
         return torch.max(torch.min(acts, high), low)
 
     return transform
-
-
-def env_action_fn(env: gym.Env) -> Any:
-    """The map from a batch of sampled NumPy actions to what is passed to `env.step` (None: as they are).
-
-    Box actions are clipped to their bounds, unless the env defines `canonical_action`, which is then applied
-    instead and must land in the bounds itself: Circle-World executes only the direction of an action, and
-    clipping a sampled vector to the box before that bends the direction whenever a component passes +-1 - a
-    bias of a degree or two at the policy's noise level, which the deterministic policy (never clipped) then
-    carries as a systematic turn, enough to ruin a drawn circle within a few PPO updates (measured).
-    """
-    space: Any = env.action_space
-    if isinstance(space, gym.spaces.Discrete):
-        return None
-    canonical = getattr(env.unwrapped, "canonical_action", None)
-    if canonical is not None:
-        return lambda acts: np.asarray(canonical(acts), dtype=np.float32)
-    low, high = space.low.astype(np.float32), space.high.astype(np.float32)
-    return lambda acts: np.clip(acts, low, high)
 
 
 def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
@@ -87,7 +68,7 @@ def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
 class CodeState:
     """Per-env macro-policy state during rollouts."""
 
-    prev: torch.Tensor
+    prev: np.ndarray
     """(N,) previous code, -1 at an episode start (the start input c_{-1})"""
     t_ep: np.ndarray
     """(N,) step index within the current episode"""
@@ -144,10 +125,8 @@ class GAIL:
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        policy_lr = cfg.ppo.lr if cfg.ppo.policy_lr is None else cfg.ppo.policy_lr
-        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": policy_lr},
+        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.policy_learning_rate},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
-        self._base_lrs = [float(g["lr"]) for g in self.optimizer.param_groups]
         self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
@@ -202,19 +181,20 @@ class GAIL:
 
     # ----------------------------------------------------------------------------------- macro-policy hooks
     def _new_code_state(self, n: int) -> CodeState:
-        return CodeState(prev=torch.full((n,), -1, dtype=torch.long, device=self.device),
-                         t_ep=np.zeros(n, dtype=np.int64), replay_idx=np.zeros(n, dtype=np.int64))
+        return CodeState(prev=np.full(n, -1, dtype=np.int64), t_ep=np.zeros(n, dtype=np.int64),
+                         replay_idx=np.zeros(n, dtype=np.int64))
 
     def _start_episodes(self, idx: np.ndarray) -> None:
         """Reset the code state of the envs in `idx` at an episode start."""
-        self.codes_state.prev[torch.as_tensor(idx, device=self.device)] = -1
+        self.codes_state.prev[idx] = -1
         self.codes_state.t_ep[idx] = 0
 
-    def _choose_codes(self, obs_n: torch.Tensor, prev: torch.Tensor, t_ep: np.ndarray,
-                      env_idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-        """Codes c_t for observations s_t given c_{t-1}, and log q(c_t | s_t, c_{t-1}). One code: always 0."""
+    def _choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
+                      env_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Codes c_t for normalised observations s_t given integer c_{t-1}, and log q(c_t | s_t, c_{t-1}), in
+        NumPy (the rollout's hot path). One code: always 0."""
         n = len(obs_n)
-        return (torch.zeros(n, dtype=torch.long, device=self.device), torch.zeros(n, device=self.device))
+        return np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.float32)
 
     # ------------------------------------------------------------------------------------------ rollouts
     def _reset_envs(self) -> torch.Tensor:
@@ -226,8 +206,9 @@ class GAIL:
         self.ep_returns = np.zeros(n)
         self.ep_lengths = np.zeros(n, dtype=np.int64)
         obs_n = self._normalize(obs)
-        self._codes, _ = self._choose_codes(obs_n, self.codes_state.prev, self.codes_state.t_ep, np.arange(n))
-        self.codes_state.prev = self._codes.clone()
+        self._codes, _ = self._choose_codes(obs_n.cpu().numpy(), self.codes_state.prev, self.codes_state.t_ep,
+                                            np.arange(n))
+        self.codes_state.prev = self._codes.copy()
         return obs_n
 
     def _env_actions(self, a: np.ndarray) -> np.ndarray:
@@ -252,9 +233,7 @@ class GAIL:
         The hot path runs in NumPy, where a step costs a few microseconds per array operation instead of torch's
         dispatch per op: the networks run from float32 weight snapshots (`digail.nets.fast`, one forward for pi
         and V together), the action noise is drawn from `np_rng` once per rollout, and the batch fills
-        preallocated arrays that become tensors once at the end. `_choose_codes` sees CPU tensors sharing memory
-        with those arrays; the previous codes live in an array during the rollout and go back to
-        `codes_state.prev` at its end.
+        preallocated arrays that become tensors once at the end.
         """
         from digail.nets.fast import ActorCritic, CodeMLP
 
@@ -273,11 +252,6 @@ class GAIL:
             np.maximum(x, -clip, out=x)
             return np.minimum(x, clip, out=x)
 
-        def choose(obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray, idx: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-            codes, logq = self._choose_codes(torch.from_numpy(obs_n), torch.from_numpy(prev), t_ep, idx)
-            return codes.cpu().numpy(), logq.cpu().numpy()
-
         b_obs = np.empty((T, N, obs_dim), np.float32)
         b_codes = np.empty((T, N), np.int64)
         b_acts = (np.empty((T, N), np.int64) if ac.discrete else np.empty((T, N, ac.act_dim), np.float32))
@@ -286,8 +260,7 @@ class GAIL:
         b_term, b_trunc = np.empty((T, N), bool), np.empty((T, N), bool)
         noise = ac.sample_noise(self.np_rng, (T, N))
         state, all_idx = self.codes_state, np.arange(N)
-        obs_n, codes = self._obs.cpu().numpy(), self._codes.cpu().numpy()
-        prev = state.prev.cpu().numpy().copy()
+        obs_n, codes, prev = self._obs.cpu().numpy(), self._codes, state.prev
         for t in range(T):
             acts, b_logp[t], b_values[t] = ac.sample(obs_n, codes, noise[t])
             b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, acts
@@ -302,23 +275,21 @@ class GAIL:
                 # the bonus scores the state the step produced: the final observation where an episode ended
                 bonus_obs = next_n.copy()
                 bonus_obs[done] = final_n
-                codes, b_bonus[t] = choose(bonus_obs, prev, state.t_ep, all_idx)
+                codes, b_bonus[t] = self._choose_codes(bonus_obs, prev, state.t_ep, all_idx)
                 tr = truncs[done]
                 if tr.any():  # a time limit is bootstrapped from V(final obs, its code)
                     b_final_values[t, done[tr]] = ac.value(final_n[tr], codes[done[tr]])
                 for i in done:
                     self._episode_done(int(i))
-                self._start_episodes(done)
-                prev[done] = -1
-                codes[done], _ = choose(next_n[done], prev[done], state.t_ep[done], done)
+                self._start_episodes(done)  # the start input c_{-1} in prev
+                codes[done], _ = self._choose_codes(next_n[done], prev[done], state.t_ep[done], done)
             else:
-                codes, b_bonus[t] = choose(next_n, prev, state.t_ep, all_idx)
+                codes, b_bonus[t] = self._choose_codes(next_n, prev, state.t_ep, all_idx)
             b_term[t], b_trunc[t] = terms, truncs
             prev[:] = codes
             obs_n = next_n
         dev = self.device
-        self._obs, self._codes = torch.from_numpy(obs_n).to(dev), torch.from_numpy(codes).to(dev)
-        state.prev = torch.from_numpy(prev).to(dev)
+        self._obs, self._codes = torch.from_numpy(obs_n).to(dev), codes
         self._q_snap = None
         self.global_step += T * N
         batch = dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
@@ -394,7 +365,8 @@ class GAIL:
                                    self.cfg.ppo.gae_lambda)
         if self.cfg.ppo.anneal_lr:
             frac = max(0.0, 1.0 - self.iteration / max(self._total_iterations, 1))
-            for group, base in zip(self.optimizer.param_groups, self._base_lrs, strict=True):
+            bases = (self.cfg.ppo.policy_learning_rate, self.cfg.ppo.lr)  # the optimiser's groups, in order
+            for group, base in zip(self.optimizer.param_groups, bases, strict=True):
                 group["lr"] = base * frac
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))

@@ -16,8 +16,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from digail.algos.gail import env_action_fn
-from digail.algos.rollout import make_env
+from digail.algos.rollout import env_action_fn, make_env
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
 
