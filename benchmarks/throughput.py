@@ -5,7 +5,12 @@
 Writes benchmarks/throughput.json with environment steps per second:
 - random_sps: the vector env stepping random actions (the ceiling for any trainer);
 - rollout_sps: digail's rollout (macro-policy q + sub-task policy pi + value), no learning;
-- train_sps: full Directed-Info GAIL iterations (rollout, discriminator, reward relabelling, PPO epochs);
+- train_sps: full Directed-Info GAIL iterations (rollout, discriminator, reward relabelling, PPO epochs), with
+  the PPO loss compiled where the env's preset compiles it (Hopper does; `compile` and the warm-up iteration's
+  time, which includes the compile, are in the JSON);
+- train_eager_sps: the same iterations with the loss not compiled (only where the preset compiles);
+- train_over_own_rollouts: the training iterations' rollout time over their total time (the learning's
+  overhead, measured within the same iterations);
 - sb3_ppo_sps: Stable-Baselines3 PPO with the same envs, batch, epochs, minibatch and 64x64 networks.
 Absolute numbers drift by +-25% on a shared 2-core machine; the ratios measured in one run are what to quote.
 Demonstrations are random-action rollouts: throughput does not depend on their quality.
@@ -14,10 +19,12 @@ Demonstrations are random-action rollouts: throughput does not depend on their q
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +72,7 @@ def main() -> None:
     import digail
     from digail.algos.directed_info_gail import DirectedInfoGAIL
     from digail.algos.rollout import VecEnv
-    from digail.config import PPOConfig, TrainConfig
+    from digail.config import PPOConfig, TrainConfig, get_preset
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
 
@@ -91,20 +98,44 @@ def main() -> None:
     obs_dim = demos[0].obs.shape[1]
     model = HierarchicalPolicy(obs_dim, args.codes, ActionSpec.from_space(space))
     model.normalizer.fit(np.concatenate([t.obs for t in demos]))
+    # compile as the env's preset does (the MuJoCo presets compile the PPO loss)
+    compile_loss = get_preset(None, args.env).train.ppo.compile
     ppo = PPOConfig(num_envs=args.num_envs, batch_size=args.batch, epochs=args.epochs,
-                    minibatch_size=args.minibatch)
+                    minibatch_size=args.minibatch, compile=compile_loss)
     # value_warmup=0: every measured iteration updates the policy too (the default warm-up would skip its backward)
     cfg = TrainConfig(iterations=args.iterations, ppo=ppo, disc_minibatch_size=args.minibatch, value_warmup=0)
     trainer = DirectedInfoGAIL(args.env, demos, model, cfg, seed=0, progress=False)
-    trainer.collect()  # warm-up: first resets, allocations
+    t0 = time.perf_counter()
+    trainer.iterate()  # warm-up, as SB3 gets below: first resets, allocations, the loss's compile
+    results["compile"] = compile_loss
+    results["warmup_iteration_s"] = time.perf_counter() - t0
+
+    # the same iterations with the loss left eager: what `--train.ppo.no-compile` (and any non-compiling preset) gets
+    eager = None
+    if compile_loss:
+        eager_cfg = TrainConfig(iterations=args.iterations, ppo=replace(ppo, compile=False),
+                                disc_minibatch_size=args.minibatch, value_warmup=0)
+        eager = DirectedInfoGAIL(args.env, demos, copy.deepcopy(model), eager_cfg, seed=0, progress=False)
+        eager.iterate()
+
+    def train_eager() -> None:
+        assert eager is not None
+        for _ in range(args.iterations):
+            eager.iterate()
 
     def rollouts() -> None:
         for _ in range(args.iterations):
             trainer.collect()
 
+    shares: list[float] = []  # per round: the rollout's share of the training iterations' own time
+
     def train() -> None:
+        t_rollout = t_total = 0.0
         for _ in range(args.iterations):
-            trainer.iterate()
+            out = trainer.iterate()
+            t_rollout += 1.0 / out["perf/rollout_sps"]
+            t_total += 1.0 / out["perf/sps"]
+        shares.append(t_rollout / t_total)
 
     # Stable-Baselines3 PPO at matched settings
     from stable_baselines3 import PPO
@@ -120,6 +151,8 @@ def main() -> None:
 
     # Rounds interleave the four measurements so that drifting load on a shared machine hits all of them alike.
     runs = {"random_sps": random_steps, "rollout_sps": rollouts, "train_sps": train, "sb3_ppo_sps": sb3}
+    if eager is not None:
+        runs["train_eager_sps"] = train_eager
     samples: dict[str, list[float]] = {k: [] for k in runs}
     for r in range(args.rounds):
         for name, fn in runs.items():
@@ -139,6 +172,14 @@ def main() -> None:
     results["train_over_sb3"] = ratio("train_sps", "sb3_ppo_sps")
     results["train_over_rollout"] = ratio("train_sps", "rollout_sps")
     results["rollout_over_random"] = ratio("rollout_sps", "random_sps")
+    # The same ratio inside the training iterations: their rollouts' time over their whole time. Immune to what
+    # the separate rollout runs cannot control: Hopper's step cost follows the policy's gait (contacts, falls),
+    # and the policy moves between the phases of a round.
+    results["train_over_own_rollouts"] = float(np.median(shares))
+    results["samples"]["train_over_own_rollouts"] = shares  # type: ignore[index]
+    if eager is not None:
+        results["train_eager_over_sb3"] = ratio("train_eager_sps", "sb3_ppo_sps")
+        results["train_eager_over_rollout"] = ratio("train_eager_sps", "rollout_sps")
     results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, "
                        "bonus) that SB3 PPO does not do; "
                        "quote ratios from one run, absolute numbers drift +-25% on a shared machine.")

@@ -52,3 +52,90 @@ def test_ppo_update_raises_probability_of_positive_advantage_actions():
     after = policy.dist(obs, codes).probs[:, 2].mean().item()
     assert after > before + 0.1
     assert stats["clip_frac"] > 0  # the clip engaged: the ratio moved past 1 +- 0.2
+
+
+def _nets(seed: int = 0) -> tuple[SubtaskPolicy, ValueNet]:
+    torch.manual_seed(seed)
+    return SubtaskPolicy(5, 3, ActionSpec(False, 2)), ValueNet(5, 3)
+
+
+def _continuous_batch(policy: SubtaskPolicy, n: int = 256) -> PPOBatch:
+    g = torch.Generator().manual_seed(1)
+    obs, codes = torch.randn(n, 5, generator=g), torch.eye(3)[torch.randint(3, (n,), generator=g)]
+    with torch.no_grad():
+        acts = policy.mode(obs, codes) + 0.3 * torch.randn(n, 2, generator=g)
+        logp, _ = policy.log_prob_entropy(obs, codes, acts)
+    return PPOBatch(obs, codes, acts, logp, torch.randn(n, generator=g), torch.randn(n, generator=g))
+
+
+def test_lean_step_equals_clip_grad_norm_and_torch_adam():
+    """The direct foreach clip + fused Adam kernel is the same maths as torch's clip_grad_norm_ + Adam.step,
+    including the first step (state creation), a second parameter group and a parameter left without a grad."""
+    from torch import nn
+
+    from digail.algos.gail import adam
+    from digail.algos.ppo import LeanStep
+
+    nets = [_nets(), _nets()]
+    opts = [adam([{"params": list(p.parameters()), "lr": 1e-3}, {"params": list(v.parameters())}], lr=3e-3)
+            for p, v in nets]
+    lean = LeanStep(opts[1], 0.5)
+    g = torch.Generator().manual_seed(2)
+    x = torch.randn(64, 8, generator=g)
+    for step in range(6):
+        for k, ((pi, v), opt) in enumerate(zip(nets, opts, strict=True)):
+            opt.zero_grad(set_to_none=True)
+            loss = (pi.net(x) ** 2).sum() * 3 + v.net(x).pow(2).mean()
+            if step != 3:  # step 3: log_std gets no gradient (Adam must skip it)
+                loss = loss + pi.log_std.sum()
+            loss.backward()
+            if k == 0:
+                nn.utils.clip_grad_norm_([*pi.parameters(), *v.parameters()], 0.5)
+                opt.step()
+            else:
+                lean()
+        for a, b in zip([*nets[0][0].parameters(), *nets[0][1].parameters()],
+                        [*nets[1][0].parameters(), *nets[1][1].parameters()], strict=True):
+            assert torch.allclose(a, b, rtol=0, atol=1e-7), step
+    assert lean.groups is not None  # the lean path ran (not only the fallback)
+    assert opts[0].state_dict()["state"].keys() == opts[1].state_dict()["state"].keys()
+
+
+def test_compiled_update_matches_eager_and_falls_back(monkeypatch):
+    """`PPOConfig.compile` gives the eager update's numbers (up to float rounding); where compiling fails the
+    update warns once and carries on eagerly."""
+    import warnings
+
+    import pytest
+
+    import digail.algos.ppo as ppo_mod
+    from digail.algos.gail import adam
+
+    results = []
+    for compile_ in (False, True):
+        pi, v = _nets()
+        opt = adam([{"params": list(pi.parameters())}, {"params": list(v.parameters())}], lr=3e-4)
+        cfg = PPOConfig(epochs=2, minibatch_size=64, compile=compile_)
+        stats = ppo_update(pi, v, opt, _continuous_batch(pi), cfg, torch.Generator().manual_seed(0))
+        results.append((stats, torch.cat([p.detach().flatten() for p in [*pi.parameters(), *v.parameters()]])))
+    (eager_stats, eager_w), (comp_stats, comp_w) = results
+    assert torch.allclose(eager_w, comp_w, atol=1e-5)
+    assert eager_stats["value"] == pytest.approx(comp_stats["value"], rel=1e-4)
+
+    def broken(fn, **kwargs):  # a machine without a working compiler
+        def call(*args):
+            raise RuntimeError("no C++ compiler")
+        return call
+
+    monkeypatch.setattr(torch, "compile", broken)
+    monkeypatch.setattr(ppo_mod, "_compiled", {})
+    monkeypatch.setattr(ppo_mod, "_compile_failed", False)
+    pi, v = _nets()
+    opt = adam([{"params": list(pi.parameters())}, {"params": list(v.parameters())}], lr=3e-4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        stats = ppo_update(pi, v, opt, _continuous_batch(pi), PPOConfig(epochs=2, minibatch_size=64, compile=True),
+                           torch.Generator().manual_seed(0))
+    assert [str(w.message) for w in caught if "torch.compile failed" in str(w.message)]
+    assert len([w for w in caught if "torch.compile failed" in str(w.message)]) == 1
+    assert stats["value"] == pytest.approx(eager_stats["value"], rel=1e-6)

@@ -115,6 +115,11 @@ class PPOConfig:
     then settles instead of being whatever the last noisy update left)"""
     target_kl: float | None = None
     """stop the epoch loop early once the approximate KL exceeds this (None: never)"""
+    compile: bool = False
+    """compile the minibatch loss and its backward with `torch.compile`: for 2x64 nets on CPU a minibatch's
+    forward and backward run about 1.6x faster, a whole Hopper-sized update about 1.25x (measured), after a
+    one-off compile of ~10-30 s, so the long MuJoCo presets set it. Falls back to eager, with a warning, where
+    this machine cannot compile"""
 
     @property
     def policy_learning_rate(self) -> float:
@@ -184,7 +189,8 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any]) -> 
 
 
 PRESETS: dict[str, Preset] = {
-    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch.
+    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch. The long MuJoCo runs compile
+    # the PPO loss (`PPOConfig.compile`): a one-off ~20 s against minibatch steps about 1.25x faster.
     "four-rooms": _preset(
         # The polish lifts DI-GAIL's success from 0.93 to 0.97 (seed 0, 300 episodes, deterministic).
         dict(codes=4, epochs=500, batch_size=32, polish_steps=20000),
@@ -221,17 +227,17 @@ PRESETS: dict[str, Preset] = {
     "hopper": _preset(
         dict(codes=4, epochs=2000, batch_size=32),
         dict(iterations=5000, bonus_weight=0.01),
-        dict(batch_size=4096, minibatch_size=512),
+        dict(batch_size=4096, minibatch_size=512, compile=True),
     ),
     "walker2d": _preset(
         dict(codes=4, epochs=2000, batch_size=32),
         dict(iterations=5000, bonus_weight=0.001),
-        dict(batch_size=8192, minibatch_size=1024),
+        dict(batch_size=8192, minibatch_size=1024, compile=True),
     ),
     "fetch": _preset(
         dict(codes=4, epochs=1000, batch_size=32),
         dict(iterations=2000, bonus_weight=0.01, bc_weight=0.0),
-        dict(batch_size=4096, minibatch_size=512),
+        dict(batch_size=4096, minibatch_size=512, compile=True),
     ),
     # A few seconds end to end: for tests and trying the commands.
     "smoke": _preset(

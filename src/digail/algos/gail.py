@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
+from digail.algos.ppo import LeanStep, PPOBatch, compute_gae, maybe_compiled, ppo_update
 from digail.algos.rollout import VecEnv, env_action_fn
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
@@ -53,6 +53,17 @@ def action_transform(env: gym.Env) -> Any:
         return torch.max(torch.min(acts, high), low)
 
     return transform
+
+
+def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """D's binary cross-entropy on ready [obs, action] inputs, agent labelled 0 and expert 1; also the detached
+    (loss, agent accuracy, expert accuracy)."""
+    logits_agent, logits_expert = disc.net(x_agent).squeeze(-1), disc.net(x_expert).squeeze(-1)
+    bce = nn.functional.binary_cross_entropy_with_logits
+    loss = bce(logits_agent, torch.zeros_like(logits_agent)) + bce(logits_expert, torch.ones_like(logits_expert))
+    parts = torch.stack([loss, (logits_agent < 0).float().mean(), (logits_expert > 0).float().mean()])
+    return loss, parts.detach()
 
 
 def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
@@ -152,6 +163,7 @@ class GAIL:
         else:
             self.exp_acts = torch.as_tensor(acts_np, dtype=torch.float32, device=self.device)
         self.exp_act_in = self._act_input(self.exp_acts)
+        self.exp_disc_in = torch.cat([self.exp_obs_n, self.exp_act_in], -1)  # D's input, built once
         seqs = [self._decode_codes(t) for t in demos]
         self.exp_codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=self.device)
         longest = max(len(s) for s in seqs)
@@ -313,27 +325,22 @@ class GAIL:
         """Binary cross-entropy on agent (label 0) vs expert (label 1) pairs; returns loss and accuracies."""
         n = len(obs_n)
         half = max(1, self.cfg.disc_minibatch_size // 2)
-        bce = nn.functional.binary_cross_entropy_with_logits
-        losses, acc_agent, acc_expert, steps = 0.0, 0.0, 0.0, 0
+        x_agent = torch.cat([obs_n, act_in], -1)
+        loss_fn = maybe_compiled(disc_loss, self.cfg.ppo.compile)
+        step = LeanStep(self.disc_optimizer, None)
+        stats = []
         for _ in range(self.cfg.disc_updates):
             perm = torch.randperm(n, generator=self.gen)
             for start in range(0, n - half + 1, half):
-                idx = perm[start:start + half]
-                e_idx = torch.randint(len(self.exp_obs_n), (len(idx),), generator=self.gen)
-                logits_agent = self.disc(obs_n[idx], act_in[idx])
-                logits_expert = self.disc(self.exp_obs_n[e_idx], self.exp_act_in[e_idx])
-                loss = bce(logits_agent, torch.zeros_like(logits_agent)) + \
-                    bce(logits_expert, torch.ones_like(logits_expert))
+                e_idx = torch.randint(len(self.exp_disc_in), (half,), generator=self.gen)
+                loss, parts = loss_fn(self.disc, x_agent[perm[start:start + half]], self.exp_disc_in[e_idx])
                 self.disc_optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                self.disc_optimizer.step()
-                losses += loss.item()
-                acc_agent += float((logits_agent < 0).float().mean())
-                acc_expert += float((logits_expert > 0).float().mean())
-                steps += 1
-        steps = max(steps, 1)
-        return {"disc/loss": losses / steps, "disc/acc_agent": acc_agent / steps,
-                "disc/acc_expert": acc_expert / steps, "disc/accuracy": 0.5 * (acc_agent + acc_expert) / steps}
+                step()
+                stats.append(parts)
+        loss_mean, acc_agent, acc_expert = torch.stack(stats).mean(0).tolist() if stats else [0.0] * 3
+        return {"disc/loss": loss_mean, "disc/acc_agent": acc_agent, "disc/acc_expert": acc_expert,
+                "disc/accuracy": 0.5 * (acc_agent + acc_expert)}
 
     # ---------------------------------------------------------------------------------------- iteration
     def _bc_loss(self) -> torch.Tensor:

@@ -59,14 +59,15 @@ class SubtaskPolicy(nn.Module):
         if not action.discrete:
             self.log_std = nn.Parameter(torch.full((action.dim,), init_log_std))
 
-    def _inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
+    def inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
+        """The net's input for normalised observations and codes (the seen slice, then the code)."""
         if self.obs_slice is not None:
             obs_n = obs_n[..., self.obs_slice[0]:self.obs_slice[1]]
         return torch.cat([obs_n, code_1h], -1)
 
     def dist(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> Distribution:
         """Action distribution for normalised observations and (one-hot or relaxed) codes."""
-        out = self.net(self._inputs(obs_n, code_1h))
+        out = self.net(self.inputs(obs_n, code_1h))
         if self.action.discrete:
             return Categorical(logits=out, validate_args=False)  # argument checks cost more than the net here
         std = self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)
@@ -75,17 +76,23 @@ class SubtaskPolicy(nn.Module):
     def log_prob_entropy(self, obs_n: torch.Tensor, code_1h: torch.Tensor, acts: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
         """log pi(a | s, c) and the entropy, computed in closed form (the PPO hot path; no Distribution objects)."""
-        out = self.net(self._inputs(obs_n, code_1h))
+        logp, entropy = self.log_prob_entropy_of(self.inputs(obs_n, code_1h), acts)
+        return logp, entropy.expand(len(logp))
+
+    def log_prob_entropy_of(self, inputs: torch.Tensor, acts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`log_prob_entropy` from ready net inputs (`inputs(...)`); the Gaussian's entropy comes back as one
+        scalar, since it does not depend on the state (the PPO update's form: fewest ops per minibatch)."""
+        out = self.net(inputs)
         if self.action.discrete:
             logp_all = torch.log_softmax(out, -1)
             return logp_all.gather(-1, acts.long()[..., None]).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
         log_std = self.log_std.clamp(-5.0, 2.0)
         z = (acts - out) * torch.exp(-log_std)
-        logp = -0.5 * z.pow(2).sum(-1) - log_std.sum() - 0.5 * self.action.dim * LOG_2PI
-        entropy = (log_std.sum() + 0.5 * self.action.dim * (1.0 + LOG_2PI)).expand(len(out))
-        return logp, entropy
+        log_std_sum = log_std.sum()
+        logp = -0.5 * z.pow(2).sum(-1) - log_std_sum - 0.5 * self.action.dim * LOG_2PI
+        return logp, log_std_sum + 0.5 * self.action.dim * (1.0 + LOG_2PI)
 
     def mode(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """Most likely action (argmax or mean)."""
-        out = self.net(self._inputs(obs_n, code_1h))
+        out = self.net(self.inputs(obs_n, code_1h))
         return out.argmax(-1) if self.action.discrete else out
