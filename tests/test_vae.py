@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import sys
 import types
@@ -13,6 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from digail.algos.vae_pretrain import (
+    anticipate_switches,
     categorical_kl,
     gumbel_softmax_chain,
     pad_demos,
@@ -349,3 +351,29 @@ def test_polish_sharpens_pi_keeps_the_segmentation_and_widens_q_switching() -> N
     assert [c.tolist() for c in segment_many(model, trajs)] == [c.tolist() for c in codes]
     assert after[0] > before[0] + 0.5, (before, after)
     assert after[1] > before[1] + 0.1 and after[1] >= 0.7, (before, after)
+
+
+def test_anticipate_switches_moves_each_switch_earlier_without_crossing_the_previous_one() -> None:
+    seq = np.array([0, 0, 0, 0, 0, 1, 1, 1, 0, 0])
+    assert anticipate_switches(seq, 0).tolist() == seq.tolist()
+    assert anticipate_switches(seq, 2).tolist() == [0, 0, 0, 1, 1, 1, 0, 0, 0, 0]
+    # a short segment shrinks but keeps its first state; the start state keeps its code
+    assert anticipate_switches(np.array([0, 0, 1, 1, 1, 0]), 3).tolist() == [0, 1, 1, 0, 0, 0]
+    assert anticipate_switches(np.array([1, 1, 1]), 2).tolist() == [1, 1, 1]
+
+
+def test_polish_with_anticipation_switches_one_state_earlier() -> None:
+    """`q_anticipate 1`: q switches on the state before the expert's switch as well; pi keeps its codes."""
+    trajs = two_phase_demos()
+    base, _ = pretrain(trajs, TWO_PHASE_VAE, seed=0, progress=False)
+    codes = segment_many(base, trajs)
+    assert all(int(np.flatnonzero(np.diff(c))[0]) + 1 == 10 for c in codes)  # the VAE switches back at the start
+    polished = {}
+    for k in (0, 1):
+        model = copy.deepcopy(base)
+        polish(model, trajs, dataclasses.replace(TWO_PHASE_VAE, polish_steps=1500, polish_lr=3e-3, q_anticipate=k),
+               seed=0, progress=False)
+        polished[k] = model
+    assert [c.tolist() for c in segment_many(polished[0], trajs)] == [c.tolist() for c in codes]
+    assert [c.tolist() for c in segment_many(polished[1], trajs)] == \
+        [anticipate_switches(c, 1).tolist() for c in codes]

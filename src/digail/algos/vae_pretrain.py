@@ -426,8 +426,10 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     if not model.action.discrete:
         acts = acts.float().reshape(len(acts), -1)
     codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
+    q_seqs = [anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]
+    q_codes = torch.as_tensor(np.concatenate(q_seqs), device=dev)
     start = model.codes  # index of the zero row: c_{-1}
-    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
+    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in q_seqs]), device=dev)
     table = torch.cat([torch.eye(model.codes, device=dev), torch.zeros(1, model.codes, device=dev)])
     with torch.no_grad():
         obs_n = model.normalizer(obs)
@@ -444,7 +446,7 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
         noisy = obs_n[idx]
         if cfg.q_noise > 0:
             noisy = noisy + cfg.q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
-        loss = -log_pi.mean() + F.cross_entropy(model.q(noisy, prev_1h[idx]), codes[idx])
+        loss = -log_pi.mean() + F.cross_entropy(model.q(noisy, prev_1h[idx]), q_codes[idx])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -458,6 +460,22 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
         raise UserError("the VAE polish diverged (non-finite weights); lower --vae.polish-lr or set "
                         "--vae.polish-steps 0.")
     return model.eval()
+
+
+def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:
+    """`codes` with every switch moved up to `steps` steps earlier (never before the previous switch).
+
+    The polish trains q on this sequence (pi keeps the original): the macro-policy then switches anywhere on the
+    last `steps` states before the expert's switch, not only on the switching state itself.
+    """
+    out = np.array(codes, copy=True)
+    if steps <= 0:
+        return out
+    switches = np.flatnonzero(np.diff(codes)) + 1
+    for i, t in enumerate(switches):
+        first = max(t - steps, switches[i - 1] + 1 if i else 1)
+        out[first:t] = codes[t]
+    return out
 
 
 def _adam(params: list[nn.Parameter], lr: float) -> torch.optim.Optimizer:
