@@ -426,10 +426,12 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     if not model.action.discrete:
         acts = acts.float().reshape(len(acts), -1)
     codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
-    q_seqs = [anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]
-    q_codes = torch.as_tensor(np.concatenate(q_seqs), device=dev)
+    # q's targets anticipate each switch; its previous-code inputs stay the segmentation's, so the switching
+    # state itself (previous code still the old one) keeps its target too
+    q_codes = torch.as_tensor(np.concatenate([anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]),
+                              device=dev)
     start = model.codes  # index of the zero row: c_{-1}
-    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in q_seqs]), device=dev)
+    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
     table = torch.cat([torch.eye(model.codes, device=dev), torch.zeros(1, model.codes, device=dev)])
     with torch.no_grad():
         obs_n = model.normalizer(obs)
@@ -465,8 +467,8 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
 def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:
     """`codes` with every switch moved up to `steps` steps earlier (never before the previous switch).
 
-    The polish trains q on this sequence (pi keeps the original): the macro-policy then switches anywhere on the
-    last `steps` states before the expert's switch, not only on the switching state itself.
+    The polish takes q's targets from this sequence (q's previous-code inputs and pi keep the original): the
+    macro-policy then switches anywhere on the last `steps` states before the expert's switch as well as on it.
     """
     out = np.array(codes, copy=True)
     if steps <= 0:
