@@ -10,7 +10,8 @@ Each seed runs exactly what a user would type (printed as it goes):
     digail train --method digail --demos D --vae R/vae_sS --seed S --out R/digail_sS
     digail evaluate R/digail_sS --episodes N
 and on Circle-World also Directed-Info GAIL + L2 (`--bc-weight 100`), plain GAIL (`--method gail`, with the
-paper's policy learning rate `--train.ppo.policy-lr 3e-4`, since it trains a fresh policy), and
+paper's policy learning rate `--train.ppo.policy-lr 3e-4` and no anchor `--train.anchor-weight 0`, since it trains
+a fresh policy), and
 `digail compose RUN --schedule <ccw>:60,<cw>:60` on the VAE and DI-GAIL runs, where <ccw> and <cw> are the codes
 the VAE's segmentation matched to the counter-clockwise and clockwise labels (code ids are arbitrary).
 Finished runs are reused, so seeds can run in parallel (`--only-seeds`) and a final call collects them.
@@ -72,8 +73,9 @@ def run_seed(task: dict[str, Any], root: Path, seed: int, episodes: int) -> dict
     variants: list[tuple[str, list[str]]] = [("digail", ["--method", "digail", "--vae", str(vae)])]
     if task["gail"]:
         variants += [("digail_l2", ["--method", "digail", "--vae", str(vae), "--bc-weight", "100"]),
-                     # plain GAIL trains a fresh policy: it keeps the paper's learning rate, not the fine-tuning one
-                     ("gail", ["--method", "gail", "--train.ppo.policy-lr", "3e-4"])]
+                     # plain GAIL trains a fresh policy: the paper's learning rate, not the fine-tuning one, and no
+                     # anchor to its random initialisation
+                     ("gail", ["--method", "gail", "--train.ppo.policy-lr", "3e-4", "--train.anchor-weight", "0"])]
     runs = {"vae": vae}
     for name, flags in variants:
         run = root / f"{name}_s{seed}"

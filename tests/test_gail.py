@@ -200,3 +200,27 @@ def test_resuming_a_checkpoint_of_another_format_version_says_so(tmp_path, circl
     state["version"] = 1
     with pytest.raises(UserError, match="format version 1.*start the training again"):
         trainer.load_state_dict(state)
+
+
+def test_anchor_keeps_the_policy_near_its_initialisation(circle_demos):
+    """`anchor_weight` pulls pi's mean actions back to the initial policy's on the rollout's states: after the
+    same iterations, the anchored policy's actions moved several times less than the free one's."""
+    probe = torch.as_tensor(np.concatenate([t.obs[:-1] for t in circle_demos]), dtype=torch.float32)
+    moved = {}
+    for weight in (0.0, 100.0):
+        cfg = replace(SMALL, iterations=6, value_warmup=0, anchor_weight=weight,
+                      ppo=replace(SMALL.ppo, lr=3e-3))
+        model = _vae_model(circle_demos)
+        trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=model, seed=0, run_dir=None,
+                                progress=False)
+        with torch.no_grad():
+            codes = torch.eye(2)[torch.zeros(len(probe), dtype=torch.long)]
+            before = trainer.model.pi.mode(trainer.model.normalizer(probe), codes)
+            out = {}
+            for _ in range(6):
+                with torch.enable_grad():
+                    out = trainer.iterate()
+            after = trainer.model.pi.mode(trainer.model.normalizer(probe), codes)
+        moved[weight] = float((after - before).norm(dim=-1).mean())
+        assert (out["losses/anchor"] > 0) == (weight > 0)
+    assert moved[100.0] < 0.3 * moved[0.0], moved

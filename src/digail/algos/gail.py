@@ -6,6 +6,7 @@ discriminator on agent vs expert pairs, relabel rewards from it, run PPO (option
 
 from __future__ import annotations
 
+import copy
 import math
 import random
 import time
@@ -142,6 +143,8 @@ class GAIL:
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
         self._load_expert(demos)
+        # a frozen copy of the initial policy for the anchor term (saved in checkpoints: resuming keeps the anchor)
+        self._anchor_pi = copy.deepcopy(self.model.pi).requires_grad_(False) if cfg.anchor_weight > 0 else None
         self.iteration = 0
         self.global_step = 0
         self.recent_returns: deque[float] = deque(maxlen=50)
@@ -352,6 +355,24 @@ class GAIL:
         mean = self.model.pi.mode(self.exp_obs_n[idx], code_1h)
         return (mean - self.exp_acts[idx]).pow(2).sum(-1).mean()
 
+    def _anchor_loss(self, batch: PPOBatch) -> Any:
+        """The anchor term on `batch`'s own states: squared distance between pi's mean action (or logits) and the
+        initial policy's, on a fresh random subset per call (`anchor_weight`; None-safe when it is 0)."""
+        if self.cfg.anchor_weight <= 0:
+            return lambda: torch.zeros(())
+        if self._anchor_pi is None:
+            raise TrainingError("anchor_weight > 0 needs the initial policy, which this trainer did not keep.")
+        anchor = self._anchor_pi
+
+        def loss() -> torch.Tensor:
+            idx = torch.randint(len(batch), (self.cfg.bc_batch_size,), generator=self.gen)
+            obs, codes = batch.obs[idx], batch.codes[idx]
+            with torch.no_grad():
+                target = anchor.net(anchor.inputs(obs, codes))
+            return (self.model.pi.net(self.model.pi.inputs(obs, codes)) - target).pow(2).sum(-1).mean()
+
+        return loss
+
     def iterate(self) -> dict[str, float]:
         """One training iteration; returns its scalars."""
         t0 = time.perf_counter()
@@ -378,8 +399,9 @@ class GAIL:
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
         losses = ppo_update(self.model.pi, self.value, self.optimizer, ppo_batch, self.cfg.ppo, self.gen,
-                            bc_loss=self._bc_loss if self.cfg.bc_weight > 0 else None,
-                            bc_weight=self.cfg.bc_weight, train_policy=self.iteration >= self.cfg.value_warmup)
+                            aux_losses={"bc": (self._bc_loss, self.cfg.bc_weight),
+                                        "anchor": (self._anchor_loss(ppo_batch), self.cfg.anchor_weight)},
+                            train_policy=self.iteration >= self.cfg.value_warmup)
         if not all(math.isfinite(v) for v in (*losses.values(), *stats.values())):
             bad = [k for k, v in {**losses, **stats}.items() if not math.isfinite(v)]
             raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {self.iteration + 1}; the last "
@@ -447,6 +469,7 @@ class GAIL:
                 "numpy": _np_state_to_tensors(self.np_rng),
             },
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
+            "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -466,6 +489,8 @@ class GAIL:
         self.gen.set_state(state["rng"]["gen"])
         _np_state_from_tensors(self.np_rng, state["rng"]["numpy"])
         self.recent_returns.extend(state["recent_returns"].tolist())
+        if self._anchor_pi is not None and state.get("anchor_pi") is not None:
+            self._anchor_pi.load_state_dict(state["anchor_pi"])
         self._obs = None  # envs restart with fresh episodes seeded from (seed, iteration)
 
     def save_checkpoint(self, path: Path) -> None:

@@ -162,12 +162,13 @@ class LeanStep:
 
 def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Optimizer, batch: PPOBatch,
                cfg: PPOConfig, generator: torch.Generator,
-               bc_loss: Callable[[], torch.Tensor] | None = None, bc_weight: float = 0.0,
+               aux_losses: dict[str, tuple[Callable[[], torch.Tensor], float]] | None = None,
                train_policy: bool = True) -> dict[str, float]:
     """Clipped-surrogate PPO epochs over `batch`; returns mean losses and diagnostics.
 
-    Pure apart from the parameters and optimiser it is handed: no hidden state, no env access. `bc_loss`, when
-    given, is evaluated once per minibatch on fresh expert samples and added with `bc_weight`. With
+    Pure apart from the parameters and optimiser it is handed: no hidden state, no env access. `aux_losses` maps
+    names to (loss function, weight): each with a positive weight is evaluated once per minibatch (e.g. the BC
+    term on fresh expert samples) and added to the policy's loss; its mean comes back under its name. With
     `train_policy=False` only the value loss is minimised (critic warm-up).
 
     A minibatch step is a few dozen small torch ops, so their count is the cost: the net inputs are built once
@@ -183,9 +184,9 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
         x_v = x_pi if policy.obs_slice is None else torch.cat([batch.obs, batch.codes], -1)
     loss_fn, v_loss_fn = maybe_compiled(minibatch_loss, cfg.compile), maybe_compiled(value_loss, cfg.compile)
     step = LeanStep(optimizer, cfg.max_grad_norm)
-    sums = dict.fromkeys(("policy", "value", "entropy", "approx_kl", "clip_frac", "bc"), 0.0)
+    aux = {k: fw for k, fw in (aux_losses or {}).items() if fw[1] > 0} if train_policy else {}
+    sums = dict.fromkeys(("policy", "value", "entropy", "approx_kl", "clip_frac", *(aux_losses or {})), 0.0)
     updates = 0
-    use_bc = train_policy and bc_loss is not None and bc_weight > 0
     for _ in range(cfg.epochs):
         perm = torch.randperm(n, generator=generator)[: n_mb * mb]
         e_pi, e_acts, e_logp, e_returns = (t[perm] for t in (x_pi, batch.acts, batch.logp, batch.returns))
@@ -193,17 +194,18 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
         e_adv = batch.adv[perm].view(n_mb, mb)
         if cfg.norm_adv and mb > 1:
             e_adv = (e_adv - e_adv.mean(1, keepdim=True)) / (e_adv.std(1, keepdim=True) + 1e-8)
-        log_ratios, losses, bcs = [], [], []
+        log_ratios, losses = [], []
+        aux_parts: dict[str, list[torch.Tensor]] = {k: [] for k in aux}
         for i in range(n_mb):
             rows = slice(i * mb, (i + 1) * mb)
             if train_policy:
                 loss, parts, log_ratio = loss_fn(policy, value, e_pi[rows], e_v[rows], e_acts[rows],
                                                  e_logp[rows], e_adv[i], e_returns[rows], cfg.clip, cfg.vf_coef,
                                                  cfg.ent_coef)
-                if use_bc:
-                    bc = bc_loss()  # type: ignore[misc]
-                    loss = loss + bc_weight * bc
-                    bcs.append(bc.detach())
+                for name, (fn, weight) in aux.items():
+                    part = fn()
+                    loss = loss + weight * part
+                    aux_parts[name].append(part.detach())
                 log_ratios.append(log_ratio)
                 losses.append(parts)
             else:
@@ -223,8 +225,8 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
             sums["clip_frac"] += float(((ratio_all - 1).abs() > cfg.clip).float().mean()) * n_mb
             sums["policy"] += pg
             sums["entropy"] += ent
-            if bcs:
-                sums["bc"] += float(torch.stack(bcs).sum())
+            for name, parts_ in aux_parts.items():
+                sums[name] += float(torch.stack(parts_).sum())
         else:
             vl = float(torch.stack(losses).sum())
         sums["value"] += vl
