@@ -104,6 +104,7 @@ def main() -> None:
                     minibatch_size=args.minibatch, compile=compile_loss)
     # value_warmup=0: every measured iteration updates the policy too (the default warm-up would skip its backward)
     cfg = TrainConfig(iterations=args.iterations, ppo=ppo, disc_minibatch_size=args.minibatch, value_warmup=0)
+    eager_model = copy.deepcopy(model)  # the same untrained start for the eager trainer below
     trainer = DirectedInfoGAIL(args.env, demos, model, cfg, seed=0, progress=False)
     t0 = time.perf_counter()
     trainer.iterate()  # warm-up, as SB3 gets below: first resets, allocations, the loss's compile
@@ -113,9 +114,8 @@ def main() -> None:
     # the same iterations with the loss left eager: what `--train.ppo.no-compile` (and any non-compiling preset) gets
     eager = None
     if compile_loss:
-        eager_cfg = TrainConfig(iterations=args.iterations, ppo=replace(ppo, compile=False),
-                                disc_minibatch_size=args.minibatch, value_warmup=0)
-        eager = DirectedInfoGAIL(args.env, demos, copy.deepcopy(model), eager_cfg, seed=0, progress=False)
+        eager_cfg = replace(cfg, ppo=replace(ppo, compile=False))
+        eager = DirectedInfoGAIL(args.env, demos, eager_model, eager_cfg, seed=0, progress=False)
         eager.iterate()
 
     def train_eager() -> None:

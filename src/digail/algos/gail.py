@@ -357,14 +357,11 @@ class GAIL:
 
     def _anchor_loss(self, batch: PPOBatch) -> Any:
         """The anchor term on `batch`'s own states: squared distance between pi's mean action (or logits) and the
-        initial policy's, on a fresh random subset per call (`anchor_weight`; None-safe when it is 0)."""
-        if self.cfg.anchor_weight <= 0:
-            return lambda: torch.zeros(())
-        if self._anchor_pi is None:
-            raise TrainingError("anchor_weight > 0 needs the initial policy, which this trainer did not keep.")
+        initial policy's, on a fresh random subset per call (called only when `anchor_weight` > 0)."""
         anchor = self._anchor_pi
 
         def loss() -> torch.Tensor:
+            assert anchor is not None  # kept by __init__ whenever anchor_weight > 0
             idx = torch.randint(len(batch), (self.cfg.bc_batch_size,), generator=self.gen)
             obs, codes = batch.obs[idx], batch.codes[idx]
             with torch.no_grad():

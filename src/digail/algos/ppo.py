@@ -63,7 +63,7 @@ def minibatch_loss(policy: SubtaskPolicy, value: ValueNet, x_pi: torch.Tensor, x
     Returns the loss to minimise, the detached (policy, value, entropy) losses and the detached log-ratios
     log pi(a | s, c) - log pi_old(a | s, c) (for the KL and clip-fraction diagnostics).
     """
-    v_loss = 0.5 * (value.net(x_v).squeeze(-1) - returns).pow(2).mean()
+    v_loss = value_loss(value, x_v, returns)
     logp, entropy = policy.log_prob_entropy_of(x_pi, acts)
     log_ratio = logp - logp_old
     ratio = log_ratio.exp()
