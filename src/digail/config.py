@@ -178,6 +178,11 @@ class TrainConfig:
     """hidden layer sizes of policy, value and discriminator"""
     checkpoint_every: int = 25
     """iterations between checkpoints"""
+    eval_every: int = 0
+    """iterations between closed-loop evaluations during training (deterministic, `eval_episodes` episodes on the
+    Gymnasium env, logged as `eval/*` scalars: the learning curve against env steps); 0 disables them"""
+    eval_episodes: int = 5
+    """episodes of each evaluation during training"""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     """PPO settings"""
 

@@ -35,6 +35,15 @@ class ScalarLogger:
         if new:
             self._fields = list(row)
         assert self._fields is not None
+        extra = [k for k in row if k not in self._fields]
+        if extra:  # a scalar logged only now and then (eval/*): widen the header once, keeping every old row
+            self._fields += extra
+            with open(self.path, newline="") as f:
+                rows = list(csv.DictReader(f))
+            with open(self.path, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=self._fields)
+                writer.writeheader()
+                writer.writerows(rows)
         with open(self.path, "a", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=self._fields, extrasaction="ignore")
             if new:

@@ -160,9 +160,31 @@ def train_command(args: TrainArgs) -> Path:
         write_json(run_dir / "config.json", {"args": to_dict(resolved), "method": cfg.method, "env_id": env_id,
                                              "demos": args.demos, "seed": args.seed})
     trainer.run_dir = run_dir
-    trainer.train()
+    trainer.train(evaluate=_periodic_evaluation(env_id, cfg))
     trainer.save_checkpoint(ckpt)
     return run_dir
+
+
+def _periodic_evaluation(env_id: str, cfg: TrainConfig):  # type: ignore[no-untyped-def]
+    """The `evaluate` hook of `GAIL.train` for `cfg.eval_every` > 0: deterministic closed-loop episodes from the
+    final evaluation's seeds, normalised by the expert measured once on the same seeds (None when disabled)."""
+    if cfg.eval_every <= 0:
+        return None
+    from digail.eval.returns import evaluate, expert_summary
+
+    seed = 10_000
+    expert = expert_summary(env_id, cfg.eval_episodes, seed)
+    denom = expert["mean_return"] if expert is not None else 0.0
+
+    def hook(model: HierarchicalPolicy) -> dict[str, float]:
+        result = evaluate(model, env_id, cfg.eval_episodes, seed, deterministic=True, with_expert=False)
+        out = {k: float(v) for k, v in result.items()
+               if isinstance(v, float) and k not in ("std_return",) and np.isfinite(v)}
+        if abs(denom) > 1e-6:
+            out["normalized_return"] = out["mean_return"] / denom
+        return out
+
+    return hook
 
 
 def _load_demos_for(args: TrainArgs) -> tuple[list[Trajectory], str]:

@@ -11,6 +11,7 @@ import math
 import random
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -420,8 +421,14 @@ class GAIL:
         })
         return out
 
-    def train(self, iterations: int | None = None) -> dict[str, float]:
-        """Run until `iterations` (default: the config's) are done, checkpointing along the way."""
+    def train(self, iterations: int | None = None,
+              evaluate: Callable[[HierarchicalPolicy], dict[str, float]] | None = None) -> dict[str, float]:
+        """Run until `iterations` (default: the config's) are done, checkpointing along the way.
+
+        `evaluate(model)`, when given, is called every `cfg.eval_every` iterations (and after the last one); its
+        scalars are logged as `eval/*` at the current env step. It must not draw from the trainer's generators
+        (a deterministic closed-loop evaluation on its own envs does not), so evaluating leaves training as is.
+        """
         from tqdm import tqdm
 
         total = self.cfg.iterations if iterations is None else iterations
@@ -432,13 +439,22 @@ class GAIL:
         bar = tqdm(total=total, initial=self.iteration, disable=not self.progress, desc=self.method,
                    dynamic_ncols=True)
         start_step, t_start = self.global_step, time.perf_counter()
+        every = self.cfg.eval_every
         try:
+            if evaluate is not None and every > 0 and self.iteration == 0 and self._logger is not None:
+                # the starting point of the learning curve (the VAE's policy for digail)
+                self._logger.log(0, {"iteration": 0.0, **{f"eval/{k}": float(v)
+                                                          for k, v in evaluate(self.model).items()}})
+                self.model.train()
             while self.iteration < total:
                 last = self.iterate()
                 sps = (self.global_step - start_step) / max(time.perf_counter() - t_start, 1e-9)
                 bar.update(1)
                 bar.set_postfix(steps=self.global_step, sps=f"{sps:.0f}", ret=f"{last['rollout/ep_return']:.2f}",
                                 d_acc=f"{last['disc/accuracy']:.2f}", bonus=f"{last['rollout/bonus']:.2f}")
+                if evaluate is not None and every > 0 and (self.iteration % every == 0 or self.iteration == total):
+                    last.update({f"eval/{k}": float(v) for k, v in evaluate(self.model).items()})
+                    self.model.train()
                 if self._logger is not None:
                     self._logger.log(self.global_step, {"iteration": float(self.iteration), **last})
                 if self.run_dir is not None and (self.iteration % self.cfg.checkpoint_every == 0
