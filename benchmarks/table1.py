@@ -1,0 +1,239 @@
+"""The paper's Table 1 (continuous control): VAE, GAIL and Directed-Info GAIL (+ L2) on four envs, 3 seeds.
+
+    python benchmarks/table1.py run hopper digail 0      one trial: pre-train (shared) -> train -> evaluate
+    python benchmarks/table1.py queue hopper:digail:0 walker2d:gail:1 ...   trials in turn (one per core)
+    python benchmarks/table1.py summarize                -> benchmarks/results/table1.json
+    python benchmarks/table1.py plan                     every trial of the table, as queue arguments
+
+Every stage is exactly what a user would type (printed as it runs):
+    digail pretrain --demos D --seed S --out R/vae_sS                                  (shared by a seed's methods)
+    digail train --method {gail,digail} [--vae R/vae_sS] [--bc-weight W] --demos D --seed S
+                 --train.iterations I --train.eval-every E --train.eval-episodes 5 --out R/<method>_sS
+    digail evaluate RUN --episodes 300
+
+Budgets (issue 13): 3M environment steps per run on Hopper and Walker2d, 1M on the pendulums, so the paper's
+batch sizes (Table 3) with `I = budget // batch` iterations. Finished stages are skipped and a killed training
+continues with `digail train --resume`, so the queue can be stopped and started again at any time; a lock per
+trial keeps two queues apart. Runs live in runs/table1/ (git-ignored); the summary keeps their numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent / "runs" / "table1"
+OUT = HERE / "results" / "table1.json"
+DIGAIL = [sys.executable, "-m", "digail.cli"]
+
+ENVS: dict[str, dict[str, Any]] = {
+    # budget in env steps, the preset's batch, evaluations during training every `eval_every` iterations
+    "pendulum": dict(env="Pendulum-v1", demos="digail/pendulum/expert-v0", budget=1_000_000, batch=1024,
+                     eval_every=32),
+    "invertedpendulum": dict(env="InvertedPendulum-v5", demos="digail/invertedpendulum/expert-v0",
+                             budget=1_000_000, batch=1024, eval_every=32),
+    "hopper": dict(env="Hopper-v5", demos="digail/hopper/expert-v0", budget=3_000_000, batch=4096, eval_every=25),
+    "walker2d": dict(env="Walker2d-v5", demos="digail/walker2d/expert-v0", budget=3_000_000, batch=8192,
+                     eval_every=12),
+}
+PAPER = {  # the paper's Table 1 (v0 / v2 envs): mean +- std return over 300 episodes; it reports no expert row
+    "pendulum": {"gail": (-121.42, 94.13), "vae": (-142.89, 95.57), "digail": (-125.39, 103.75)},
+    "invertedpendulum": {"gail": (1000.0, 15.23), "vae": (218.8, 7.95), "digail": (1000.0, 14.97)},
+    "hopper": {"gail": (3623.4, 51.0), "vae": (499.1, 86.2), "digail": (3662.1, 21.7)},
+    "walker2d": {"gail": (4858.0, 301.7), "vae": (1549.5, 793.7), "digail": (5083.9, 356.3)},
+}
+BC_WEIGHT = 1.0
+METHODS = {
+    "vae": [],
+    "gail": ["--method", "gail"],
+    "digail": ["--method", "digail"],
+    "gail-l2": ["--method", "gail", "--bc-weight", str(BC_WEIGHT)],
+    "digail-l2": ["--method", "digail", "--bc-weight", str(BC_WEIGHT)],
+}
+L2_ENVS = ("hopper", "walker2d")
+SEEDS = (0, 1, 2)
+EVAL_EPISODES = 300
+
+
+def sh(args: list[str], log: Path) -> None:
+    line = "digail " + " ".join(shlex.quote(a) for a in args)
+    print(f"$ {line}", flush=True)
+    t0 = time.perf_counter()
+    with open(log, "a") as f:
+        f.write(f"$ {line}\n")
+        f.flush()
+        subprocess.run([*DIGAIL, *args], check=True, stdout=f, stderr=subprocess.STDOUT)
+    print(f"  ({time.perf_counter() - t0:.0f}s)", flush=True)
+
+
+@contextlib.contextmanager
+def lock(path: Path) -> Iterator[bool]:
+    """An exclusive lock file (True when taken); a stale one from a killed queue is removed by hand."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        yield False
+        return
+    try:
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        yield True
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def train_flags(env: str, method: str, seed: int, vae: Path) -> list[str]:
+    spec = ENVS[env]
+    flags = [*METHODS[method], "--demos", spec["demos"], "--seed", str(seed),
+             "--train.iterations", str(spec["budget"] // spec["batch"]),
+             "--train.eval-every", str(spec["eval_every"]), "--train.eval-episodes", "5"]
+    if method.startswith("digail"):
+        flags += ["--vae", str(vae)]
+    return flags
+
+
+def ensure_vae(env: str, seed: int, log: Path) -> Path:
+    vae = ROOT / env / f"vae_s{seed}"
+    with lock(ROOT / env / f".vae_s{seed}.lock") as mine:
+        if not mine:  # another queue is pre-training it: wait
+            while not (vae / "model.pt").exists() or (ROOT / env / f".vae_s{seed}.lock").exists():
+                time.sleep(30)
+        elif not (vae / "model.pt").exists():
+            sh(["pretrain", "--demos", ENVS[env]["demos"], "--seed", str(seed), "--out", str(vae), "--force"], log)
+    return vae
+
+
+def run_trial(env: str, method: str, seed: int) -> None:
+    (ROOT / env).mkdir(parents=True, exist_ok=True)
+    log = ROOT / env / f"{method}_s{seed}.log"
+    with lock(ROOT / env / f".{method}_s{seed}.lock") as mine:
+        if not mine:
+            print(f"{env}:{method}:{seed} is running in another queue; skipped", flush=True)
+            return
+        vae = ensure_vae(env, seed, log) if method != "gail" and method != "gail-l2" else ROOT / env / "-"
+        run = vae if method == "vae" else ROOT / env / f"{method}_s{seed}"
+        if method != "vae":
+            done = (run / "model.pt").exists() and _finished(run, env)
+            if not done:
+                if (run / "checkpoint.pt").exists():
+                    sh(["train", "--resume", str(run)], log)
+                else:
+                    sh(["train", *train_flags(env, method, seed, vae), "--out", str(run), "--force"], log)
+        if not (run / "eval.json").exists() or json.loads((run / "eval.json").read_text())["episodes"] < EVAL_EPISODES:
+            sh(["evaluate", str(run), "--episodes", str(EVAL_EPISODES)], log)
+
+
+def _finished(run: Path, env: str) -> bool:
+    rows = _metrics(run)
+    spec = ENVS[env]
+    return bool(rows) and rows[-1].get("iteration", 0) >= spec["budget"] // spec["batch"]
+
+
+def _metrics(run: Path) -> list[dict[str, float]]:
+    path = run / "metrics.csv"
+    if not path.exists():
+        return []
+    with open(path) as f:
+        return [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(f)]
+
+
+def plan() -> list[str]:
+    out = []
+    for seed in SEEDS:
+        for env in ENVS:
+            for method in METHODS:
+                if method.endswith("-l2") and env not in L2_ENVS:
+                    continue
+                out.append(f"{env}:{method}:{seed}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------- summary
+def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
+    run = ROOT / env / (f"vae_s{seed}" if method == "vae" else f"{method}_s{seed}")
+    if not (run / "eval.json").exists():
+        return None
+    ev = json.loads((run / "eval.json").read_text())
+    rows = _metrics(run)
+    curve = [(r["step"], r["eval/normalized_return"]) for r in rows if "eval/normalized_return" in r]
+    steps_to_09 = next((s for s, v in curve if v >= 0.9), None)
+    cfg = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
+    steps = int(rows[-1]["perf/global_step"]) if rows and "perf/global_step" in rows[-1] else 0
+    log = ROOT / env / f"{method}_s{seed}.log"
+    commands = [ln[2:].strip() for ln in log.read_text().splitlines() if ln.startswith("$ ")] if log.exists() else []
+    return {
+        "seed": seed, "run": str(run.relative_to(ROOT.parent.parent)),
+        "mean_return": ev["mean_return"], "std_return": ev["std_return"],
+        "normalized_return": ev.get("normalized_return"),
+        "expert_mean_return": ev.get("expert", {}).get("mean_return"),
+        "expert_std_return": ev.get("expert", {}).get("std_return"),
+        "episodes": ev["episodes"], "env_steps": steps, "steps_to_0.9": steps_to_09,
+        "wall_s": cfg.get("train_time_s") or (rows[-1].get("perf/wall_s") if rows else None),
+        "commands": commands,
+    }
+
+
+def summarize() -> dict[str, Any]:
+    table: dict[str, Any] = {}
+    for env, spec in ENVS.items():
+        row: dict[str, Any] = {"env_id": spec["env"], "budget_steps": spec["budget"], "paper": PAPER[env],
+                               "methods": {}}
+        for method in METHODS:
+            recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
+            if not recs:
+                continue
+            norm = [r["normalized_return"] for r in recs if r["normalized_return"] is not None]
+            row["methods"][method] = {
+                "seeds": recs,
+                "median_mean_return": float(np.median([r["mean_return"] for r in recs])),
+                "median_normalized_return": float(np.median(norm)) if norm else None,
+                "complete": len(recs) == len(SEEDS),
+            }
+        table[env] = row
+    OUT.write_text(json.dumps(table, indent=2) + "\n")
+    return table
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("env", choices=list(ENVS))
+    r.add_argument("method", choices=list(METHODS))
+    r.add_argument("seed", type=int)
+    q = sub.add_parser("queue")
+    q.add_argument("trials", nargs="+", help="env:method:seed")
+    sub.add_parser("summarize")
+    sub.add_parser("plan")
+    args = ap.parse_args()
+    if args.cmd == "run":
+        run_trial(args.env, args.method, args.seed)
+    elif args.cmd == "queue":
+        for trial in args.trials:
+            env, method, seed = trial.split(":")
+            try:
+                run_trial(env, method, int(seed))
+            except subprocess.CalledProcessError as exc:
+                print(f"{trial} failed ({exc}); see its log; next trial", flush=True)
+    elif args.cmd == "plan":
+        print(" ".join(plan()))
+    else:
+        print(json.dumps(summarize(), indent=1)[:4000])
+
+
+if __name__ == "__main__":
+    main()
