@@ -16,7 +16,7 @@ def record_video(model, env_id: str, path: Path, seed: int = 0, episodes: int = 
     """Roll out the closed-loop hierarchical policy and write an mp4 of `episodes` episodes."""
     import imageio.v2 as imageio
 
-    from digail.algos.rollout import make_env
+    from digail.envs import make_env
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
