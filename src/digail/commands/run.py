@@ -115,7 +115,7 @@ def run_command(args: RunArgs) -> Path:
     result = evaluate(model, args.env, episodes)
     result["kind"] = "digail"
     write_json(run_dir / "eval.json", result)
-    shown = run_episodes(model, args.env, 6, 10_000, keep_obs=6)
+    shown = run_episodes(model, args.env, min(6, episodes), 10_000, keep_obs=6)
     plot_episodes(shown, run_dir / "figures" / "eval.png", title="closed-loop macro-policy")
     timings["evaluate_s"] = time.perf_counter() - t0
     print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")

@@ -17,23 +17,25 @@ def record_video(model, env_id: str, path: Path, seed: int = 0, episodes: int = 
     import imageio.v2 as imageio
 
     from digail.envs import make_env
+    from digail.envs.episodes import play_episode
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     env = make_env(env_id, render_mode="rgb_array")
     frames: list[Any] = []
+    prev = torch.tensor([-1])
+
+    def act(env: Any, obs: Any) -> np.ndarray:
+        nonlocal prev
+        frames.append(np.asarray(env.render()))
+        obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32))[None])
+        code = model.q(obs_n, one_hot(prev, model.codes)).argmax(-1)
+        prev = code
+        return model.pi.mode(obs_n, torch.eye(model.codes)[code])[0].numpy()
+
     for e in range(episodes):
-        obs, _ = env.reset(seed=seed + e)
         prev = torch.tensor([-1])
-        while True:
-            frames.append(np.asarray(env.render()))
-            obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32))[None])
-            code = model.q(obs_n, one_hot(prev, model.codes)).argmax(-1)
-            act = model.pi.mode(obs_n, torch.eye(model.codes)[code])[0].numpy()
-            obs, _, term, trunc, _ = env.step(act)
-            prev = code
-            if term or trunc:
-                break
+        play_episode(env, act, seed + e)
     env.close()
     imageio.mimsave(path, frames, fps=fps)
     return path
