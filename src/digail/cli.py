@@ -7,10 +7,14 @@ printed as one sentence with exit status 2.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import importlib
 import os
+import re
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import tyro
@@ -65,18 +69,140 @@ def main(argv: Sequence[str] | None = None) -> int:
     set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     cls, handler, defaults = _command(name)
     try:
-        default = defaults(rest) if defaults is not None else None
-        args = tyro.cli(cls, args=rest, prog=f"digail {name}", default=default, description=cls.__doc__)
-        handler(args)
+        with _terminate_as_interrupt():
+            default = defaults(rest) if defaults is not None else None
+            with _parse_errors_as_user_errors(rest):
+                args = tyro.cli(cls, args=rest, prog=f"digail {name}", default=default, description=cls.__doc__)
+            handler(args)
     except UserError as exc:
-        print(f"digail {name}: error: {exc}", file=sys.stderr)
+        print(f"digail {name}: error: {_one_sentence(exc)}", file=sys.stderr)
         return 2
-    except SystemExit as exc:  # tyro / argparse: bad flags exit 2 already, --help exits 0
-        return int(exc.code or 0)
-    except KeyboardInterrupt:
-        print(f"digail {name}: interrupted; a training run can be continued with --resume.", file=sys.stderr)
-        return 130
+    except SystemExit as exc:  # tyro / argparse: --help exits 0 (parse errors arrive as UserError above)
+        return int(exc.code or 0) if isinstance(exc.code, int | None) else 2
+    except Interrupted as exc:
+        hint = " continue it with --resume RUN." if name in ("train", "run") else ""
+        print(f"digail {name}: stopped by {exc.signame}; nothing half-written was kept.{hint}", file=sys.stderr)
+        return 128 + exc.signum
+    except OSError as exc:
+        if exc.errno not in _DISK_ERRORS:
+            raise
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"digail {name}: error: cannot write{where} ({os.strerror(exc.errno or 0).lower()}); free space or "
+              "choose another --out.", file=sys.stderr)
+        return 2
     return 0
+
+
+_DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+"""OSErrors of the disk rather than of the program: reported as one sentence, exit 2"""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: unwinds like Ctrl-C, so every `atomic_dir` removes its temporary folder."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+        self.signame = signal.Signals(signum).name
+
+
+def _raise_interrupted(signum: int, frame: Any) -> None:
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (what `timeout` and job schedulers send) and SIGINT raise `Interrupted` for the block's duration
+    (main thread only: elsewhere signals cannot be caught and the default handlers stay)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _one_sentence(exc: BaseException) -> str:
+    """A UserError's message on one line (tracebacks and torch's advice never reach the user)."""
+    return " ".join(str(exc).split())
+
+
+_TYPE_WORDS = {"INT": "an integer", "FLOAT": "a number", "PATH": "a path", "STR": "a string",
+               "{True,False}": "True or False", "{None}": "None"}
+
+
+def _expected(metavar: Any) -> str:
+    """tyro's metavar in words: 'INT' -> 'an integer', '{a,b}' -> 'one of a, b', '[INT [INT ...]]' -> integers."""
+    text = str(metavar or "a value")
+    if text in _TYPE_WORDS:
+        return _TYPE_WORDS[text]
+    if "|" in text:
+        return " or ".join(_expected(part) for part in text.split("|"))
+    if text.startswith("{") and text.endswith("}"):
+        return "one of " + ", ".join(text[1:-1].split(","))
+    words = re.findall(r"[A-Z]+", text)
+    if "..." in text and words and words[0] in _TYPE_WORDS:
+        return f"one or more {_TYPE_WORDS[words[0]].split(' ', 1)[1]}s ({text})"
+    return text
+
+
+def _given(flag: str, argv: Sequence[str]) -> str | None:
+    """The value `flag` was given on the command line, for the message."""
+    for i, tok in enumerate(argv):
+        if tok == flag and i + 1 < len(argv):
+            return argv[i + 1]
+        if tok.startswith(flag + "="):
+            return tok[len(flag) + 1:]
+    return None
+
+
+@contextlib.contextmanager
+def _parse_errors_as_user_errors(argv: Sequence[str]) -> Iterator[None]:
+    """Turn tyro's boxed parse errors into one `UserError` sentence naming the flag and what it expects."""
+    try:
+        from tyro import _errors as tyro_errors
+    except ImportError:  # an older tyro: its own (multi-line) message, still exit status 2
+        yield
+        return
+
+    def flag_of(arg: Any) -> str:
+        names = [str(n) for n in getattr(arg.lowered, "name_or_flags", ()) or ()]
+        return names[-1] if names and names[-1].startswith("-") else arg.field.intern_name.upper()
+
+    def hook(event: Any) -> None:
+        if isinstance(event, tyro_errors.InstantiationFailure):
+            if event.argument is None:  # a config's __post_init__ refused the values: its sentence as it is
+                raise UserError(event.message)
+            flag = flag_of(event.argument)
+            value = _given(flag, argv)
+            got = f", got {value!r}" if value is not None else f" ({event.message})"
+            raise UserError(f"{flag} expects {_expected(event.argument.lowered.metavar)}{got}.")
+        if isinstance(event, tyro_errors.MissingArgs):
+            flags = [flag_of(a.arg) for a in event.missing_arguments]
+            kind = "flag" if flags[0].startswith("-") else "argument"
+            plural = "s" if len(flags) > 1 else ""
+            raise UserError(f"the {kind}{plural} {', '.join(flags)} {'are' if plural else 'is'} missing; see "
+                            f"`{event.prog} --help`.")
+        if isinstance(event, tyro_errors.InvalidChoice):
+            raise UserError(f"{flag_of(event.argument)} must be one of {', '.join(event.choices)}, got "
+                            f"{event.value!r}.")
+        if isinstance(event, tyro_errors.BadValue):
+            arg = event.argument
+            if event.offending_value is not None:
+                raise UserError(f"{flag_of(arg)} takes no value, got {event.offending_value!r}.")
+            raise UserError(f"{flag_of(arg)} expects {_expected(arg.lowered.metavar)} and was given none.")
+        if isinstance(event, tyro_errors.UnrecognizedArgs):
+            raise UserError(f"unknown option{'s' if len(event.tokens) > 1 else ''} {' '.join(event.tokens)}; see "
+                            f"`{event.prog} --help`.")
+        raise UserError(f"cannot read the command line ({type(event).__name__}); see `{event.prog} --help`.")
+
+    with tyro_errors.on_parse_error(hook):
+        yield
 
 
 if __name__ == "__main__":

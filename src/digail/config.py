@@ -15,6 +15,36 @@ import tyro
 from digail.errors import UserError
 
 
+def _require(ok: bool, flag: str, rule: str, value: Any) -> None:
+    """Raise the one-sentence `UserError` naming `flag` unless `ok` (configs check their numbers on creation, so a
+    bad override stops the command before any work, whichever way the config was made)."""
+    if not ok:
+        raise UserError(f"{flag} must be {rule}, got {value!r}.")
+
+
+def _finite(x: float) -> bool:
+    return x == x and x not in (float("inf"), float("-inf"))
+
+
+def _check_numbers(cfg: Any, prefix: str, at_least: dict[str, int], non_negative: tuple[str, ...] = (),
+                   unit: tuple[str, ...] = ()) -> None:
+    """Integers with a minimum, non-negative finite floats and [0, 1] fractions of config `cfg`; flags are named
+    `prefix` + the field with dashes (how tyro spells them)."""
+    def flag(name: str) -> str:
+        return prefix + name.replace("_", "-")
+
+    for name, low in at_least.items():
+        v = getattr(cfg, name)
+        _require(isinstance(v, int) and v >= low, flag(name), f"at least {low}", v)
+    for name in non_negative:
+        v = getattr(cfg, name)
+        if v is not None:
+            _require(_finite(float(v)) and v >= 0, flag(name), "a finite number, not negative", v)
+    for name in unit:
+        v = getattr(cfg, name)
+        _require(_finite(float(v)) and 0 <= v <= 1, flag(name), "between 0 and 1", v)
+
+
 @dataclass(frozen=True)
 class VAEConfig:
     """VAE pre-training (paper section 3.1 and appendix): macro-policy q, prior p, sub-task policy pi."""
@@ -72,6 +102,20 @@ class VAEConfig:
     segmentation (pi keeps the segmentation as it is): the macro-policy then switches when the agent passes
     near the end of a sub-task, not only exactly where the expert switched"""
 
+    def __post_init__(self) -> None:
+        _check_numbers(self, "--vae.", dict(codes=1, epochs=0, batch_size=1, warmup_epochs=0, polish_steps=0,
+                                            q_anticipate=0),
+                       ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr",
+                        "q_noise", "max_grad_norm"))
+        _require(_finite(self.tau0) and self.tau0 > 0, "--vae.tau0", "positive", self.tau0)
+        _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
+        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
+                 self.hidden)
+        if self.decoder_obs is not None:
+            lo, hi = self.decoder_obs
+            _require(0 <= lo < hi, "--vae.decoder-obs", "a range START STOP with 0 <= START < STOP",
+                     self.decoder_obs)
+
     def warmup(self, epoch: int) -> float:
         """Factor in [0, 1] on the KL and smoothing weights at `epoch`."""
         return 1.0 if self.warmup_epochs <= 0 else min(1.0, epoch / self.warmup_epochs)
@@ -124,6 +168,18 @@ class PPOConfig:
     forward and backward run about 1.6x faster, a whole Hopper-sized update about 1.25x (measured), after a
     one-off compile of ~10-30 s, so the long MuJoCo presets set it. Falls back to eager, with a warning, where
     this machine cannot compile"""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "--train.ppo.", dict(num_envs=1, batch_size=1, epochs=1, minibatch_size=1),
+                       ("lr", "policy_lr", "ent_coef", "vf_coef", "max_grad_norm", "target_kl"),
+                       ("gamma", "gae_lambda"))
+        _require(_finite(self.clip) and self.clip > 0, "--train.ppo.clip", "positive", self.clip)
+        if self.minibatch_size > self.batch_size:
+            raise UserError(f"--train.ppo.minibatch-size ({self.minibatch_size}) must not exceed "
+                            f"--train.ppo.batch-size ({self.batch_size}).")
+        if self.batch_size < self.num_envs:
+            raise UserError(f"--train.ppo.batch-size ({self.batch_size}) must be at least --train.ppo.num-envs "
+                            f"({self.num_envs}): one step per environment.")
 
     @property
     def policy_learning_rate(self) -> float:
@@ -185,6 +241,17 @@ class TrainConfig:
     """episodes of each evaluation during training"""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     """PPO settings"""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
+                                              bc_batch_size=1, disc_updates=0, disc_minibatch_size=1,
+                                              value_warmup=0),
+                       ("disc_lr", "bc_weight", "anchor_weight"), ("replay_fraction",))
+        _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
+        _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
+                 self.min_init_log_std)
+        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--train.hidden", "sizes of at least 1",
+                 self.hidden)
 
 
 @dataclass(frozen=True)
