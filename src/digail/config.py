@@ -22,6 +22,23 @@ def _require(ok: bool, flag: str, rule: str, value: Any) -> None:
         raise UserError(f"{flag} must be {rule}, got {value!r}.")
 
 
+SEED_MAX = 2**32 - 1
+"""largest seed: NumPy's legacy seeding and many environments take 32-bit seeds"""
+
+
+def check_seed(seed: int, flag: str = "--seed", count: int = 1) -> None:
+    """A seed in 0..2**32-1; with `count` consecutive per-episode seeds, the last one too."""
+    _require(isinstance(seed, int) and 0 <= seed <= SEED_MAX - max(count - 1, 0), flag,
+             f"between 0 and {SEED_MAX - max(count - 1, 0)}" + (f" (episode i uses {flag.lstrip('-')} + i)"
+                                                                  if count > 1 else ""), seed)
+
+
+def check_at_least(value: int | None, flag: str, low: int = 1) -> None:
+    """A count such as --episodes: at least `low` (None: the default applies)."""
+    if value is not None:
+        _require(isinstance(value, int) and value >= low, flag, f"at least {low}", value)
+
+
 def _finite(x: float) -> bool:
     return x == x and x not in (float("inf"), float("-inf"))
 

@@ -8,6 +8,8 @@ from typing import Annotated, Any
 
 import tyro
 
+from digail.config import check_at_least, check_seed
+
 
 @dataclass(frozen=True)
 class ComposeArgs:
@@ -23,20 +25,24 @@ class ComposeArgs:
     seed: int = 20_000
     """seed of the first episode"""
 
+    def __post_init__(self) -> None:
+        check_at_least(self.episodes, "--episodes")
+        check_seed(self.seed, count=self.episodes)
+
 
 def compose_command(args: ComposeArgs) -> dict[str, Any]:
     """Write RUN/compose.json and RUN/figures/compose.png; returns the summary."""
     from digail.checkpoint import load_model
     from digail.commands.common import print_eval_summary, run_env_id
-    from digail.eval.composition import compose, parse_schedule
+    from digail.eval.composition import compose, episode_limit, parse_schedule
     from digail.utils import write_json
     from digail.viz.plots import plot_episodes
 
     run = Path(args.run)
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
-    codes = parse_schedule(args.schedule, model.codes)
-    result, eps = compose(model, env_id, codes, args.episodes, args.seed)
+    pairs = parse_schedule(args.schedule, model.codes, episode_limit(env_id))
+    result, eps = compose(model, env_id, pairs, args.episodes, args.seed)
     result["schedule"] = args.schedule
     fig = plot_episodes(eps, run / "figures" / "compose.png", title=f"composed: {args.schedule}")
     result["figure"] = str(fig)

@@ -8,6 +8,8 @@ from typing import Annotated
 
 import tyro
 
+from digail.config import check_at_least, check_seed
+
 
 @dataclass(frozen=True)
 class DemosArgs:
@@ -25,6 +27,10 @@ class DemosArgs:
     """RL expert checkpoint for MuJoCo envs (default: the shipped one)"""
     force: bool = False
     """overwrite an existing output folder"""
+
+    def __post_init__(self) -> None:
+        check_at_least(self.episodes, "--episodes")
+        check_seed(self.seed, count=self.episodes or 1)
 
 
 def demos_command(args: DemosArgs) -> Path:

@@ -8,6 +8,8 @@ from typing import Annotated, Any
 
 import tyro
 
+from digail.config import check_at_least, check_seed
+
 
 @dataclass(frozen=True)
 class EvaluateArgs:
@@ -23,6 +25,10 @@ class EvaluateArgs:
     """sample actions from pi instead of taking its mean / most likely action (the default, as in SB3)"""
     video: bool = False
     """also record a video of the first episodes into RUN/videos"""
+
+    def __post_init__(self) -> None:
+        check_at_least(self.episodes, "--episodes")
+        check_seed(self.seed, count=self.episodes)
 
 
 def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:

@@ -8,6 +8,8 @@ from typing import Annotated
 
 import tyro
 
+from digail.config import check_at_least, check_seed
+
 
 @dataclass(frozen=True)
 class ExpertArgs:
@@ -25,6 +27,10 @@ class ExpertArgs:
     """random seed"""
     device: str = "cpu"
     """torch device for SB3"""
+
+    def __post_init__(self) -> None:
+        check_at_least(self.steps, "--steps")
+        check_seed(self.seed)
 
 
 def expert_command(args: ExpertArgs) -> Path:

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from digail.config import VAEConfig, get_preset
+from digail.config import VAEConfig, check_at_least, check_seed, get_preset
 from digail.errors import UserError
 
 
@@ -32,6 +32,10 @@ class PretrainArgs:
     """overwrite an existing run folder"""
     vae: VAEConfig = field(default_factory=VAEConfig)
     """VAE settings (start from the preset)"""
+
+    def __post_init__(self) -> None:
+        check_seed(self.seed)
+        check_at_least(self.codes, "--codes")
 
 
 def defaults(argv: Sequence[str]) -> PretrainArgs:

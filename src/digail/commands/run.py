@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import tyro
 
+from digail.config import check_at_least, check_seed
 from digail.utils import resolve_device, set_torch_threads, write_json
 
 
@@ -34,6 +35,11 @@ class RunArgs:
     """torch device"""
     force: bool = False
     """overwrite an existing run folder"""
+
+    def __post_init__(self) -> None:
+        check_at_least(self.episodes, "--episodes")
+        check_seed(self.seed)
+
 
 def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
     """The shipped dataset for `env_id` when there is one, else freshly recorded demonstrations."""
@@ -57,7 +63,7 @@ def run_command(args: RunArgs) -> Path:
     from digail.data.minari_io import check_matches_env
     from digail.envs import make_env
     from digail.envs.registry import env_spec, preset_for
-    from digail.eval.composition import compose, parse_schedule, schedule_in_codes
+    from digail.eval.composition import compose, episode_limit, parse_schedule, schedule_in_codes
     from digail.eval.returns import evaluate, run_episodes
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
@@ -130,8 +136,8 @@ def run_command(args: RunArgs) -> Path:
         if schedule is None:
             print("      composition skipped: the segmentation did not give every sub-task a code of its own")
     if schedule is not None:
-        composed, eps = compose(model, args.env, parse_schedule(schedule, model.codes), min(episodes, 100),
-                                20_000)
+        pairs = parse_schedule(schedule, model.codes, episode_limit(args.env))
+        composed, eps = compose(model, args.env, pairs, min(episodes, 100), 20_000)
         composed["schedule"] = schedule
         plot_episodes(eps, run_dir / "figures" / "compose.png", title=f"composed: {schedule}")
         write_json(run_dir / "compose.json", composed)

@@ -10,7 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from digail.config import TrainConfig, from_dict
+from digail.config import TrainConfig, check_seed, from_dict
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.vae import HierarchicalPolicy
@@ -44,6 +44,11 @@ class TrainArgs:
     """overwrite an existing run folder"""
     train: TrainConfig = field(default_factory=TrainConfig)
     """trainer settings (start from the preset)"""
+
+    def __post_init__(self) -> None:
+        check_seed(self.seed)
+        if self.bc_weight is not None and not (self.bc_weight >= 0 and self.bc_weight != float("inf")):
+            raise UserError(f"--bc-weight must be a finite number, not negative, got {self.bc_weight!r}.")
 
 
 def defaults(argv: Sequence[str]) -> TrainArgs:
