@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import io
 import json
-import pickle
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -74,6 +72,41 @@ def save_model(path: str | Path, model: HierarchicalPolicy, *, kind: str, config
     return path
 
 
+def load_weights(path: str | Path, what: str = "checkpoint", device: str | torch.device = "cpu") -> Any:
+    """`torch.load(path, weights_only=True)` onto `device`, every failure one `UserError` sentence.
+
+    A truncated or corrupt file, text, or a pickle holding anything but tensors and plain data (a hostile one
+    included: nothing in it runs) all read as "not a digail checkpoint". Torch's own message is not repeated: it
+    suggests `weights_only=False`, which would execute whatever the file holds.
+    """
+    path = Path(path)
+    try:
+        return torch.load(path, map_location=device, weights_only=True)
+    except (PermissionError, IsADirectoryError) as exc:
+        raise UserError(f"cannot read {what} {path} ({exc.strerror.lower() if exc.strerror else 'unreadable'}); "
+                        "check its permissions.") from None
+    except FileNotFoundError:
+        raise UserError(f"no {what} at {path}; pass the folder of a digail run.") from None
+    except Exception:  # noqa: BLE001  (torch raises many types here: each means the same to the user)
+        raise UserError(f"cannot read {what} {path}: it is corrupt, truncated or not a digail file (only "
+                        "weights are ever loaded from it); re-create the run.") from None
+
+
+def read_config(run: str | Path) -> dict[str, Any]:
+    """RUN/config.json as a dict; a missing file gives {}, an unreadable or invalid one a `UserError` sentence."""
+    path = Path(run) / CONFIG_FILE
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        where = f" (line {exc.lineno})" if isinstance(exc, json.JSONDecodeError) else ""
+        raise UserError(f"{path} is not valid JSON{where}; restore it or re-create the run.") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path} does not hold a JSON object; restore it or re-create the run.")
+    return data
+
+
 def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[HierarchicalPolicy, dict[str, Any]]:
     """Rebuild the model saved by `save_model`, in eval mode on `device`.
 
@@ -94,11 +127,7 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
     if not path.is_file():
         raise UserError(f"no model checkpoint at {path}; pass a run folder made by `digail pretrain` or "
                         "`digail train`.")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
-        raise UserError(f"cannot read checkpoint {path} (corrupt or not a torch file: {exc}); "
-                        "re-create the run.") from exc
+    payload = load_weights(path)
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise UserError(f"{path} is not a digail model checkpoint; pass the model.pt of a digail run folder.")
     if payload.get("format_version") != FORMAT_VERSION:
@@ -139,8 +168,8 @@ def save_training_state(path: Path, state: dict[str, Any]) -> None:
 
 
 def load_training_state(path: Path, device: str | torch.device = "cpu") -> dict[str, Any]:
-    """What `save_training_state` wrote, loaded with `weights_only=True`."""
-    return torch.load(Path(path), map_location=device, weights_only=True)
+    """What `save_training_state` wrote, loaded with `weights_only=True` (a broken file: one `UserError`)."""
+    return load_weights(path, "training checkpoint", device)
 
 
 def rng_state(gen: torch.Generator, np_rng: np.random.Generator) -> dict[str, Any]:

@@ -363,6 +363,8 @@ class GAIL:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict):
+            raise TypeError("a training checkpoint is a dict")
         version = int(state.get("version", 0))
         if version != CHECKPOINT_VERSION:
             raise UserError(f"this training checkpoint has format version {version}, but this digail resumes "
@@ -388,4 +390,12 @@ class GAIL:
                    env_id=self.env_id)
 
     def load_checkpoint(self, path: Path) -> None:
-        self.load_state_dict(load_training_state(Path(path), self.device))
+        """Restore the training state `save_checkpoint` wrote; a broken or foreign file is one `UserError`."""
+        state = load_training_state(Path(path), self.device)
+        try:
+            self.load_state_dict(state)
+        except UserError:
+            raise
+        except Exception:  # noqa: BLE001  (missing keys, wrong shapes, wrong types: all one answer)
+            raise UserError(f"training checkpoint {path} is incomplete or belongs to another model; start the "
+                            "training again (its model.pt still evaluates).") from None

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -75,11 +74,9 @@ def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bo
 
 def run_env_id(run: Path, meta: dict[str, Any]) -> str:
     """The environment a run was trained on: its model.pt's record, else its config.json's."""
-    env_id = meta.get("env_id")
-    if not env_id:
-        cfg = Path(run) / "config.json"
-        if cfg.exists():
-            env_id = json.loads(cfg.read_text()).get("env_id")
+    from digail.checkpoint import read_config
+
+    env_id = meta.get("env_id") or read_config(run).get("env_id")
     if not env_id:
         raise UserError(f"cannot tell which environment {run} was trained on; its model.pt and config.json "
                         "name none.")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -28,7 +27,7 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     Uses the run's training demonstrations (the `demos` entry of RUN/config.json) unless `args.demos` is given.
     Returns the metrics written to RUN/segmentation.json.
     """
-    from digail.checkpoint import CONFIG_FILE, load_model
+    from digail.checkpoint import load_model, read_config
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
 
@@ -37,13 +36,7 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
         raise UserError(f"run folder {run} does not exist; pass a folder made by `digail pretrain` or `digail train`.")
     model, meta = load_model(run)
     if demos is None:
-        config_path = run / CONFIG_FILE
-        config = meta["config"]
-        if config_path.is_file():
-            try:
-                config = json.loads(config_path.read_text())
-            except json.JSONDecodeError as exc:
-                raise UserError(f"{config_path} is not valid JSON ({exc}); pass --demos explicitly.") from exc
+        config = read_config(run) or meta["config"]
         demos = config.get("demos")
         if not demos:
             raise UserError(f"{run} does not record its demonstrations; pass --demos.")
