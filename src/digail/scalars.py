@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +14,13 @@ class ScalarLogger:
     Names are namespaced (`losses/*`, `disc/*`, `rollout/*`, `perf/*`, ...); the README explains each.
     """
 
-    def __init__(self, run_dir: Path, tensorboard: bool = True) -> None:
+    def __init__(self, run_dir: Path, tensorboard: bool = True, resume_step: int | None = None) -> None:
+        """`resume_step`: the env step of the checkpoint a resumed run continues from; rows logged after it (by
+        the run that was stopped) are cut from `metrics.csv` and hidden in TensorBoard, so no step repeats."""
         self.path = Path(run_dir) / "metrics.csv"
         self._fields: list[str] | None = None
+        if resume_step is not None:
+            self.cut_after(resume_step)
         if self.path.exists():
             with open(self.path) as f:
                 header = f.readline().strip()
@@ -25,7 +30,8 @@ class ScalarLogger:
             try:
                 from torch.utils.tensorboard import SummaryWriter
 
-                self._tb = SummaryWriter(str(Path(run_dir) / "tb"))
+                purge = None if resume_step is None else resume_step + 1
+                self._tb = SummaryWriter(str(Path(run_dir) / "tb"), purge_step=purge)
             except Exception:  # tensorboard missing or broken: CSV still works
                 self._tb = None
 
@@ -53,6 +59,30 @@ class ScalarLogger:
             for k, v in scalars.items():
                 self._tb.add_scalar(k, v, step)
 
+    def cut_after(self, step: int) -> None:
+        """Drop the rows of `metrics.csv` logged after env step `step` (atomically; header kept)."""
+        if not self.path.exists():
+            return
+        from digail.utils import atomic_write_bytes
+
+        with open(self.path, newline="") as f:
+            reader = csv.DictReader(f)
+            fields = list(reader.fieldnames or [])
+            rows = [r for r in reader if _step(r) <= step]
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=fields)
+        if fields:
+            writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_bytes(self.path, buf.getvalue().encode())
+
     def close(self) -> None:
         if self._tb is not None:
             self._tb.close()
+
+
+def _step(row: dict[str, Any]) -> float:
+    try:
+        return float(row.get("step") or 0)
+    except ValueError:
+        return float("inf")  # a torn last line from a killed run goes too

@@ -51,30 +51,126 @@ def default_run_dir(env_id: str, method: str, seed: int, root: str | Path = "run
     return Path(root) / f"{safe_env}__{method}__s{seed}__{stamp}"
 
 
-def check_new_dir(path: Path, force: bool) -> None:
-    """Refuse to overwrite an existing output folder unless `force`."""
+MIN_FREE_BYTES = 16 * 2**20
+"""an output location with less free space than this is refused before the work starts"""
+
+
+def check_writable(path: Path, flag: str = "--out") -> None:
+    """Refuse, in one sentence, an output location that cannot be written: `path` itself when it is a folder,
+    else the nearest folder above it that exists (where it will be created). Probes with a real temporary file,
+    so read-only mounts count too (as root `os.access` says yes to everything), and checks free space."""
+    path = Path(path)
+    probe_dir = path
+    while not probe_dir.exists() and probe_dir != probe_dir.parent:
+        probe_dir = probe_dir.parent
+    if not probe_dir.is_dir():
+        raise UserError(f"cannot create {path}: {probe_dir} is a file, not a folder; choose another {flag}.")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".digail-write-probe-", dir=probe_dir)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        reason = (exc.strerror or type(exc).__name__).lower()
+        raise UserError(f"cannot write to {probe_dir} ({reason}); choose another {flag} or fix its "
+                        "permissions.") from None
+    free = shutil.disk_usage(probe_dir).free
+    if free < MIN_FREE_BYTES:
+        raise UserError(f"only {free // 2**20} MiB free where {path} would be written; free some space or choose "
+                        f"another {flag}.")
+
+
+def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
+    """Refuse to overwrite an existing output folder unless `force`, and an output that cannot be written.
+
+    `hint` is appended to the refusal (e.g. how to continue an unfinished run instead)."""
+    path = Path(path)
     if path.exists() and not force:
-        raise UserError(f"output folder {path} already exists; choose another --out or pass --force.")
+        what = "folder" if path.is_dir() else "file"
+        raise UserError(f"output {what} {path} already exists; choose another --out or pass --force{hint}.")
+    check_writable(path)
+
+
+def umask() -> int:
+    """The process's file-mode creation mask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def remove_path(path: Path) -> None:
+    """Remove a folder tree or a file (or nothing, when absent)."""
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def fresh_dir(path: Path, force: bool, hint: str = "") -> Path:
+    """Create the output folder `path` for a command that writes in place (resumable training): refused when it
+    exists without `force`; with `force`, whatever was there (old eval.json, segmentation.json, a file) goes
+    first, so nothing old sits beside the new results."""
+    path = Path(path)
+    check_new_dir(path, force, hint)
+    if path.exists() or path.is_symlink():
+        remove_path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 @contextlib.contextmanager
 def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
     """Yield a temporary sibling folder; rename it to `final` only if the block succeeds.
 
-    Nothing half-written is left behind on error: the temporary folder is removed.
+    Nothing half-written is left behind on error, Ctrl-C or SIGTERM (the CLI turns it into an exception): the
+    temporary folder is removed. It gets the permissions of a plain `mkdir` (not mkdtemp's private 0700), so a
+    folder looks the same whichever command made it. With `force` an existing folder or file at `final` is
+    replaced only once the new one is complete.
     """
     final = Path(final)
     check_new_dir(final, force)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
     try:
+        tmp.chmod(0o777 & ~umask())
         yield tmp
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        with signals_deferred():
+            shutil.rmtree(tmp, ignore_errors=True)
         raise
-    if final.exists():
-        shutil.rmtree(final)
-    os.replace(tmp, final)
+    with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
+        old = None
+        try:
+            if final.exists() or final.is_symlink():
+                old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+                os.replace(final, old / "x")  # out of the way first, so a failure never loses both
+            os.replace(tmp, final)
+        except BaseException:
+            if old is not None and (old / "x").exists() and not final.exists():
+                os.replace(old / "x", final)
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        finally:
+            if old is not None:
+                remove_path(old)
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block is done (clean-ups that must not stop half-way); they are
+    delivered right after. A no-op off the main thread or where signal masks do not exist."""
+    import signal
+    import threading
+
+    mask = {signal.SIGINT, signal.SIGTERM}
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, mask)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -85,9 +181,10 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, 0o666 & ~umask())  # mkstemp's files are private; a plain open() would not be
         os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+        with signals_deferred(), contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
 

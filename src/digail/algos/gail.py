@@ -315,7 +315,8 @@ class GAIL:
         total = self.cfg.iterations if iterations is None else iterations
         self._total_iterations = total
         if self.run_dir is not None and self._logger is None:
-            self._logger = ScalarLogger(self.run_dir)
+            # a resumed run continues its metrics at the checkpoint: rows the stopped run logged later go
+            self._logger = ScalarLogger(self.run_dir, resume_step=self.global_step)
         last: dict[str, float] = {}
         bar = tqdm(total=total, initial=self.iteration, disable=not self.progress, desc=self.method,
                    dynamic_ncols=True)
@@ -338,9 +339,13 @@ class GAIL:
                     self.model.train()
                 if self._logger is not None:
                     self._logger.log(self.global_step, {"iteration": float(self.iteration), **last})
-                if self.run_dir is not None and (self.iteration % self.cfg.checkpoint_every == 0
-                                                 or self.iteration == total):
-                    self.save_checkpoint(self.run_dir / "checkpoint.pt")
+                if self.iteration % self.cfg.checkpoint_every == 0 or self.iteration == total:
+                    if self.run_dir is not None:
+                        self.save_checkpoint(self.run_dir / "checkpoint.pt")
+                    # Episodes restart at every checkpoint, with or without a run folder: a run resumed from
+                    # this checkpoint (which cannot hold the envs' internal state) then continues exactly as
+                    # the uninterrupted one, bit for bit.
+                    self.rollout_state = None
         finally:
             bar.close()
         return last
@@ -359,6 +364,8 @@ class GAIL:
             "disc_optimizer": self.disc_optimizer.state_dict(),
             "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
+            "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
+            "recent_closed_returns": torch.tensor(list(self.recent_closed_returns), dtype=torch.float64),
             "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
         }
 
@@ -378,7 +385,10 @@ class GAIL:
         self.optimizer.load_state_dict(state["optimizer"])
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
         set_rng_state(state["rng"], self.gen, self.np_rng)
-        self.recent_returns.extend(state["recent_returns"].tolist())
+        for name in ("recent_returns", "recent_lengths", "recent_closed_returns"):
+            recent = getattr(self, name)
+            recent.clear()
+            recent.extend(state[name].tolist() if name in state else [])
         if self._anchor_pi is not None and state.get("anchor_pi") is not None:
             self._anchor_pi.load_state_dict(state["anchor_pi"])
         self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)
