@@ -80,8 +80,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # tyro / argparse: --help exits 0 (parse errors arrive as UserError above)
         return int(exc.code or 0) if isinstance(exc.code, int | None) else 2
     except Interrupted as exc:
-        hint = " continue it with --resume RUN." if name in ("train", "run") else ""
-        print(f"digail {name}: stopped by {exc.signame}; nothing half-written was kept.{hint}", file=sys.stderr)
+        hint = f"; continue it with `digail {name} --resume RUN`" if name in ("train", "run") else ""
+        print(f"digail {name}: stopped by {exc.signame}, no temporary files left{hint}.", file=sys.stderr)
         return 128 + exc.signum
     except OSError as exc:
         if exc.errno not in _DISK_ERRORS:

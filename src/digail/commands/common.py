@@ -65,11 +65,41 @@ def write_run_config(run_dir: Path, config: dict[str, Any]) -> Path:
     return path
 
 
-def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool) -> Path:
-    """The run folder `out`, or `runs/<env>__<method>__s<seed>__<time>`; refuses an existing one without `force`."""
+def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool,
+                resume_command: str | None = None) -> Path:
+    """The run folder `out`, or `runs/<env>__<method>__s<seed>__<time>`; refuses an existing one without `force`
+    (naming `digail <resume_command> --resume` when it is an unfinished run of that command) and an output that
+    cannot be written. Creates nothing."""
     run_dir = Path(out) if out is not None else default_run_dir(env_id, method, seed)
-    check_new_dir(run_dir, force)
+    hint = ""
+    if resume_command is not None and run_dir.is_dir() and (run_dir / "config.json").is_file():
+        hint = f", or continue it with `digail {resume_command} --resume {run_dir}`"
+    check_new_dir(run_dir, force, hint)
     return run_dir
+
+
+def resolve_ref(run: Path, ref: str | Path | None) -> str | None:
+    """A dataset or VAE reference read from RUN/config.json: as stored when it is absolute, an id or found from
+    here; else relative to the run folder (a run folder moved or used from another working directory)."""
+    if ref is None or str(ref) == "":
+        return None if ref is None else ""
+    path = Path(ref)
+    if path.is_absolute() or path.exists() or not (Path(run) / path).exists():
+        return str(ref)
+    return str((Path(run) / path).resolve())
+
+
+def check_output_folder(run: Path) -> Path:
+    """A run folder an analysis command (evaluate, compose, segment) writes into: it must exist and be writable,
+    checked before the rollouts start."""
+    from digail.utils import check_writable
+
+    run = Path(run)
+    if not run.is_dir():
+        raise UserError(f"run folder {run} does not exist; pass a folder made by `digail pretrain`, `digail train` "
+                        "or `digail run`.")
+    check_writable(run, "run folder")
+    return run
 
 
 def run_env_id(run: Path, meta: dict[str, Any]) -> str:

@@ -33,12 +33,12 @@ class ComposeArgs:
 def compose_command(args: ComposeArgs) -> dict[str, Any]:
     """Write RUN/compose.json and RUN/figures/compose.png; returns the summary."""
     from digail.checkpoint import load_model
-    from digail.commands.common import print_eval_summary, run_env_id
+    from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.eval.composition import compose, episode_limit, parse_schedule
     from digail.utils import write_json
     from digail.viz.plots import plot_episodes
 
-    run = Path(args.run)
+    run = check_output_folder(args.run)
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
     pairs = parse_schedule(args.schedule, model.codes, episode_limit(env_id))

@@ -34,11 +34,11 @@ class EvaluateArgs:
 def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
     """Write RUN/eval.json (and a video when asked); returns its content."""
     from digail.checkpoint import load_model
-    from digail.commands.common import print_eval_summary, run_env_id
+    from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.eval.returns import evaluate
     from digail.utils import write_json
 
-    run = Path(args.run)
+    run = check_output_folder(args.run)
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
     result = evaluate(model, env_id, args.episodes, args.seed, not args.stochastic)

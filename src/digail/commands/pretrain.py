@@ -62,6 +62,8 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.utils import atomic_dir, set_torch_threads
 
     set_torch_threads(1)
+    if not args.demos:
+        raise UserError("the flag --demos is missing; pass a Minari dataset folder or id.")
     dataset = load_dataset(args.demos)
     env_id = dataset.env_id or "unknown-env"
     cfg = args.vae

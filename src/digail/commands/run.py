@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import tyro
 
 from digail.config import check_at_least, check_seed
-from digail.utils import resolve_device, set_torch_threads, write_json
+from digail.utils import check_writable, fresh_dir, remove_path, resolve_device, set_torch_threads, write_json
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,9 @@ class RunArgs:
     """torch device"""
     force: bool = False
     """overwrite an existing run folder"""
+    resume: Path | None = None
+    """continue an interrupted run folder at the stage it stopped: finished stages are kept, the training goes on
+    from its checkpoint (other flags are ignored)"""
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
@@ -49,7 +52,9 @@ def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
     dataset_id = default_dataset_id(env_id)
     if dataset_id in shipped_dataset_ids():
         return load_dataset(dataset_id), dataset_id
-    path = record_demos(env_id, out=run_dir / "demos", seed=seed)
+    path = run_dir / "demos"
+    if not path.is_dir():  # recorded atomically: a folder that exists is complete (kept when resuming)
+        path = record_demos(env_id, out=path, seed=seed)
     return load_dataset(str(path)), str(path)
 
 
@@ -57,9 +62,10 @@ def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import pretrain
-    from digail.checkpoint import save_model
+    from digail.checkpoint import load_model, save_model
     from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
     from digail.commands.train import TrainArgs
+    from digail.config import to_dict
     from digail.data.minari_io import check_matches_env
     from digail.envs import make_env
     from digail.envs.registry import env_spec, preset_for
@@ -71,11 +77,26 @@ def run_command(args: RunArgs) -> Path:
     from digail.viz.report import write_report
 
     set_torch_threads(1)
+    resuming = args.resume is not None
+    if resuming:
+        args = _resume_args(Path(args.resume))
     device = resolve_device(args.device)
     make_env(args.env).close()  # an unknown id fails here, before anything is written
     preset = preset_for(args.env, args.preset)
-    run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    if resuming:
+        run_dir = Path(args.out or ".")
+        check_writable(run_dir, "run folder")
+        print(f"resuming {run_dir}")
+    else:
+        run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run")
+        fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
+    cfg = replace(preset.train, method="digail")
+    vae_dir = run_dir / "vae"
+    run_args = replace(args, out=run_dir.resolve(), resume=None, force=False)
+    # written first, so that an interrupted run can be resumed from any stage
+    write_run_config(run_dir, run_config(kind="digail", env_id=args.env, demos=None, seed=args.seed,
+                                         preset=args.preset, device=args.device, vae=preset.vae, train=cfg,
+                                         vae_run=None, pipeline=True, run_args=to_dict(run_args)))
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
@@ -86,35 +107,46 @@ def run_command(args: RunArgs) -> Path:
     print(f"[1/5] {len(trajs)} demonstrations of {args.env} ({demos_ref})")
 
     t0 = time.perf_counter()
-    vae_dir = run_dir / "vae"
-    vae_dir.mkdir(exist_ok=True)
-    action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
-    vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
-                            log_dir=vae_dir)
-    vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
-                         device=args.device, vae=preset.vae, pipeline=True)
-    save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)
-    write_run_config(vae_dir, vae_cfg)
-    timings["pretrain_s"] = time.perf_counter() - t0
-    print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
+    if (vae_dir / "model.pt").is_file() and (vae_dir / "config.json").is_file():
+        vae_model, _ = load_model(vae_dir / "model.pt", device)
+        print("[2/5] VAE pre-trained (kept from the interrupted run)")
+    else:
+        remove_path(vae_dir)  # a VAE stage cut short starts again from scratch
+        vae_dir.mkdir()
+        action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
+        vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
+                                log_dir=vae_dir)
+        vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
+                             device=args.device, vae=preset.vae, pipeline=True)
+        write_run_config(vae_dir, vae_cfg)
+        save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)  # the mark
+        timings["pretrain_s"] = time.perf_counter() - t0
+        print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
 
     t0 = time.perf_counter()
-    cfg = replace(preset.train, method="digail")
     # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
     train_args = TrainArgs(env=args.env, demos=str(path_ref(demos_ref)), method="digail", vae=vae_dir.resolve(),
                            preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
     config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                         device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
-                        pipeline=True)
+                        pipeline=True, run_args=to_dict(run_args))
     write_run_config(run_dir, config)
     trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                             device=device)
     trainer.model_config = config
-    trainer.train()
-    trainer.save_checkpoint(run_dir / "checkpoint.pt")
+    ckpt = run_dir / "checkpoint.pt"
+    if resuming and ckpt.is_file():
+        trainer.load_checkpoint(ckpt)
+        if trainer.iteration < cfg.iterations:
+            print(f"      training resumes at iteration {trainer.iteration}/{cfg.iterations}")
+    if trainer.iteration < cfg.iterations or not (run_dir / "model.pt").is_file():
+        trainer.train()
+        trainer.save_checkpoint(ckpt)
+        timings["train_s"] = time.perf_counter() - t0
+        print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
+    else:
+        print("[3/5] Directed-Info GAIL trained (kept from the interrupted run)")
     model = trainer.model
-    timings["train_s"] = time.perf_counter() - t0
-    print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
 
     t0 = time.perf_counter()
     episodes = args.episodes if args.episodes is not None else preset.eval_episodes
@@ -149,6 +181,28 @@ def run_command(args: RunArgs) -> Path:
     _print_headline(result, seg, composed)
     print(f"done: {run_dir}")
     return run_dir
+
+
+def _resume_args(run_dir: Path) -> RunArgs:
+    """The arguments an interrupted `digail run` folder was started with; one sentence when it is not one."""
+    from digail.checkpoint import read_config
+    from digail.config import from_dict
+    from digail.errors import UserError
+
+    if not run_dir.is_dir():
+        raise UserError(f"{run_dir} does not exist; pass the folder of an interrupted `digail run`.")
+    config = read_config(run_dir)
+    saved = config.get("run_args")
+    if not config.get("pipeline") or not isinstance(saved, dict):
+        other = " (continue a `digail train` folder with `digail train --resume`)" if config.get("args") else ""
+        raise UserError(f"{run_dir} is not a folder made by `digail run`{other}; pass the folder of an interrupted "
+                        "`digail run`.")
+    try:
+        args = from_dict(RunArgs, saved)
+    except (TypeError, AttributeError) as exc:
+        raise UserError(f"the run arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
+                        "restore the file or start the run again.") from None
+    return replace(args, out=run_dir, resume=run_dir, force=False)
 
 
 def _print_headline(result: dict[str, Any], seg: dict[str, Any] | None, composed: dict[str, Any] | None) -> None:

@@ -28,12 +28,11 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     Returns the metrics written to RUN/segmentation.json.
     """
     from digail.checkpoint import load_model, read_config
+    from digail.commands.common import check_output_folder
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
 
-    run, demos = Path(args.run), args.demos
-    if not run.is_dir():
-        raise UserError(f"run folder {run} does not exist; pass a folder made by `digail pretrain` or `digail train`.")
+    run, demos = check_output_folder(args.run), args.demos
     model, meta = load_model(run)
     if demos is None:
         config = read_config(run) or meta["config"]

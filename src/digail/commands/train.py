@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -63,18 +62,13 @@ def train_command(args: TrainArgs) -> Path:
     """Validate everything, then train (or resume) in a run folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
-    from digail.utils import resolve_device, set_torch_threads
+    from digail.utils import check_writable, fresh_dir, resolve_device, set_torch_threads
 
     set_torch_threads(1)
+    run_dir = None
     if args.resume is not None:
         run_dir = Path(args.resume)
-        cfg_path = run_dir / "config.json"
-        if not cfg_path.exists():
-            raise UserError(f"{run_dir} is not a training run folder (no config.json); pass the folder "
-                            "`digail train` created.")
-        saved = json.loads(cfg_path.read_text())
-        args = from_dict(TrainArgs, saved["args"])
-        args = replace(args, out=run_dir, resume=run_dir, force=True)
+        args = resume_args(run_dir)
     device = resolve_device(args.device)
     demos, env_id = load_demos(args.demos, args.env)
     cfg = args.train
@@ -92,22 +86,25 @@ def train_command(args: TrainArgs) -> Path:
         if vae_model.obs_dim != int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1]):
             raise UserError(f"the VAE in {args.vae} expects {vae_model.obs_dim}-d observations but the "
                             "demonstrations have another size; pre-train it on these demonstrations.")
-    if args.resume is None:
-        run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force)
+    if run_dir is None:
+        run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force, resume_command="train")
+    else:
+        check_writable(run_dir, "run folder")
     trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
                             device=device)
     ckpt = run_dir / "checkpoint.pt"
     if args.resume is not None:
-        if not ckpt.exists():
-            raise UserError(f"no checkpoint in {run_dir}; it was killed before the first one - start it again.")
-        trainer.load_checkpoint(ckpt)
-        print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
+        if ckpt.exists():
+            trainer.load_checkpoint(ckpt)
+            print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
+        else:
+            print(f"no checkpoint in {run_dir} yet: its training starts again from iteration 0")
     config = run_config(kind=cfg.method, env_id=env_id, demos=args.demos, seed=args.seed, preset=args.preset,
                         device=args.device, train=cfg, vae_run=args.vae,
                         args=replace(args, train=cfg, env=env_id, demos=path_ref(args.demos) or "",
                                      vae=None if args.vae is None else Path(args.vae).resolve()))
     if args.resume is None:
-        run_dir.mkdir(parents=True, exist_ok=True)
+        fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
         write_run_config(run_dir, config)
     trainer.model_config = config
     trainer.run_dir = run_dir
@@ -115,6 +112,34 @@ def train_command(args: TrainArgs) -> Path:
     trainer.save_checkpoint(ckpt)
     print(f"run folder: {run_dir}")
     return run_dir
+
+
+def resume_args(run_dir: Path) -> TrainArgs:
+    """The arguments a training run folder was started with (RUN/config.json), with its dataset and VAE paths
+    found from any working directory; one sentence when the folder holds no training to continue."""
+    from digail.checkpoint import read_config
+    from digail.commands.common import resolve_ref
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserError(f"{run_dir} does not exist; pass the folder of a `digail train` or `digail run` run.")
+    config = read_config(run_dir)
+    if config.get("kind") == "vae":
+        raise UserError(f"{run_dir} is a VAE run folder (from `digail pretrain`) with no training to resume; train "
+                        f"on it with `digail train --vae {run_dir} --demos D`.")
+    saved = config.get("args")
+    if not isinstance(saved, dict):
+        what = "no config.json" if not config else "its config.json records no training arguments"
+        raise UserError(f"{run_dir} is not a training run folder ({what}); pass a folder made by `digail train` "
+                        "or `digail run`.")
+    try:
+        args = from_dict(TrainArgs, saved)
+    except (TypeError, AttributeError) as exc:
+        raise UserError(f"the training arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
+                        "restore the file or start the training again.") from None
+    vae = resolve_ref(run_dir, args.vae)
+    return replace(args, demos=resolve_ref(run_dir, args.demos) or "", vae=None if vae is None else Path(vae),
+                   out=run_dir, resume=run_dir, force=False)
 
 
 def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[HierarchicalPolicy], dict[str, float]] | None:
@@ -144,7 +169,7 @@ def load_demos(demos: str, env: str = "") -> tuple[list[Trajectory], str]:
     from digail.data.minari_io import check_matches_env, load_dataset
 
     if not demos:
-        raise UserError("no demonstrations given; pass --demos with a Minari dataset folder or id.")
+        raise UserError("the flag --demos is missing; pass a Minari dataset folder or id.")
     ds = load_dataset(demos)
     env_id = env or ds.env_id
     if not env_id:
