@@ -54,7 +54,7 @@ def test_train_evaluate_compose_segment_smoke(smoke_runs, capsys):
 
 @pytest.mark.parametrize("argv, phrase", [
     (["train", "--demos", "/nonexistent/demos", "--vae", "x"], "no Minari dataset"),
-    (["compose", "/nonexistent/run", "--schedule", "1:60"], "no model checkpoint"),
+    (["compose", "/nonexistent/run", "--schedule", "1:60"], "does not exist"),
 ])
 def test_bad_input_exits_2_with_one_line(argv, phrase, capsys):
     assert main(argv) == 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 from pathlib import Path
 from typing import Any
 
@@ -63,8 +64,6 @@ class ScalarLogger:
         """Drop the rows of `metrics.csv` logged after env step `step` (atomically; header kept)."""
         if not self.path.exists():
             return
-        from digail.utils import atomic_write_bytes
-
         with open(self.path, newline="") as f:
             reader = csv.DictReader(f)
             fields = list(reader.fieldnames or [])
@@ -74,7 +73,9 @@ class ScalarLogger:
         if fields:
             writer.writeheader()
         writer.writerows(rows)
-        atomic_write_bytes(self.path, buf.getvalue().encode())
+        tmp = self.path.with_name(f".{self.path.name}.cut")
+        tmp.write_text(buf.getvalue())
+        os.replace(tmp, self.path)  # never a half-cut file, whenever the run stops
 
     def close(self) -> None:
         if self._tb is not None:

@@ -60,7 +60,7 @@ def check_writable(path: Path, flag: str = "--out") -> None:
     else the nearest folder above it that exists (where it will be created). Probes with a real temporary file,
     so read-only mounts count too (as root `os.access` says yes to everything), and checks free space."""
     path = Path(path)
-    probe_dir = path
+    probe_dir = path if path.is_dir() or not path.exists() else path.parent  # a file is replaced from its folder
     while not probe_dir.exists() and probe_dir != probe_dir.parent:
         probe_dir = probe_dir.parent
     if not probe_dir.is_dir():

@@ -1,0 +1,250 @@
+"""Every way a command line can go wrong gives one sentence on stderr, exit status 2 and an untouched output.
+
+One table: each case names the argv (with placeholders for the fixture's folders), an optional setup that breaks
+something first, a phrase of the expected message, and the path that must come out unchanged. Runs in-process
+(`digail.cli.main`); the only training is the module fixture's two SMOKE iterations on Four Rooms.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import pickle
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from digail.cli import main
+
+ENV = "digail/FourRooms-v0"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A tiny dataset, a VAE folder and a trained folder (Four Rooms, SMOKE)."""
+    root = tmp_path_factory.mktemp("errors")
+    demos, vae, run = root / "demos", root / "vae", root / "run"
+    assert main(["demos", ENV, "--episodes", "6", "--out", str(demos)]) == 0
+    assert main(["pretrain", "--demos", str(demos), "--preset", "smoke", "--out", str(vae)]) == 0
+    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--out", str(run)]) == 0
+    return root
+
+
+@dataclass
+class Case:
+    argv: list[str]
+    """the command line; {demos}, {vae}, {run}, {tmp} and {file} are filled in"""
+    phrase: str
+    """a piece of the expected one-line message"""
+    watch: str = "{tmp}/out"
+    """the output location that must be unchanged afterwards (absent stays absent)"""
+    setup: Callable[[Path, pytest.MonkeyPatch], None] | None = None
+    """breaks something first (in the test's own copy of the run folder)"""
+
+
+def _write(name: str, data: bytes | str) -> Callable[[Path, pytest.MonkeyPatch], None]:
+    def setup(tmp: Path, _: pytest.MonkeyPatch) -> None:
+        path = tmp / "run" / name
+        path.write_bytes(data if isinstance(data, bytes) else data.encode())
+    return setup
+
+
+def _torch_bytes(obj: object) -> bytes:
+    import io
+
+    import torch
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return buf.getvalue()
+
+
+class _Hostile:
+    def __reduce__(self):  # noqa: ANN204  (runs `touch` when unpickled with weights_only=False)
+        return os.system, (f"touch {tempfile.gettempdir()}/digail-hostile-pickle-ran",)
+
+
+def _unwritable(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A read-only run folder: as root chmod does not stop writes, so the probe's mkstemp fails as on a read-only
+    mount (os.access would say yes to root)."""
+    real = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        if Path(kwargs.get("dir", "")).resolve() == (tmp / "run").resolve():
+            raise OSError(errno.EROFS, "Read-only file system")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+
+
+def _full_disk(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(shutil, "disk_usage", lambda _: shutil._ntuple_diskusage(100, 100, 0))  # type: ignore
+
+
+TRAIN = ["train", "--demos", "{demos}", "--vae", "{vae}", "--preset", "smoke", "--out", "{tmp}/out"]
+RUN = "{tmp}/run"
+
+CASES: dict[str, Case] = {
+    # 1. resume
+    "resume a VAE folder": Case(["train", "--resume", "{vae}"], "VAE run folder", watch="{vae}"),
+    "resume a missing folder": Case(["train", "--resume", "{tmp}/nope"], "does not exist", watch="{tmp}/nope"),
+    "resume a folder without config": Case(["train", "--resume", "{tmp}"], "not a training run folder",
+                                           watch="{tmp}"),
+    "run --resume a train folder": Case(["run", "--resume", RUN], "digail train --resume", watch=RUN),
+    "re-run an existing folder": Case([*TRAIN[:-1], RUN], "--resume", watch=RUN),
+    # 2. unwritable outputs
+    "--out on a read-only mount": Case([*TRAIN[:-1], "/proc/digail-out"], "cannot write",
+                                       watch="/proc/digail-out"),
+    "--out below a file": Case([*TRAIN[:-1], "{file}/out"], "is a file", watch="{file}"),
+    "evaluate a read-only run": Case(["evaluate", RUN, "--episodes", "2"], "cannot write", watch=RUN,
+                                     setup=_unwritable),
+    "compose in a read-only run": Case(["compose", RUN, "--schedule", "0:5", "--episodes", "2"], "cannot write",
+                                       watch=RUN, setup=_unwritable),
+    "segment a read-only run": Case(["segment", RUN], "cannot write", watch=RUN, setup=_unwritable),
+    "resume a read-only run": Case(["train", "--resume", RUN], "cannot write", watch=RUN, setup=_unwritable),
+    "evaluate on a full disk": Case(["evaluate", RUN, "--episodes", "2"], "MiB free", watch=RUN,
+                                    setup=_full_disk),
+    # 3. numbers
+    "evaluate --episodes 0": Case(["evaluate", RUN, "--episodes", "0"], "--episodes must be at least 1",
+                                  watch=RUN),
+    "compose --episodes -1": Case(["compose", RUN, "--episodes", "-1"], "--episodes must be at least 1",
+                                  watch=RUN),
+    "run --episodes 0": Case(["run", ENV, "--episodes", "0", "--out", "{tmp}/out"], "--episodes"),
+    "demos --episodes 0": Case(["demos", ENV, "--episodes", "0", "--out", "{tmp}/out"], "--episodes"),
+    "num-envs 0": Case([*TRAIN, "--train.ppo.num-envs", "0"], "--train.ppo.num-envs must be at least 1"),
+    "minibatch 0": Case([*TRAIN, "--train.ppo.minibatch-size", "0"], "--train.ppo.minibatch-size"),
+    "minibatch > batch": Case([*TRAIN, "--train.ppo.minibatch-size", "4096"], "must not exceed"),
+    "checkpoint-every 0": Case([*TRAIN, "--train.checkpoint-every", "0"], "--train.checkpoint-every"),
+    "negative lr": Case([*TRAIN, "--train.ppo.lr", "-0.1"], "--train.ppo.lr"),
+    "negative disc lr": Case([*TRAIN, "--train.disc-lr", "-1e-3"], "--train.disc-lr"),
+    "negative VAE lr": Case(["pretrain", "--demos", "{demos}", "--vae.lr", "-1", "--out", "{tmp}/out"],
+                            "--vae.lr"),
+    "seed -1": Case([*TRAIN, "--seed", "-1"], "--seed must be between 0 and"),
+    "seed 2**32": Case(["run", ENV, "--seed", str(2**32), "--out", "{tmp}/out"], "--seed"),
+    "seed of 20 digits": Case(["evaluate", RUN, "--seed", "9" * 20], "--seed", watch=RUN),
+    # 4. schedules
+    "schedule of 3e9 steps": Case(["compose", RUN, "--schedule", "0:3000000000"], "longer than an episode",
+                                  watch=RUN),
+    "schedule of 20 digits": Case(["compose", RUN, "--schedule", "1:" + "9" * 20], "longer than an episode",
+                                  watch=RUN),
+    "schedule past the time limit": Case(["compose", RUN, "--schedule", "0:40,1:40"], "80 steps", watch=RUN),
+    "schedule unreadable": Case(["compose", RUN, "--schedule", "banana"], "code:steps", watch=RUN),
+    "schedule unknown code": Case(["compose", RUN, "--schedule", "7:10"], "codes", watch=RUN),
+    "schedule zero steps": Case(["compose", RUN, "--schedule", "0:0"], "at least 1", watch=RUN),
+    # 5. broken files
+    "corrupt checkpoint.pt": Case(["train", "--resume", RUN], "corrupt", watch=RUN,
+                                  setup=_write("checkpoint.pt", b"PK\x03\x04 truncated")),
+    "hostile checkpoint.pt": Case(["train", "--resume", RUN], "corrupt", watch=RUN,
+                                  setup=_write("checkpoint.pt", pickle.dumps(_Hostile()))),
+    "foreign checkpoint.pt": Case(["train", "--resume", RUN], "incomplete", watch=RUN,
+                                  setup=_write("checkpoint.pt", _torch_bytes({"version": 2, "iteration": 1}))),
+    "text in model.pt": Case(["evaluate", RUN], "corrupt", watch=RUN, setup=_write("model.pt", "hello\n")),
+    "hostile model.pt": Case(["evaluate", RUN], "corrupt", watch=RUN,
+                             setup=_write("model.pt", pickle.dumps(_Hostile()))),
+    "invalid config.json (segment)": Case(["segment", RUN], "not valid JSON", watch=RUN,
+                                          setup=_write("config.json", "{not json")),
+    "invalid config.json (resume)": Case(["train", "--resume", RUN], "not valid JSON", watch=RUN,
+                                         setup=_write("config.json", "[1, 2")),
+    "config.json not an object": Case(["train", "--resume", RUN], "JSON object", watch=RUN,
+                                      setup=_write("config.json", "[1, 2]")),
+    # 7. parse errors
+    "--seed abc": Case(["evaluate", RUN, "--seed", "abc"], "--seed expects an integer, got 'abc'", watch=RUN),
+    "--train.ppo.lr x": Case([*TRAIN, "--train.ppo.lr", "x"], "--train.ppo.lr expects a number"),
+    "missing --demos (pretrain)": Case(["pretrain", "--out", "{tmp}/out"], "--demos is missing"),
+    "missing --demos (train)": Case(["train", "--out", "{tmp}/out"], "--demos is missing"),
+    "missing RUN": Case(["evaluate"], "RUN is missing"),
+    "bad choice": Case([*TRAIN, "--method", "bc"], "--method must be one of digail, gail"),
+    "unknown flag": Case(["evaluate", RUN, "--epsiodes", "3"], "unknown option"),
+    "flag without value": Case(["evaluate", RUN, "--seed"], "--seed expects an integer"),
+    # already handled before this issue
+    "unknown command": Case(["trian"], "unknown command"),
+    "unknown env": Case(["run", "NoSuchEnv-v9", "--out", "{tmp}/out"], "NoSuchEnv-v9"),
+    "unknown preset": Case([*TRAIN, "--preset", "huge"], "unknown preset"),
+    "missing dataset": Case(["train", "--demos", "{tmp}/nodata", "--vae", "{vae}", "--out", "{tmp}/out"],
+                            "no Minari dataset"),
+    "digail without a VAE": Case(["train", "--demos", "{demos}", "--preset", "smoke", "--out", "{tmp}/out"],
+                                 "--vae"),
+    "dataset of another env": Case(["train", "--demos", "digail/circleworld/expert-v0", "--vae", "{vae}",
+                                    "--preset", "smoke", "--out", "{tmp}/out"], "digail/FourRooms-v0"),
+}
+
+
+def _snapshot(path: Path) -> list[tuple[str, int, int]] | None:
+    if not path.exists():
+        return None
+    if path.is_file():
+        st = path.stat()
+        return [(path.name, st.st_size, st.st_mtime_ns)]
+    out = []
+    for p in sorted(path.rglob("*")):
+        st = p.stat()
+        out.append((str(p.relative_to(path)), st.st_size if p.is_file() else 0, st.st_mtime_ns))
+    return out
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input_is_one_sentence_exit_2_and_nothing_written(name, runs, tmp_path, monkeypatch, capsys):
+    case = CASES[name]
+    shutil.copytree(runs / "run", tmp_path / "run")
+    (tmp_path / "afile").write_text("not a folder\n")
+    fill = {"demos": str(runs / "demos"), "vae": str(runs / "vae"), "tmp": str(tmp_path),
+            "file": str(tmp_path / "afile")}
+    argv = [a.format(**fill) for a in case.argv]
+    watch = Path(case.watch.format(**fill))
+    marker = Path(tempfile.gettempdir()) / "digail-hostile-pickle-ran"
+    marker.unlink(missing_ok=True)
+    if case.setup is not None:
+        case.setup(tmp_path, monkeypatch)
+    before = _snapshot(watch)
+    capsys.readouterr()
+
+    assert main(argv) == 2, name
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("digail"), err
+    assert case.phrase in err, err
+    assert "weights_only" not in err and "Traceback" not in err, err
+    assert _snapshot(watch) == before, f"{watch} changed"
+    assert not list(tmp_path.glob(".*.tmp-*")) and not list(watch.parent.glob(".*.tmp-*"))
+    assert not marker.exists(), "a hostile pickle ran"
+
+
+def test_force_replaces_a_file_and_empties_a_folder(runs, tmp_path):
+    """--out FILE --force leaves a folder and no orphan; --force empties an old folder before the new run."""
+    out = tmp_path / "out"
+    out.write_text("an old file\n")
+    assert main(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out), "--force"]) == 0
+    assert (out / "model.pt").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"], "an orphan was left beside the output"
+
+    old = tmp_path / "old"
+    shutil.copytree(runs / "run", old)
+    (old / "eval.json").write_text("{}\n")
+    (old / "segmentation.json").write_text("{}\n")
+    assert main(["train", "--demos", str(runs / "demos"), "--vae", str(runs / "vae"), "--preset", "smoke",
+                 "--out", str(old), "--force"]) == 0
+    assert not (old / "eval.json").exists() and not (old / "segmentation.json").exists()
+    assert (old / "model.pt").is_file()
+
+    # the same permissions whichever command made the folder (atomic pretrain vs in-place train vs mkdir)
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    modes = {p.name: p.stat().st_mode & 0o777 for p in (out, old, plain, runs / "vae", runs / "demos")}
+    assert len(set(modes.values())) == 1, modes
+    files = {p.name: p.stat().st_mode & 0o777 for p in (out / "model.pt", old / "config.json", old / "model.pt")}
+    assert len(set(files.values())) == 1, files
+
+
+def test_train_resume_from_another_directory(runs, tmp_path, monkeypatch):
+    """A run folder started here resumes from another working directory (paths stored absolute), and a resume
+    of a finished run changes nothing in its metrics (no repeated rows)."""
+    run = tmp_path / "run"
+    shutil.copytree(runs / "run", run)
+    rows = (run / "metrics.csv").read_text()
+    monkeypatch.chdir(tmp_path.parent)
+    assert main(["train", "--resume", str(run)]) == 0
+    assert (run / "metrics.csv").read_text() == rows
