@@ -77,9 +77,9 @@ def run_command(args: RunArgs) -> Path:
     from digail.viz.report import write_report
 
     set_torch_threads(1)
-    resuming = args.resume is not None
-    if resuming:
-        args = _resume_args(Path(args.resume))
+    resuming = False
+    if args.resume is not None:
+        resuming, args = True, _resume_args(Path(args.resume))
     device = resolve_device(args.device)
     make_env(args.env).close()  # an unknown id fails here, before anything is written
     preset = preset_for(args.env, args.preset)
