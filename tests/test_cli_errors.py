@@ -85,6 +85,16 @@ def _full_disk(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(shutil, "disk_usage", lambda _: shutil._ntuple_diskusage(100, 100, 0))  # type: ignore
 
 
+def _disk_fills_up(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The disk fills up after the checks, while the results are written."""
+    import digail.utils
+
+    def write_json(path, obj):  # noqa: ANN001, ANN202
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(digail.utils, "write_json", write_json)
+
+
 TRAIN = ["train", "--demos", "{demos}", "--vae", "{vae}", "--preset", "smoke", "--out", "{tmp}/out"]
 RUN = "{tmp}/run"
 
@@ -108,6 +118,8 @@ CASES: dict[str, Case] = {
     "resume a read-only run": Case(["train", "--resume", RUN], "cannot write", watch=RUN, setup=_unwritable),
     "evaluate on a full disk": Case(["evaluate", RUN, "--episodes", "2"], "MiB free", watch=RUN,
                                     setup=_full_disk),
+    "disk fills up while writing": Case(["evaluate", RUN, "--episodes", "2"], "no space left", watch=RUN,
+                                        setup=_disk_fills_up),
     # 3. numbers
     "evaluate --episodes 0": Case(["evaluate", RUN, "--episodes", "0"], "--episodes must be at least 1",
                                   watch=RUN),

@@ -106,3 +106,4 @@ def test_sigkill_then_resume_completes(smoke_runs, tmp_path):
     rows = (run / "metrics.csv").read_text().splitlines()
     iters = [float(r.split(",")[1]) for r in rows[1:]]
     assert iters[-1] == 40.0
+    assert iters == sorted(set(iters)), "metrics.csv repeats iterations after the resume"

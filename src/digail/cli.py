@@ -86,9 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         if exc.errno not in _DISK_ERRORS:
             raise
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"digail {name}: error: cannot write{where} ({os.strerror(exc.errno or 0).lower()}); free space or "
-              "choose another --out.", file=sys.stderr)
+        where = f" at {exc.filename}" if exc.filename else ""
+        print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; free some space, fix the "
+              "permissions or choose another --out.", file=sys.stderr)
         return 2
     return 0
 
