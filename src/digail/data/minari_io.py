@@ -483,14 +483,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
         shutil.rmtree(root)
         if compact:
             _compact_hdf5(tmp / "data" / "main_data.hdf5")
-        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it private; give it the permissions of a plain mkdir
     return path
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _compact_hdf5(file: Path) -> None:
