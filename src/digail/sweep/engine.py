@@ -113,19 +113,26 @@ def _tail(log: Path, start: int, lines: int = 3) -> str:
     with open(log, "rb") as f:
         f.seek(start)
         text = f.read().decode(errors="replace")
-    rows = [ln.rsplit("\r", 1)[-1].strip() for ln in text.splitlines()]
-    rows = [r for r in rows if r and not r.startswith(("│", "╭", "╰", "─"))] or ["(no output)"]
-    return " | ".join(rows[-lines:])
+    rows = [ln.rsplit("\r", 1)[-1].strip(" │╭╮╰╯─\t") for ln in text.splitlines()]  # tyro draws boxes
+    rows = [r for r in rows if r and not r.startswith("For full helptext")] or ["(no output)"]
+    return " ".join(rows[-lines:])
 
 
-def run_job(job_dict: dict[str, Any], sweep: str) -> dict[str, Any]:
-    """Run a job's unfinished stages one after another; returns its state. Raises RuntimeError on a failed stage."""
+def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, Any]:
+    """Run a job's unfinished stages one after another; returns its state. Raises RuntimeError on a failed stage.
+
+    `token` names this attempt: written into the state as the task starts, it tells the driver the task left
+    Ray's queue (no clocks compared across nodes)."""
     job = job_from_dict(job_dict)
     root = Path(sweep)
     log = root / LOG_DIR / f"{job.file_id}.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     state = read_state(root, job)
     state["status"] = "running"
+    state["started_at"] = time.time()
+    state["token"] = token
+    state["host"] = os.uname().nodename
+    write_state(root, job, state)
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONUNBUFFERED": "1"}
     for stage in job.stages:
         if stage_done(state, stage):
@@ -234,7 +241,9 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
     out(f"[sweep] {len(jobs)} jobs: {skipped} finished before, {len(waiting)} to run "
         f"(Ray: {ray.cluster_resources().get('CPU', 0):g} CPUs, {cpus:g} per trial)")
     running: dict[Any, tuple[Job, float]] = {}
+    started: set[str] = set()  # submitted jobs whose task has begun (the rest wait in Ray's queue for a CPU)
     attempts: dict[str, int] = {}
+    tokens: dict[str, str] = {}
     t_start = time.time()
     last_summary = 0.0
 
@@ -246,18 +255,28 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
         done = sum(s["status"] == "done" for s in states.values())
         failed = sum(s["status"] == "failed" for s in states.values())
         sps = _running_sps(sweep, [j for j, _ in running.values()])
-        out(f"[sweep] {done}/{len(jobs)} done, {len(running)} running, {failed} failed, "
+        n_run = sum(j.id in started for j, _ in running.values())
+        out(f"[sweep] {done}/{len(jobs)} done, {n_run} running, {len(running) - n_run} queued, {failed} failed, "
             f"{len(waiting)} waiting | {sps:,.0f} env steps/s | {time.time() - t_start:,.0f}s")
+
+    def poll_started() -> None:
+        for job, _ in running.values():
+            if job.id not in started and read_state(sweep, job).get("token") == tokens[job.id]:
+                started.add(job.id)
+                state = read_state(sweep, job)
+                todo = [s.name for s in job.stages if not stage_done(state, s)]
+                resumed = [s for s in todo if s in state.get("started", [])]
+                extra = f"; resuming {resumed[0]}" if resumed else ""
+                out(f"[sweep] run    {job.id} on {state.get('host', '?')}: {' -> '.join(todo)}{extra}")
 
     def submit(job: Job) -> None:
         attempts[job.id] = attempts.get(job.id, 0) + 1
-        ref = remote.remote(job_to_dict(job), str(sweep))
+        tokens[job.id] = f"{os.getpid()}-{time.time()}-{attempts[job.id]}"
+        ref = remote.remote(job_to_dict(job), str(sweep), tokens[job.id])
         running[ref] = (job, time.time())
-        states[job.id] = {"status": "running"}
-        state = read_state(sweep, job)
-        resumed = [s.name for s in job.stages if s.name in state.get("started", []) and not stage_done(state, s)]
-        extra = f", resuming {resumed[0]}" if resumed else ""
-        out(f"[sweep] start  {job.id} (attempt {attempts[job.id]}/{retries + 1}{extra})")
+        started.discard(job.id)
+        states[job.id] = {"status": "queued"}
+        out(f"[sweep] queue  {job.id} (attempt {attempts[job.id]}/{retries + 1})")
 
     def schedule() -> None:
         for job in list(waiting):
@@ -277,8 +296,9 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
         schedule()
         while running:
             ready, _ = ray.wait(list(running), num_returns=1, timeout=min(summary_every, 5.0))
+            poll_started()
             for ref in ready:
-                job, t0 = running.pop(ref)
+                job, _ = running.pop(ref)
                 try:
                     state = ray.get(ref)
                 except Exception as exc:  # a failed stage, a lost worker or node: retried alike
@@ -296,7 +316,8 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
                     state["attempts"] = attempts[job.id]
                     write_state(sweep, job, state)
                     states[job.id] = state
-                    out(f"[sweep] done   {job.id} ({time.time() - t0:.0f}s)")
+                    took = time.time() - state.get("started_at", time.time())
+                    out(f"[sweep] done   {job.id} ({took:.0f}s)")
                 schedule()
                 summary(force=True)
             summary()

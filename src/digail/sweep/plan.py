@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
-from digail.sweep.spec import DEFAULT_BC_WEIGHT, METHODS, Grid, Range, SweepSpec, Value
+from digail.sweep.spec import METHODS, Grid, Range, SweepSpec, Value
 
 VAE_KEYS = ("vae.", "pretrain.")
 """override prefixes that change the VAE (and so which VAE a trial shares)"""
@@ -130,12 +130,12 @@ def expand(spec: SweepSpec, *, allow_ranges: bool = False) -> list[dict[str, Any
                 settings: dict[str, Any] = {"preset": grid.preset, "demos": grid.demos or _default_demos(env),
                                             "episodes": grid.episodes, "compose": grid.compose, **overrides}
                 if METHODS[method][1] and "train.bc_weight" not in settings:
-                    settings["train.bc_weight"] = DEFAULT_BC_WEIGHT
+                    settings["train.bc_weight"] = grid.bc_weight
                 # what a method never reads does not make it another trial: the VAE baseline trains nothing,
                 # GAIL uses no VAE
                 unused = ("train.", "segment.") if METHODS[method][0] is None else (
                     VAE_KEYS if METHODS[method][0] == "gail" else ())
-                settings = {k: v for k, v in settings.items() if not k.startswith(unused) or not unused}
+                settings = {k: v for k, v in settings.items() if not (unused and k.startswith(unused))}
                 rec = {"env": env, "method": method, "seed": int(seed), "settings": settings}
                 ident = repr((env, method, seed, sorted((k, repr(v)) for k, v in settings.items())))
                 if ident not in seen:

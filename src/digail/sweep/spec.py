@@ -85,6 +85,8 @@ class Grid:
     """evaluation episodes (default: the preset's, 300 in the paper)"""
     overrides: tuple[tuple[str, tuple[Value | Range, ...]], ...] = ()
     """(key, values) pairs; a key with several values multiplies the trials, a Range is searched"""
+    bc_weight: float = DEFAULT_BC_WEIGHT
+    """weight of the BC / L2 term of the grid's `-l2` methods (`--set train.bc_weight=W` overrides it)"""
     compose: str | None = None
     """after evaluation, `digail compose` the trained policy and its VAE under this schedule of oracle labels,
     'label:steps,...' (e.g. '1:60,0:60'), translated into each run's own code ids by its segmentation"""
@@ -224,7 +226,7 @@ def _toml_values(key: str, value: Any) -> tuple[Value | Range, ...]:
     return tuple(out)
 
 
-GRID_KEYS = {"envs", "methods", "seeds", "preset", "demos", "episodes", "set", "compose"}
+GRID_KEYS = {"envs", "methods", "seeds", "preset", "demos", "episodes", "set", "compose", "bc_weight"}
 TOP_KEYS = GRID_KEYS | {"grid", "retries", "cpus_per_trial", "gpus_per_trial", "search", "name"}
 
 
@@ -259,7 +261,8 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> SweepSpec:
         grids.append(Grid(
             envs=tuple(merged["envs"]), methods=tuple(merged.get("methods", ("digail",))),
             seeds=tuple(int(s) for s in merged.get("seeds", (0,))), preset=merged.get("preset"),
-            demos=merged.get("demos"), episodes=merged.get("episodes"), compose=merged.get("compose"),
+            demos=merged.get("demos"), episodes=merged.get("episodes"), compose=merged.get("compose") or None,
+            bc_weight=float(merged.get("bc_weight", DEFAULT_BC_WEIGHT)),
             overrides=tuple((k.replace("-", "_"), _toml_values(k, v)) for k, v in sets.items())))
     search = None
     if "search" in data:
