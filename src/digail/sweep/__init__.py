@@ -86,6 +86,15 @@ def summarize_sweep(out: Path | str) -> dict[str, Any]:
     result = summarize(out, jobs, name)
     search_file = out / "search.json"
     if search_file.exists():
-        result["search"] = json.loads(search_file.read_text())
+        result["search"] = search = json.loads(search_file.read_text())
         (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
+        scored = sorted((s for s in search["samples"] if s["metric"] is not None), key=lambda s: s["metric"],
+                        reverse=search["mode"] == "max")
+        lines = [f"## Search ({search['algo']}, {search['mode']} {search['metric']}, median over seeds)", "",
+                 "| " + " | ".join(search["space"]) + f" | {search['metric']} |",
+                 "| " + " | ".join("---" for _ in search["space"]) + " | --- |"]
+        lines += ["| " + " | ".join(str(s["values"].get(k)) for k in search["space"]) + f" | {s['metric']:.4g} |"
+                  for s in scored]
+        with open(out / "results.md", "a") as f:
+            f.write("\n".join(lines) + "\n")
     return result

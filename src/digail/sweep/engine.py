@@ -167,6 +167,7 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
         state["error"] = None
         write_state(root, job, state)
     state["status"] = "done"
+    write_state(root, job, state)
     return state
 
 

@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
-from digail.sweep.spec import METHODS, Grid, Range, SweepSpec, Value
+from digail.sweep.spec import METHODS, Range, SweepSpec, Value
 
 VAE_KEYS = ("vae.", "pretrain.")
 """override prefixes that change the VAE (and so which VAE a trial shares)"""
@@ -118,7 +117,6 @@ def value_text(value: Value | Range) -> str:
 def expand(spec: SweepSpec, *, allow_ranges: bool = False) -> list[dict[str, Any]]:
     """Every trial of the spec as (env, method, seed, settings) records, duplicates removed, in grid order."""
     out: list[dict[str, Any]] = []
-    seen: set[str] = set()
     for grid in spec.grids:
         keys = [k for k, _ in grid.overrides]
         for values in itertools.product(*(vals for _, vals in grid.overrides)):
@@ -136,11 +134,19 @@ def expand(spec: SweepSpec, *, allow_ranges: bool = False) -> list[dict[str, Any
                 unused = ("train.", "segment.") if METHODS[method][0] is None else (
                     VAE_KEYS if METHODS[method][0] == "gail" else ())
                 settings = {k: v for k, v in settings.items() if not (unused and k.startswith(unused))}
-                rec = {"env": env, "method": method, "seed": int(seed), "settings": settings}
-                ident = repr((env, method, seed, sorted((k, repr(v)) for k, v in settings.items())))
-                if ident not in seen:
-                    seen.add(ident)
-                    out.append(rec)
+                out.append({"env": env, "method": method, "seed": int(seed), "settings": settings})
+    return _unique(out)
+
+
+def _unique(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """`records` without repeats (the same trial asked for twice), in order."""
+    seen: set[str] = set()
+    out = []
+    for rec in records:
+        ident = repr((rec["env"], rec["method"], rec["seed"], sorted((k, repr(v)) for k, v in rec["settings"].items())))
+        if ident not in seen:
+            seen.add(ident)
+            out.append(rec)
     return out
 
 
@@ -166,9 +172,12 @@ def _tag(settings: dict[str, Any], keys: list[str]) -> str:
     return "".join(f"__{k}={value_text(settings.get(k))}".replace("/", "-").replace(" ", "-") for k in keys)
 
 
-def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None) -> list[Job]:
-    """Jobs for every trial of `spec` (or of the given expanded `records`): VAE jobs first, then the trials."""
-    records = expand(spec) if records is None else records
+def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_tag: tuple[str, ...] = ()) -> list[Job]:
+    """Jobs for every trial of `spec` (or of the given expanded `records`): VAE jobs first, then the trials.
+
+    `always_tag`: setting keys named in every run folder that has them (a search's sampled keys), not only where
+    trials collide."""
+    records = _unique(expand(spec) if records is None else records)
     vae_jobs: dict[str, Job] = {}
     jobs: list[Job] = []
 
@@ -197,7 +206,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None) -> list[J
         deps: tuple[str, ...] = ()
         if train_method != "gail":
             vs = vae_settings(rec)
-            vtag = _tag(vs, _differing(vae_groups[(env, seed)]))
+            vtag = _tag(vs, sorted({*_differing(vae_groups[(env, seed)]), *(k for k in always_tag if k in vs)}))
             vae_run = f"{edir}/vae_s{seed}{vtag}"
             vid = f"{edir}/pretrain_s{seed}{vtag}"
             if vid not in vae_jobs:
@@ -210,7 +219,8 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None) -> list[J
                                     stages=(Stage("pretrain", tuple(argv), run=vae_run),), settings=vs,
                                     label="pretrain")
             deps = (vid,)
-        name = f"{method}_s{seed}{_tag(settings, _differing(by_base[(env, method, seed)]))}"
+        keys = sorted({*_differing(by_base[(env, method, seed)]), *(k for k in always_tag if k in settings)})
+        name = f"{method}_s{seed}{_tag(settings, keys)}"
         episodes = settings["episodes"] or _default_episodes(settings["preset"], env)
         eval_extra = [a for k, v in sorted(settings.items()) if k.startswith("evaluate.") for a in flag_args(k, v)]
         seg_extra = [a for k, v in sorted(settings.items()) if k.startswith("segment.") for a in flag_args(k, v)]
@@ -235,7 +245,8 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None) -> list[J
             assert vae_run is not None, "compose needs a VAE's segmentation"
             stages.append(Stage("compose", ("compose", run, "--schedule", "{schedule}", "--episodes", "100"),
                                 run=run, labels=settings["compose"], mapping_from=vae_run))
-        label_keys = [k for k in _differing(by_env_method[(env, method)]) if k != "compose"]
+        label_keys = sorted({*_differing(by_env_method[(env, method)]), *(k for k in always_tag if k in settings)}
+                            - {"compose"})
         label = method + (" [" + ", ".join(f"{k}={value_text(settings.get(k))}" for k in label_keys) + "]"
                           if label_keys else "")
         jobs.append(Job(id=f"{edir}/{name}", kind="trial", env=env, method=method, seed=seed, run=run,

@@ -163,8 +163,9 @@ def parse_value(text: str) -> Value | Range:
             if opt not in ("", "log"):
                 raise UserError(f"range {text!r}: write LOW..HIGH or LOW..HIGH:log.")
             if not high > low or (opt == "log" and low <= 0):
-                raise UserError(f"range {text!r} is empty or (log scale) not positive; write LOW..HIGH with LOW < HIGH.")
-            return Range(float(low), float(high), log=opt == "log", integer=isinstance(low, int) and isinstance(high, int))
+                raise UserError(f"range {text!r} is empty or (log scale) not positive; write LOW..HIGH, LOW < HIGH.")
+            integer = isinstance(low, int) and isinstance(high, int)
+            return Range(float(low), float(high), log=opt == "log", integer=integer)
     lowered = text.lower()
     if lowered in ("true", "false"):
         return lowered == "true"
@@ -246,7 +247,8 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> SweepSpec:
     """A SweepSpec from the parsed TOML of a spec file."""
     unknown = set(data) - TOP_KEYS
     if unknown:
-        raise UserError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}.")
+        raise UserError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; "
+                        f"allowed: {', '.join(sorted(TOP_KEYS))}.")
     top = {k: v for k, v in data.items() if k in GRID_KEYS}
     blocks = data.get("grid") or [{}]
     grids = []
