@@ -254,3 +254,27 @@ def test_local_sweep_survives_a_killed_worker_and_reports_a_failure(ray_local, t
     again = summarize_sweep(sweep)
     assert again["table"][CW]["digail"]["median"] == result["table"][CW]["digail"]["median"]
     assert len(load_plan(sweep)[1]) == 7
+
+
+def test_readme_sweep_commands_parse_and_plan():
+    """Every `digail sweep` line of the README's Sweeps section parses and plans (nothing runs)."""
+    import shlex
+
+    import tyro
+
+    from digail.commands.sweep import SweepArgs
+
+    section = (ROOT / "README.md").read_text().split("## Sweeps", 1)[1].split("\n## ", 1)[0]
+    text = section.replace("\\\n", " ")
+    lines = [ln.split("#", 1)[0] for ln in text.splitlines() if ln.strip().startswith("digail sweep")]
+    assert len(lines) >= 6
+    for line in lines:
+        args = tyro.cli(SweepArgs, args=shlex.split(line)[2:])
+        if args.summarize is not None:
+            continue
+        spec = build_spec(envs=args.envs, methods=args.methods, seeds=args.seeds, preset=args.preset,
+                          episodes=args.episodes, sets=args.set,
+                          spec_file=ROOT / args.spec if args.spec else None, search=args.search,
+                          trials=args.trials, metric=args.metric)
+        if spec.search is None:
+            assert plan(spec), line

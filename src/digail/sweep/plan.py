@@ -157,9 +157,9 @@ def _default_demos(env_id: str) -> str:
 
 
 def _default_episodes(preset: str | None, env_id: str) -> int:
-    from digail.config import get_preset
+    from digail.envs.registry import preset_for
 
-    return get_preset(preset, env_id).eval_episodes
+    return preset_for(env_id, preset).eval_episodes
 
 
 def _differing(records: list[dict[str, Any]], keys: list[str] | None = None) -> list[str]:
