@@ -224,6 +224,7 @@ def test_local_sweep_survives_a_killed_worker_and_reports_a_failure(ray_local, t
     assert failed["job"] == "digail-FourRooms-v0/gail_s1" and "bogus" in failed["error"]
     assert "[sweep] retry  digail-FourRooms-v0/gail_s1" in out and "failed digail-FourRooms-v0/gail_s1" in out
     assert "[sweep] run    digail-CircleWorld-v0/digail_s0" in out and "env steps/s" in out
+    assert "train -> evaluate -> segment (resuming train)" in out
 
     # the table is the trials' own eval.json, seed by seed
     for env, rows_ in result["table"].items():

@@ -131,6 +131,8 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
     state["status"] = "running"
     state["started_at"] = time.time()
     state["token"] = token
+    state["todo"] = [s.name for s in job.stages if not stage_done(state, s)]
+    state["resuming"] = next((s for s in state["todo"] if s in state.get("started", [])), None)
     state["host"] = os.uname().nodename
     write_state(root, job, state)
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONUNBUFFERED": "1"}
@@ -265,10 +267,8 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
             if job.id not in started and read_state(sweep, job).get("token") == tokens[job.id]:
                 started.add(job.id)
                 state = read_state(sweep, job)
-                todo = [s.name for s in job.stages if not stage_done(state, s)]
-                resumed = [s for s in todo if s in state.get("started", [])]
-                extra = f"; resuming {resumed[0]}" if resumed else ""
-                out(f"[sweep] run    {job.id} on {state.get('host', '?')}: {' -> '.join(todo)}{extra}")
+                extra = f" (resuming {state['resuming']})" if state.get("resuming") else ""
+                out(f"[sweep] run    {job.id} on {state.get('host', '?')}: {' -> '.join(state['todo'])}{extra}")
 
     def submit(job: Job) -> None:
         attempts[job.id] = attempts.get(job.id, 0) + 1
