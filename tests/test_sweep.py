@@ -279,3 +279,31 @@ def test_readme_sweep_commands_parse_and_plan():
                           trials=args.trials, metric=args.metric)
         if spec.search is None:
             assert plan(spec), line
+
+
+def test_search_space_and_sample_runs_named_after_their_values():
+    pytest.importorskip("ray")
+    from ray import tune
+
+    from digail.sweep.search import _tune_space, check_metric, sample_jobs, search_space
+
+    spec = build_spec(envs=(FR,), methods=("digail",), seeds=(0, 1), preset="smoke",
+                      sets=("train.bonus_weight=0.001..0.1:log", "train.ppo.epochs=1..4",
+                            "train.reward=positive,negative"),
+                      search="optuna", trials=4, metric="eval/success_rate")
+    space = search_space(spec)
+    assert str(space["train.bonus_weight"]) == "0.001..0.1:log" and space["train.ppo.epochs"].integer
+    assert space["train.reward"] == ("positive", "negative")
+    domains = _tune_space(space)
+    assert isinstance(domains["train.bonus_weight"], tune.search.sample.Float)
+    assert isinstance(domains["train.ppo.epochs"], tune.search.sample.Integer)
+    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.reward": "negative"},
+                       tuple(sorted(space)))
+    runs = sorted(j.run for j in jobs if j.kind == "trial")
+    assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123__train.ppo.epochs=2"
+                       "__train.reward=negative")
+    assert sorted(j.run for j in jobs if j.kind == "vae") == ["digail-FourRooms-v0/vae_s0",
+                                                              "digail-FourRooms-v0/vae_s1"]
+    assert check_metric("seg/nmi") == ("segmentation.json", "nmi")
+    with pytest.raises(UserError, match="metric"):
+        check_metric("normalized_return")
