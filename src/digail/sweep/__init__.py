@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
-from digail.sweep.engine import check_consistent, execute, init_ray, job_from_dict, job_to_dict
+from digail.sweep.engine import check_consistent, execute, init_ray, job_done, job_from_dict, job_to_dict
 from digail.sweep.plan import Job, plan
 from digail.sweep.spec import Grid, Range, SearchSpec, SweepSpec, load_spec, parse_set
 from digail.sweep.summary import summarize
@@ -67,6 +67,9 @@ def run_sweep(spec: SweepSpec, out: Path | str, *, address: str | None = None, n
     check_consistent(out, jobs)
     _require_ray()
     save_plan(out, spec, jobs)
+    if all(job_done(out, j) for j in jobs):  # nothing to run: no Ray to start
+        print(f"[sweep] {len(jobs)} jobs: all finished before", flush=True)
+        return summarize_sweep(out)
     started = init_ray(address, num_cpus, dashboard)
     try:
         execute(jobs, out, retries=spec.retries, cpus=spec.cpus_per_trial, gpus=spec.gpus_per_trial,

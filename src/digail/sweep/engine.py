@@ -199,7 +199,8 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, dashboard:
     if address:
         ray.init(address=address, log_to_driver=False)
     else:
-        ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=dashboard, log_to_driver=False,
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        ray.init(num_cpus=num_cpus or cores, include_dashboard=dashboard, log_to_driver=False,
                  object_store_memory=200 * 1024**2)
     return True
 
