@@ -118,6 +118,14 @@ def _tail(log: Path, start: int, lines: int = 3) -> str:
     return " ".join(rows[-lines:])
 
 
+def _newline_if_needed(log: Path) -> str:
+    if not log.exists() or log.stat().st_size == 0:
+        return ""
+    with open(log, "rb") as f:
+        f.seek(-1, os.SEEK_END)
+        return "" if f.read(1) == b"\n" else "\n"
+
+
 def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, Any]:
     """Run a job's unfinished stages one after another; returns its state. Raises RuntimeError on a failed stage.
 
@@ -153,7 +161,7 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
         t0 = time.time()
         with open(log, "ab") as f:
             start = f.tell()
-            f.write(f"$ {line}\n".encode())
+            f.write(f"{_newline_if_needed(log)}$ {line}\n".encode())  # a killed progress bar left none
             f.flush()
             rc = subprocess.call([sys.executable, "-m", "digail.cli", *actual], cwd=root, env=env, stdout=f,
                                  stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
