@@ -15,7 +15,7 @@ $(BIN)/activate:
 
 $(VENV)/.installed: $(BIN)/activate pyproject.toml
 	$(BIN)/pip install -q $(TORCH)
-	$(BIN)/pip install -q $(PINS) -e ".[dev]"
+	$(BIN)/pip install -q $(PINS) -e ".[dev,sweep]"
 	touch $@
 
 venv: $(VENV)/.installed

@@ -1,5 +1,9 @@
 """Result tables: run the CLI for several seeds and collect what `digail evaluate / segment / compose` wrote.
 
+The same trials as sweep specs, on Ray, resumable, with results.json / results.md:
+    digail sweep --spec benchmarks/sweeps/results-fourrooms.toml --out runs/sweeps/results-fourrooms
+    digail sweep --spec benchmarks/sweeps/results-circleworld.toml --out runs/sweeps/results-circleworld
+
     python benchmarks/results.py fourrooms    [--seeds 0 1 2] [--episodes 300]
     python benchmarks/results.py circleworld  [--seeds 0 1 2] [--episodes 300]
     python benchmarks/results.py circleworld  --seeds 1 --only-seeds     (one seed's runs; no table written)

@@ -1,5 +1,8 @@
 """The paper's Table 1 (continuous control): VAE, GAIL and Directed-Info GAIL (+ L2) on four envs, 3 seeds.
 
+The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --spec benchmarks/sweeps/table1.toml
+--out runs/sweeps/table1` (tests/test_sweep.py checks that the spec's commands are this harness's).
+
     python benchmarks/table1.py run hopper digail 0      one trial: pre-train (shared) -> train -> evaluate
     python benchmarks/table1.py queue hopper:digail:0 walker2d:gail:1 ...   trials in turn (one per core)
     python benchmarks/table1.py summarize                -> benchmarks/results/table1.json

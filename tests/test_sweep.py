@@ -1,0 +1,309 @@
+"""`digail sweep`: planning (no Ray), and a local-Ray sweep on SMOKE settings with a trial whose Ray worker is killed
+mid-training (it resumes from its checkpoint) and one that fails on purpose (reported, the others finish)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from digail.errors import UserError
+from digail.sweep import load_plan, run_sweep, summarize_sweep
+from digail.sweep.plan import plan
+from digail.sweep.spec import build_spec, load_spec, parse_set, spec_from_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+CW, FR = "digail/CircleWorld-v0", "digail/FourRooms-v0"
+
+
+# ------------------------------------------------------------------------------------------- planning
+def test_plan_shares_vaes_names_runs_and_writes_cli_flags():
+    spec = build_spec(envs=(CW,), methods=("vae", "digail", "gail", "digail-l2"), seeds=(0, 1), preset="smoke",
+                      episodes=5, sets=("train.bonus_weight=0.1,0.2", "vae.decoder_obs=0 26",
+                                        "train.ppo.anneal_lr=false"))
+    jobs = {j.id: j for j in plan(spec)}
+    vaes = [j for j in jobs.values() if j.kind == "vae"]
+    assert [j.id for j in vaes] == ["digail-CircleWorld-v0/pretrain_s0", "digail-CircleWorld-v0/pretrain_s1"]
+    assert vaes[0].stages[0].argv == ("pretrain", "--demos", "digail/circleworld/expert-v0", "--seed", "0", "--out",
+                                      "digail-CircleWorld-v0/vae_s0", "--force", "--preset", "smoke",
+                                      "--vae.decoder-obs", "0", "26")
+    # the VAE baseline ignores train.* overrides (one trial per seed); gail uses no VAE; -l2 gets --bc-weight
+    assert "digail-CircleWorld-v0/vae_s0" in jobs and jobs["digail-CircleWorld-v0/vae_s0"].stages[0].argv == (
+        "evaluate", "digail-CircleWorld-v0/vae_s0", "--episodes", "5")
+    dig = jobs["digail-CircleWorld-v0/digail_s1__train.bonus_weight=0.2"]
+    assert dig.deps == ("digail-CircleWorld-v0/pretrain_s1",) and dig.label == "digail [train.bonus_weight=0.2]"
+    train = dig.stages[0]
+    assert [s.name for s in dig.stages] == ["train", "evaluate", "segment"]
+    assert train.argv[:2] == ("train", "--method") and "--train.ppo.no-anneal-lr" in train.argv
+    assert train.argv[train.argv.index("--train.bonus-weight") + 1] == "0.2"
+    assert train.resume == ("train", "--resume", dig.run)
+    gail = jobs["digail-CircleWorld-v0/gail_s0__train.bonus_weight=0.1"]
+    assert gail.deps == () and "--vae" not in gail.stages[0].argv
+    l2 = jobs["digail-CircleWorld-v0/digail-l2_s0__train.bonus_weight=0.1"].stages[0].argv
+    assert l2[l2.index("--bc-weight") + 1] == "1.0"
+    assert len(jobs) == 2 + 2 * (1 + 2 * 3)
+
+
+def test_bad_sweeps_are_user_errors(tmp_path):
+    with pytest.raises(UserError, match="unknown method"):
+        build_spec(envs=(CW,), methods=("ppo",))
+    with pytest.raises(UserError, match="names no stage option"):
+        parse_set(["bonus_weight=0.1"])
+    with pytest.raises(UserError, match="ranges are searched"):
+        plan(build_spec(envs=(CW,), sets=("train.bonus_weight=0.001..0.1:log",)))
+    with pytest.raises(UserError, match="no sweep spec"):
+        load_spec(tmp_path / "missing.toml")
+    with pytest.raises(UserError, match="nothing to sweep"):
+        build_spec()
+
+
+def _harness(name: str):
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "benchmarks" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _train_flags(argv: tuple[str, ...]) -> set[str]:
+    """A train command's settings as 'flag value' strings, without the folders (which each harness names)."""
+    out, skip = set(), {"--out", "--vae", "--force", "--demos"}
+    args = list(argv[1:])
+    i = 0
+    while i < len(args):
+        if args[i] in skip:
+            i += 1 if args[i] == "--force" else 2
+            continue
+        value = args[i + 1] if i + 1 < len(args) and not args[i + 1].startswith("--") else ""
+        out.add(f"{args[i]} {value}".strip())
+        i += 2 if value else 1
+    return out
+
+
+def test_table1_spec_expresses_the_harness_trials():
+    table1 = _harness("table1")
+    jobs = [j for j in plan(load_spec(ROOT / "benchmarks" / "sweeps" / "table1.toml")) if j.kind == "trial"]
+    planned = {f"{table1_env(j.env)}:{j.method}:{j.seed}": j for j in jobs}
+    assert sorted(planned) == sorted(table1.plan())
+    for key, job in planned.items():
+        env, method, seed = key.split(":")
+        [evaluate] = [s for s in job.stages if s.name == "evaluate"]
+        assert evaluate.argv == ("evaluate", job.run, "--episodes", str(table1.EVAL_EPISODES))
+        if method == "vae":
+            continue
+        harness = ["train", *table1.train_flags(env, method, int(seed), Path("-"))]
+        assert _train_flags(job.stages[0].argv) == _train_flags(tuple(harness)), key
+
+
+def table1_env(env_id: str) -> str:
+    return {"Pendulum-v1": "pendulum", "InvertedPendulum-v5": "invertedpendulum", "Hopper-v5": "hopper",
+            "Walker2d-v5": "walker2d"}[env_id]
+
+
+def test_results_specs_express_the_harness_trials():
+    results = _harness("results")
+    for task, spec_name in (("fourrooms", "results-fourrooms"), ("circleworld", "results-circleworld")):
+        info = results.TASKS[task]
+        jobs = [j for j in plan(load_spec(ROOT / "benchmarks" / "sweeps" / f"{spec_name}.toml"))
+                if j.kind == "trial"]
+        methods = {j.method for j in jobs}
+        assert methods == ({"vae", "digail", "digail-l2", "gail"} if info["gail"] else {"vae", "digail"})
+        assert {j.seed for j in jobs} == {0, 1, 2} and {j.env for j in jobs} == {info["env"]}
+        for job in jobs:
+            assert any(s.argv[-1] == "300" for s in job.stages if s.name == "evaluate")
+            assert any(s.name == "compose" for s in job.stages) == (info["compose"] and job.method in ("vae", "digail"))
+            if job.method == "gail":
+                assert {"--train.ppo.policy-lr 0.0003", "--train.anchor-weight 0.0"} <= _train_flags(job.stages[0].argv)
+            if job.method == "digail-l2":
+                assert "--bc-weight 100.0" in _train_flags(job.stages[0].argv)
+
+
+# --------------------------------------------------------------------------------------- a local Ray
+FAULT_SPEC = """
+name = "faults"
+preset = "smoke"
+episodes = 3
+retries = 1
+
+[[grid]]     # its Ray worker is killed mid-training: the retry continues with `digail train --resume`
+envs = ["digail/CircleWorld-v0"]
+methods = ["digail"]
+seeds = [0]
+set = { "train.iterations" = 60 }
+
+[[grid]]
+envs = ["digail/CircleWorld-v0"]
+methods = ["vae"]
+seeds = [1]
+
+[[grid]]
+envs = ["digail/FourRooms-v0"]
+methods = ["vae"]
+seeds = [0]
+
+[[grid]]     # fails on purpose: no such reward, on every attempt
+envs = ["digail/FourRooms-v0"]
+methods = ["gail"]
+seeds = [1]
+set = { "train.reward" = "bogus" }
+"""
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    ray = pytest.importorskip("ray")
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=100 * 1024**2)
+    yield ray
+    ray.shutdown()
+
+
+def _procs() -> list[tuple[int, int, list[str], str]]:
+    """(pid, parent pid, argv, cwd) of this user's processes."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().decode().split("\0")
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            cwd = os.readlink(entry / "cwd")
+        except (OSError, ValueError, IndexError):
+            continue
+        out.append((int(entry.name), ppid, argv, cwd))
+    return out
+
+
+def _kill_worker_mid_training(sweep: Path, run: str, done: threading.Event, killed: list[int]) -> None:
+    """Once `run` has a checkpoint and is still training, SIGKILL the Ray worker running it (a lost worker)."""
+    while not done.is_set():
+        if (sweep / run / "checkpoint.pt").exists():
+            for pid, ppid, argv, cwd in _procs():
+                if "digail.cli" in argv and "train" in argv and run in argv and cwd == str(sweep):
+                    os.kill(ppid, signal.SIGKILL)
+                    killed += [ppid, pid]
+                    return
+        time.sleep(0.1)
+
+
+def test_local_sweep_survives_a_killed_worker_and_reports_a_failure(ray_local, tmp_path, capsys):
+    sweep = (tmp_path / "sweep").resolve()
+    spec = spec_from_dict(__import__("tomllib").loads(FAULT_SPEC))
+    killed: list[int] = []
+    done = threading.Event()
+    run = "digail-CircleWorld-v0/digail_s0"
+    killer = threading.Thread(target=_kill_worker_mid_training, args=(sweep, run, done, killed), daemon=True)
+    killer.start()
+    try:
+        result = run_sweep(spec, sweep, summary_every=5.0)
+    finally:
+        done.set()
+    out = capsys.readouterr().out
+    assert killed, "the training finished before it could be killed"
+    time.sleep(0.5)
+    assert not Path(f"/proc/{killed[1]}").exists(), "the stage outlived its Ray worker"
+
+    # the killed trial was retried and continued from its checkpoint to the end of its budget
+    state = json.loads((sweep / "trials" / "digail-CircleWorld-v0__digail_s0.json").read_text())
+    assert state["status"] == "done" and state["attempts"] == 2
+    assert f"digail train --resume {run}" in state["commands"]
+    log = (sweep / "logs" / "digail-CircleWorld-v0__digail_s0.log").read_text()
+    assert "resuming" in log and "/60" in log
+    rows = (sweep / run / "metrics.csv").read_text().strip().splitlines()
+    assert float(rows[-1].split(",")[1]) == 60  # iteration column
+
+    # the bad trial: tried twice, reported with its error, the others finished
+    assert result["done"] == 3 and result["trials"] == 4
+    [failed] = result["failed"]
+    assert failed["job"] == "digail-FourRooms-v0/gail_s1" and "bogus" in failed["error"]
+    assert "[sweep] retry  digail-FourRooms-v0/gail_s1" in out and "failed digail-FourRooms-v0/gail_s1" in out
+    assert "[sweep] run    digail-CircleWorld-v0/digail_s0" in out and "env steps/s" in out
+    assert "train -> evaluate -> segment (resuming train)" in out
+
+    # the table is the trials' own eval.json, seed by seed
+    for env, rows_ in result["table"].items():
+        for row in rows_.values():
+            for rec in row["seeds"].values():
+                if rec["status"] != "done":
+                    continue
+                ev = json.loads((sweep / rec["run"] / "eval.json").read_text())
+                assert ev["episodes"] == 3
+                for key in ("mean_return", "std_return"):
+                    assert rec["metrics"][key] == pytest.approx(ev[key]), (env, key)
+                assert row["median"]["mean_return"] == pytest.approx(ev["mean_return"])  # one seed per row
+                assert rec["commands"] and rec["commands"][0].startswith("digail ")
+    dig = result["table"][CW]["digail"]["seeds"]["0"]
+    assert dig["env_steps"] == 60 * 64 and dig["commands"][0].startswith("digail pretrain")
+    assert "seg/accuracy" in dig["metrics"]
+    md = (sweep / "results.md").read_text()
+    assert "## digail/CircleWorld-v0" in md and "| digail | 1/1 |" in md and "gail_s1" in md
+
+    # a second call skips every finished trial and only retries the failed one
+    before = {p.name: p.read_text() for p in (sweep / "trials").glob("*.json") if "gail_s1" not in p.name}
+    run_sweep(spec.with_flags(retries=0), sweep, summary_every=5.0)
+    out = capsys.readouterr().out
+    assert "7 jobs: 6 finished before, 1 to run" in out
+    assert before == {p.name: p.read_text() for p in (sweep / "trials").glob("*.json") if "gail_s1" not in p.name}
+
+    # --summarize rebuilds the same tables from the folder alone
+    again = summarize_sweep(sweep)
+    assert again["table"][CW]["digail"]["median"] == result["table"][CW]["digail"]["median"]
+    assert len(load_plan(sweep)[1]) == 7
+
+
+def test_readme_sweep_commands_parse_and_plan():
+    """Every `digail sweep` line of the README's Sweeps section parses and plans (nothing runs)."""
+    import shlex
+
+    import tyro
+
+    from digail.commands.sweep import SweepArgs
+
+    section = (ROOT / "README.md").read_text().split("## Sweeps", 1)[1].split("\n## ", 1)[0]
+    text = section.replace("\\\n", " ")
+    lines = [ln.split("#", 1)[0] for ln in text.splitlines() if ln.strip().startswith("digail sweep")]
+    assert len(lines) >= 6
+    for line in lines:
+        args = tyro.cli(SweepArgs, args=shlex.split(line)[2:])
+        if args.summarize is not None:
+            continue
+        spec = build_spec(envs=args.envs, methods=args.methods, seeds=args.seeds, preset=args.preset,
+                          episodes=args.episodes, sets=args.set,
+                          spec_file=ROOT / args.spec if args.spec else None, search=args.search,
+                          trials=args.trials, metric=args.metric)
+        if spec.search is None:
+            assert plan(spec), line
+
+
+def test_search_space_and_sample_runs_named_after_their_values():
+    pytest.importorskip("ray")
+    from ray import tune
+
+    from digail.sweep.search import _tune_space, check_metric, sample_jobs, search_space
+
+    spec = build_spec(envs=(FR,), methods=("digail",), seeds=(0, 1), preset="smoke",
+                      sets=("train.bonus_weight=0.001..0.1:log", "train.ppo.epochs=1..4",
+                            "train.reward=positive,negative"),
+                      search="optuna", trials=4, metric="eval/success_rate")
+    space = search_space(spec)
+    assert str(space["train.bonus_weight"]) == "0.001..0.1:log" and space["train.ppo.epochs"].integer
+    assert space["train.reward"] == ("positive", "negative")
+    domains = _tune_space(space)
+    assert isinstance(domains["train.bonus_weight"], tune.search.sample.Float)
+    assert isinstance(domains["train.ppo.epochs"], tune.search.sample.Integer)
+    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.reward": "negative"},
+                       tuple(sorted(space)))
+    runs = sorted(j.run for j in jobs if j.kind == "trial")
+    assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123__train.ppo.epochs=2"
+                       "__train.reward=negative")
+    assert sorted(j.run for j in jobs if j.kind == "vae") == ["digail-FourRooms-v0/vae_s0",
+                                                              "digail-FourRooms-v0/vae_s1"]
+    assert check_metric("seg/nmi") == ("segmentation.json", "nmi")
+    with pytest.raises(UserError, match="metric"):
+        check_metric("normalized_return")
