@@ -137,7 +137,8 @@ def test_shipped_expert_loads_and_runs(env_id: str) -> None:
 @pytest.mark.parametrize("dataset_id", [pytest.param(d, marks=_maybe_mujoco(env)) for d, (env, _)
                                         in SHIPPED_DATASETS.items()])
 def test_shipped_dataset_validates_against_its_env(dataset_id: str) -> None:
-    from digail.data.minari_io import SHIPPED_ROOT, check_matches_env, load_dataset
+    from digail.data.minari_io import SHIPPED_ROOT, load_dataset
+    from digail.data.validation import check_matches_env
 
     if not (SHIPPED_ROOT / dataset_id).is_dir():
         pytest.skip(f"{dataset_id} is not shipped yet")
@@ -157,7 +158,8 @@ def test_shipped_dataset_validates_against_its_env(dataset_id: str) -> None:
 
 
 def test_dataset_for_another_env_is_refused() -> None:
-    from digail.data.minari_io import SHIPPED_ROOT, check_matches_env, load_dataset
+    from digail.data.minari_io import SHIPPED_ROOT, load_dataset
+    from digail.data.validation import check_matches_env
 
     if not (SHIPPED_ROOT / "digail/pendulum/expert-v0").is_dir():
         pytest.skip("the Pendulum dataset is not shipped yet")

@@ -122,11 +122,6 @@ EXPERT_SPECS: dict[str, ExpertSpec] = {
 }
 
 
-def supported_envs() -> list[str]:
-    """Env ids with an RL expert recipe."""
-    return list(EXPERT_SPECS)
-
-
 def _spec(env_id: str) -> ExpertSpec:
     if env_id not in EXPERT_SPECS:
         raise UserError(f"no RL expert recipe for {env_id!r}; supported envs are {', '.join(EXPERT_SPECS)} "
