@@ -188,13 +188,13 @@ def test_direction_env_executes_its_canonical_action_unclipped():
 
 @pytest.mark.slow
 def test_gail_baseline_learns_four_rooms(rooms_demos):
-    """Plain GAIL (one code, a fresh policy, no VAE) from a random walk to reaching the apple about half the time
-    in 300 iterations (measured: success 0.19 -> 0.53 after 250 on this seed)."""
+    """Plain GAIL (one code, a fresh policy, no VAE) from a random walk to reaching the apple most of the time in
+    400 iterations (measured on this seed: success 0.19, then 0.53 / 0.42 / 0.57 / 0.63 after 250 / 300 / 350 / 400)."""
     from digail.envs.registry import preset_for
     from digail.eval.returns import evaluate
 
     preset = preset_for("digail/FourRooms-v0")
-    cfg = replace(preset.train, method="gail", iterations=300, value_warmup=0,
+    cfg = replace(preset.train, method="gail", iterations=400, value_warmup=0,
                   ppo=replace(preset.train.ppo, ent_coef=0.01, anneal_lr=False))
     trainer = build_trainer("digail/FourRooms-v0", rooms_demos, cfg, vae_model=None, seed=0, run_dir=None,
                             progress=False)
@@ -202,7 +202,7 @@ def test_gail_baseline_learns_four_rooms(rooms_demos):
     trainer.train()
     after = evaluate(trainer.model, "digail/FourRooms-v0", 100, 500, deterministic=False, with_expert=False)
     assert before["success_rate"] < 0.3
-    assert after["success_rate"] >= 0.45 and after["success_rate"] >= before["success_rate"] + 0.2
+    assert after["success_rate"] >= 0.45 and after["success_rate"] >= before["success_rate"] + 0.25
 
 
 def test_policy_lr_and_linear_annealing(circle_demos):

@@ -17,10 +17,9 @@ of steps in the batch, so the logged numbers are per-step averages; Adam does no
 Choices beyond the paper (the gradient stopped at q's previous-code input unless `bptt`, a warm-up of the KL and
 smoothing weights, an entropy bonus on q, the polish) are measured in docs/experiments.md.
 
-Speed: only the sampling chain is sequential. The first layer of q is split into its state and code parts; the
-state part for every step, the Gumbel noise and the output bias are computed before the time loop, so each step
-costs one small matrix product per layer and a softmax. The decoder, the KL, the smoothing and entropy terms are
-evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and masked.
+Speed: only the sampling chain is sequential (`digail.algos.gumbel`); the decoder, the KL, the smoothing and entropy
+terms are evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and
+masked.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ def _flat(obs: Any, space: gym.Space) -> np.ndarray:
 
 
 def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0, *,
-                     desc: str = "demos") -> list[Trajectory]:
+                     desc: str = "demos", progress: bool = True) -> list[Trajectory]:
     """Run `policy` for `episodes` episodes, episode `i` reset with `seed + i`, with a progress bar.
 
     Dict observations are stored flattened (`flatten_dict_obs`); the policy still sees the env's own
@@ -59,7 +59,7 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
 
     trajs: list[Trajectory] = []
     returns: list[float] = []
-    bar = tqdm(range(episodes), desc=desc, unit="ep")
+    bar = tqdm(range(episodes), desc=desc, unit="ep", disable=not progress)
     for i in bar:
         ep = play_episode(env, act, seed + i, keep=True)
         labels = [info.get(SUBTASK_KEY) for info in ep.infos]
