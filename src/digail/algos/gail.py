@@ -94,7 +94,7 @@ class GAIL:
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.policy_learning_rate},
+        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.effective_policy_lr},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
         self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
@@ -272,7 +272,7 @@ class GAIL:
                                    self.cfg.ppo.gae_lambda)
         if self.cfg.ppo.anneal_lr:
             frac = max(0.0, 1.0 - self.iteration / max(self._total_iterations, 1))
-            bases = (self.cfg.ppo.policy_learning_rate, self.cfg.ppo.lr)  # the optimiser's groups, in order
+            bases = (self.cfg.ppo.effective_policy_lr, self.cfg.ppo.lr)  # the optimiser's groups, in order
             for group, base in zip(self.optimizer.param_groups, bases, strict=True):
                 group["lr"] = base * frac
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
@@ -291,6 +291,7 @@ class GAIL:
         out.update(stats)
         out.update({
             "rollout/disc_reward": float(disc_rew.mean()),
+            "rollout/reward": float(rews.mean()),
             "rollout/bonus": float(batch["bonus"].mean()),
             "rollout/ep_return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
             "rollout/ep_length": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
@@ -348,6 +349,9 @@ class GAIL:
                     self.rollout_state = None
         finally:
             bar.close()
+            if self._logger is not None:  # flushes TensorBoard's events; a later train() opens a new writer
+                self._logger.close()
+                self._logger = None
         return last
 
     # --------------------------------------------------------------------------------------- checkpoints
@@ -385,10 +389,11 @@ class GAIL:
         self.optimizer.load_state_dict(state["optimizer"])
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
         set_rng_state(state["rng"], self.gen, self.np_rng)
+        empty = torch.zeros(0, dtype=torch.float64)  # checkpoints written before these were kept
         for name in ("recent_returns", "recent_lengths", "recent_closed_returns"):
-            recent = getattr(self, name)
+            recent: deque[float] = getattr(self, name)
             recent.clear()
-            recent.extend(state[name].tolist() if name in state else [])
+            recent.extend(state.get(name, empty).tolist())
         if self._anchor_pi is not None and state.get("anchor_pi") is not None:
             self._anchor_pi.load_state_dict(state["anchor_pi"])
         self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)
