@@ -231,6 +231,18 @@ def cmd_expert(args: ExpertArgs) -> None:
     expert_command(args)
 
 
+def _video() -> tuple[type, Callable[[Any], Any]]:
+    from digail.commands.video import VideoArgs, video_command
+
+    return VideoArgs, video_command
+
+
+def _report() -> tuple[type, Callable[[Any], Any]]:
+    from digail.commands.report import ReportArgs, report_command
+
+    return ReportArgs, report_command
+
+
 COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "demos": (DemosArgs, cmd_demos),
     "pretrain": (PretrainArgs, cmd_pretrain),
@@ -240,6 +252,8 @@ COMMANDS: dict[str, tuple[type, Callable[[Any], None]]] = {
     "compose": (ComposeArgs, cmd_compose),
     "run": (RunArgs, cmd_run),
     "expert": (ExpertArgs, cmd_expert),
+    "video": _video(),
+    "report": _report(),
 }
 
 

@@ -35,6 +35,20 @@ def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int
     return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)
 
 
+def run_command_line(args: RunArgs, run_dir: Path) -> str:
+    """The `digail run` command line that remakes this run (recorded in config.json for the report)."""
+    import shlex
+
+    parts = ["digail", "run", args.env, "--out", str(run_dir), "--seed", str(args.seed)]
+    if args.preset is not None:
+        parts += ["--preset", args.preset]
+    if args.episodes is not None:
+        parts += ["--episodes", str(args.episodes)]
+    if args.device != "auto":
+        parts += ["--device", args.device]
+    return shlex.join(parts)
+
+
 def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
     """The shipped dataset for `env_id` when there is one, else freshly recorded demonstrations."""
     from digail.data.demos import default_dataset_id, record_demos
@@ -52,13 +66,14 @@ def run_pipeline(args: RunArgs) -> Path:
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import pretrain
     from digail.checkpoint import save_model
+    from digail.commands.report import make_figures
     from digail.data.minari_io import check_matches_env, make_env
     from digail.eval.composition import compose, parse_schedule
-    from digail.eval.returns import evaluate, run_episodes
+    from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
-    from digail.viz.plots import plot_episodes, plot_training
     from digail.viz.report import write_report
+    from digail.viz.video import record_video
 
     set_torch_threads(1)
     device = resolve_device(args.device)
@@ -93,7 +108,8 @@ def run_pipeline(args: RunArgs) -> Path:
     cfg = replace(preset.train, method="digail")
     write_json(run_dir / "config.json", {"method": "digail", "env_id": args.env, "demos": demos_ref,
                                          "seed": args.seed, "preset": args.preset, "train": to_dict(cfg),
-                                         "vae": to_dict(preset.vae), "pipeline": True})
+                                         "vae": to_dict(preset.vae), "pipeline": True,
+                                         "command": run_command_line(args, run_dir)})
     trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                             device=device)
     trainer.train()
@@ -108,8 +124,6 @@ def run_pipeline(args: RunArgs) -> Path:
     result = evaluate(model, args.env, episodes)
     result["kind"] = "digail"
     write_json(run_dir / "eval.json", result)
-    shown = run_episodes(model, args.env, 6, 10_000, keep_obs=6)
-    plot_episodes(shown, run_dir / "figures" / "eval.png", title="closed-loop macro-policy")
     timings["evaluate_s"] = time.perf_counter() - t0
     print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")
 
@@ -122,16 +136,18 @@ def run_pipeline(args: RunArgs) -> Path:
         if schedule is None:
             print("      composition skipped: the segmentation did not give every sub-task a code of its own")
     if schedule is not None:
-        composed, eps = compose(model, args.env, parse_schedule(schedule, model.codes), min(episodes, 100),
+        composed, _ = compose(model, args.env, parse_schedule(schedule, model.codes), min(episodes, 100),
                                 20_000)
         composed["schedule"] = schedule
-        plot_episodes(eps, run_dir / "figures" / "compose.png", title=f"composed: {schedule}")
         write_json(run_dir / "compose.json", composed)
-    plot_training(run_dir)
     timings["segment_compose_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    make_figures(run_dir, model=model, trajs=trajs)
+    record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000)
+    timings["figures_video_s"] = time.perf_counter() - t0
     write_json(run_dir / "timings.json", timings)
     report = write_report(run_dir)
-    print(f"[5/5] segmentation and figures written; report: {report}")
+    print(f"[5/5] segmentation, figures and video written; report: {report}")
     _print_headline(result, seg, composed)
     return run_dir
 
