@@ -107,9 +107,12 @@ def fmt(value: Any, kind: str = "num") -> str:
         return f"{v:.3g} ×"
     if kind == "s":
         return f"{v:.1f} s" if v < 120 else f"{int(v // 60)} min {int(round(v % 60))} s"
-    text = f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.2e}"
-    if "e" not in text and abs(v) >= 1000:
+    if abs(v) < 5e-4:
+        text = "0"  # rounding noise (e.g. the scripted expert's -7e-08) reads as what it is
+    elif abs(v) >= 1000:
         text = f"{v:,.0f}"
+    else:
+        text = f"{v:.3g}"
     return text if kind == "num" else f"{text} {kind}"
 
 
@@ -291,7 +294,10 @@ def headline(run_dir: Path) -> str:
         rows.append([f"composed ({comp.get('schedule', 'schedule')}): reversed order drawn",
                      fmt(comp["order_reversed_rate"], "pct"), "–", "–"])
     episodes = f" over {fmt(ev['episodes'], 'int')} closed-loop episodes" if ev.get("episodes") else ""
-    table = _table(["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"], rows)
+    header = ["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"]
+    if env not in PAPER_RETURNS:
+        header, rows = header[:3], [r[:3] for r in rows]
+    table = _table(header, rows)
     return (f"<section class='headline'><p>{what}</p>"
             f"<p class='meaning'>{_esc(meaning(ev, cfg))}</p>{table}"
             f"<p>Numbers{episodes}; the expert is measured on the same seeds.</p></section>")
