@@ -35,6 +35,10 @@ def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int
     return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)
 
 
+VIDEO_MAX_STEPS = 300
+"""Steps of the one video `digail run` records (MuJoCo renders in software here, about 0.5 s a frame)."""
+
+
 def run_command_line(args: RunArgs, run_dir: Path) -> str:
     """The `digail run` command line that remakes this run (recorded in config.json for the report)."""
     import shlex
@@ -143,7 +147,7 @@ def run_pipeline(args: RunArgs) -> Path:
     timings["segment_compose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     make_figures(run_dir, model=model, trajs=trajs)
-    record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000)
+    record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000, max_steps=VIDEO_MAX_STEPS)
     timings["figures_video_s"] = time.perf_counter() - t0
     write_json(run_dir / "timings.json", timings)
     report = write_report(run_dir)

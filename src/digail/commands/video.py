@@ -21,6 +21,8 @@ class VideoArgs:
     """code:steps pairs such as '1:60,0:60' to compose sub-task policies (default: the closed-loop macro-policy)"""
     seed: int = 10_000
     """seed of the first episode (the evaluation seeds by default)"""
+    max_steps: int | None = None
+    """cut each episode after this many steps (default: play it to its end)"""
     name: str | None = None
     """file name without extension (default: closed_loop, or composed for a schedule)"""
 
@@ -40,7 +42,8 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     schedule = parse_schedule(args.schedule, model.codes) if args.schedule else None
     name = args.name or ("composed" if schedule is not None else "closed_loop")
     mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=args.seed, episodes=args.episodes,
-                            schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "")
+                            schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
+                            max_steps=args.max_steps)
     print(f"wrote {mp4} and {gif}")
     return mp4, gif
 

@@ -85,6 +85,8 @@ figure{margin:1rem 0}img{max-width:100%;height:auto;display:block;border:1px sol
 figcaption{font-size:.9rem;color:#555}code,pre{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.9rem}
 pre{white-space:pre-wrap;word-break:break-all;background:#f6f6f6;padding:.5rem}
 details{margin:.5rem 0}summary{cursor:pointer;font-weight:600}
+@media (max-width:40rem){body{font-size:15px;padding:0 .6rem 2rem}.headline{padding:.4rem .6rem}
+th,td{padding:.2rem .35rem}table{font-size:.88rem}}
 """
 
 

@@ -25,6 +25,8 @@ from digail.nets.mlp import one_hot
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
+GIF_MAX_FRAMES = 150
+"""Most frames a GIF keeps (the stride grows for long videos), so that a report embedding it stays small."""
 BANNER_PIXELS = 24
 """Height of the caption strip drawn above every frame."""
 
@@ -53,7 +55,8 @@ class RenderedEpisode:
 
 @torch.no_grad()
 def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, schedule: Sequence[int] | None = None,
-                  render: bool = True, deterministic: bool = True) -> list[RenderedEpisode]:
+                  render: bool = True, deterministic: bool = True,
+                  max_steps: int | None = None) -> list[RenderedEpisode]:
     """Run `episodes` episodes (episode e reset with `seed + e`) and keep frames, codes and observations.
 
     Args:
@@ -62,6 +65,8 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         schedule: code per step (the last repeats once it runs out); None for the closed-loop macro-policy.
         render: keep `env.render()` images (off for plots that need only states and codes).
         deterministic: pi's most likely / mean action, as in evaluation.
+        max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
+            frame on a loaded CPU); None plays them to their end.
     """
     from digail.algos.rollout import env_action_fn, make_env
 
@@ -95,7 +100,7 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
                 rec.obs.append(np.asarray(obs))
                 rec.ret += float(r)
                 prev, t = code, t + 1
-                if term or trunc:
+                if term or trunc or (max_steps is not None and t >= max_steps):
                     if render:
                         rec.frames.append(np.asarray(env.render()))
                     break
@@ -158,7 +163,8 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
     stem.parent.mkdir(parents=True, exist_ok=True)
     mp4, gif = stem.with_suffix(".mp4"), stem.with_suffix(".gif")
     imageio.mimsave(mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
-    small = []
+    small: list[Any] = []
+    gif_stride = max(gif_stride, -(-len(frames) // GIF_MAX_FRAMES))
     for f in frames[::max(1, gif_stride)]:
         img = Image.fromarray(f)
         if img.width > GIF_WIDTH:
@@ -169,20 +175,22 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
 
 
 def record_video(model: Any, env_id: str, path: Path, seed: int = 0, episodes: int = 1,
-                 schedule: Sequence[int] | None = None, fps: int | None = None, label: str = "") -> tuple[Path, Path]:
+                 schedule: Sequence[int] | None = None, fps: int | None = None, label: str = "",
+                 max_steps: int | None = None) -> tuple[Path, Path]:
     """Render `episodes` episodes (closed-loop, or under `schedule`) to `path` as MP4 and GIF.
 
     Args:
         path: the MP4 path or stem; the GIF goes beside it with the same name.
         fps: frames per second (default: the env's `render_fps`, else 30).
         label: extra caption text, e.g. the schedule.
+        max_steps: cut each episode after this many steps (None: play it to its end).
 
     Returns:
         The MP4 and GIF paths.
     """
     from digail.algos.rollout import make_env
 
-    eps = play_episodes(model, env_id, episodes, seed, schedule=schedule)
+    eps = play_episodes(model, env_id, episodes, seed, schedule=schedule, max_steps=max_steps)
     if fps is None:
         probe = make_env(env_id)
         fps = int(probe.metadata.get("render_fps") or 30)
