@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from digail.pipeline import COMPOSE_SCHEDULES, schedule_in_codes
+from digail.commands.run import COMPOSE_SCHEDULES
+from digail.eval.composition import schedule_in_codes
 
 HERE = Path(__file__).resolve().parent
 DIGAIL = [sys.executable, "-m", "digail.cli"]

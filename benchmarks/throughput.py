@@ -34,8 +34,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def random_demos(env_id: str, episodes: int, seed: int = 0):  # type: ignore[no-untyped-def]
-    from digail.data.minari_io import make_env
     from digail.data.trajectory import Trajectory
+    from digail.envs import make_env
 
     env = make_env(env_id)
     env.action_space.seed(seed)

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 import digail  # noqa: F401  (registers the envs)
-from digail.data.minari_io import make_env
 from digail.data.trajectory import Trajectory
+from digail.envs import make_env
 from digail.experts.scripted import get_scripted_expert
 
 torch.set_num_threads(1)

@@ -19,11 +19,11 @@ from digail.data.minari_io import (
     dataset_env_id,
     flatten_dict_obs,
     load_dataset,
-    make_env,
     resolve_dataset,
     write_dataset,
 )
 from digail.data.trajectory import Trajectory
+from digail.envs import make_env
 from digail.errors import UserError
 
 

@@ -22,10 +22,10 @@ from digail.data.minari_io import (
     check_matches_env,
     dataset_env_id,
     load_dataset,
-    make_env,
     shipped_dataset_ids,
     write_dataset,
 )
+from digail.envs import make_env
 from digail.errors import UserError
 from digail.experts.scripted import get_scripted_expert
 

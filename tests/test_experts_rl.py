@@ -11,13 +11,13 @@ import pytest
 import torch
 
 import digail  # noqa: F401  (registers the envs)
-from digail.cli import ExpertArgs, main
+from digail.cli import main
+from digail.commands.expert import ExpertArgs, expert_command
 from digail.errors import UserError
 from digail.experts.rl import (
     EXPERT_SPECS,
     _build_model,
     evaluate_expert,
-    expert_command,
     export_expert,
     load_expert,
     shipped_expert_path,

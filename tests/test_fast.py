@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from digail.algos.directed_info_gail import DirectedInfoGAIL
-from digail.algos.rollout import make_env
 from digail.config import PPOConfig, TrainConfig
+from digail.envs import make_env
 from digail.nets.critic import ValueNet
 from digail.nets.fast import ActorCritic, CodeMLP, log_softmax
 from digail.nets.mlp import one_hot

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.mujoco
 
 def _make():
     pytest.importorskip("gymnasium_robotics")
-    from digail.data.minari_io import make_env
+    from digail.envs import make_env
 
     return make_env(FETCH_ENV_ID)
 

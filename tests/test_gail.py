@@ -162,7 +162,8 @@ def test_directed_info_gail_learns_four_rooms(rooms_demos):
 def test_direction_env_executes_its_canonical_action_unclipped():
     """Circle-World normalises the direction itself: clipping a sampled vector to the box first would bend it."""
     from digail.algos.gail import action_transform
-    from digail.algos.rollout import env_action_fn, make_env
+    from digail.algos.rollout import env_action_fn
+    from digail.envs import make_env
 
     env = make_env("digail/CircleWorld-v0")
     acts = np.array([[1.6, 0.8], [-0.3, 0.1]], np.float32)

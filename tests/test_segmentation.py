@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 import torch
 
+from digail.algos.decode import segment, segment_many
 from digail.checkpoint import save_model
+from digail.commands.segment import SegmentArgs, segment_command
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.eval.segmentation import (
     boundary_hits,
-    segment,
-    segment_command,
-    segment_many,
     segmentation_metrics,
     switch_points,
     viterbi,
@@ -196,7 +195,7 @@ def test_segment_command_writes_codes_metrics_and_figure(tmp_path: Path, monkeyp
     run.mkdir()
     save_model(run / "model.pt", model, kind="vae", config={"demos": "toy"}, env_id="toy/TwoPhase-v0")
     (run / "config.json").write_text(json.dumps({"demos": "toy"}))
-    metrics = segment_command(run)
+    metrics = segment_command(SegmentArgs(run))
     assert metrics["accuracy"] == 1.0 and metrics["boundary_f1"] == 1.0 and metrics["switches_per_episode"] == 1
     saved = json.loads((run / "segmentation.json").read_text())
     assert saved["accuracy"] == 1.0 and saved["matching"] == "one-to-one" and "viterbi" in saved
@@ -206,18 +205,19 @@ def test_segment_command_writes_codes_metrics_and_figure(tmp_path: Path, monkeyp
 
     unlabeled = [Trajectory(t.obs, t.acts) for t in trajs]
     fake_minari(monkeypatch, unlabeled)
-    metrics = segment_command(run, demos="other")
+    metrics = segment_command(SegmentArgs(run, demos="other"))
     assert metrics["labels"] is False and metrics["switches_per_episode"] == 1.0
 
     fake_minari(monkeypatch, trajs, env_id="digail/CircleWorld-v0")
     with pytest.raises(UserError, match="trained on"):
-        segment_command(run)
+        segment_command(SegmentArgs(run))
     with pytest.raises(UserError, match="does not exist"):
-        segment_command(tmp_path / "nowhere")
+        segment_command(SegmentArgs(tmp_path / "nowhere"))
 
 
 def test_composed_schedules_follow_the_segmentations_code_matching() -> None:
-    from digail.pipeline import COMPOSE_SCHEDULES, schedule_in_codes
+    from digail.commands.run import COMPOSE_SCHEDULES
+    from digail.eval.composition import schedule_in_codes
 
     reversed_circles = COMPOSE_SCHEDULES["digail/CircleWorld-v0"]
     assert schedule_in_codes(reversed_circles, {"0": 0, "1": 1}) == "1:60,0:60"

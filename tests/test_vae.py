@@ -13,6 +13,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from digail.algos.decode import segment_many
 from digail.algos.vae_pretrain import (
     anticipate_switches,
     categorical_kl,
@@ -27,7 +28,7 @@ from digail.checkpoint import load_model, save_model
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
-from digail.eval.segmentation import segment_many, segmentation_metrics
+from digail.eval.segmentation import segmentation_metrics
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy, MacroPolicy
 

@@ -5,11 +5,9 @@ macro-policy that switches between them. Importing the package registers its Gym
 """
 
 from digail.data.trajectory import Trajectory
-from digail.errors import UserError
-
-__version__ = "0.1.0"
-
 from digail.envs import register_envs as _register_envs
+from digail.errors import UserError
+from digail.version import __version__
 
 _register_envs()
 

@@ -45,7 +45,7 @@ def save_model(path: str | Path, model: HierarchicalPolicy, *, kind: str, config
     Returns:
         The path of the written file.
     """
-    from digail import __version__
+    from digail.version import __version__
 
     path = Path(path)
     if path.is_dir():

@@ -107,3 +107,9 @@ def json_default(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message as one line without a final full stop (for `UserError` sentences)."""
+    text = " ".join(str(exc).split())
+    return text.rstrip(".") if text else type(exc).__name__

@@ -1,4 +1,4 @@
-"""Directed-Info GAIL (Sharma et al., ICLR 2019, section 3 and eq. 4), and the `digail train` command.
+"""Directed-Info GAIL (Sharma et al., ICLR 2019, section 3 and eq. 4).
 
 Extends GAIL with K sub-task codes: the macro-policy q(c_t | s_t, c_{t-1}) from VAE pre-training is frozen and
 picks codes during rollouts (closed-loop on the agent's own states, or replaying q's segmentation of a random
@@ -7,23 +7,17 @@ expert demonstration), and the reward gains the directed-information bonus lambd
 
 from __future__ import annotations
 
-import json
-from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from digail.algos.gail import GAIL
-from digail.config import TrainConfig, from_dict, to_dict
+from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.fast import CodeMLP, log_softmax
 from digail.nets.vae import HierarchicalPolicy
-
-if TYPE_CHECKING:
-    from digail.cli import TrainArgs
 
 
 class DirectedInfoGAIL(GAIL):
@@ -79,7 +73,7 @@ class DirectedInfoGAIL(GAIL):
         return codes, logq
 
 
-# -------------------------------------------------------------------------------------------- the command
+# -------------------------------------------------------------------------------------------- the trainer
 def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae_model: HierarchicalPolicy | None,
                   seed: int, run_dir: Path | None, device: str | torch.device = "cpu",
                   progress: bool = True) -> GAIL:
@@ -101,7 +95,7 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
         return DirectedInfoGAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device,
                                 progress=progress)
     obs_dim = int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1])
-    from digail.algos.rollout import make_env
+    from digail.envs import make_env
 
     probe = make_env(env_id)
     action = ActionSpec.from_space(probe.action_space)
@@ -109,92 +103,3 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
     model = HierarchicalPolicy(obs_dim, 1, action, cfg.hidden)
     model.normalizer.fit(np.concatenate([np.asarray(t.obs) for t in demos]))
     return GAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device, progress=progress)
-
-
-def train_command(args: TrainArgs) -> Path:
-    """`digail train`: validate everything, then train (or resume) in a run folder."""
-    from digail.cli import TrainArgs
-    from digail.utils import check_new_dir, default_run_dir, resolve_device, set_torch_threads, write_json
-
-    set_torch_threads(1)
-    if args.resume is not None:
-        run_dir = Path(args.resume)
-        cfg_path = run_dir / "config.json"
-        if not cfg_path.exists():
-            raise UserError(f"{run_dir} is not a training run folder (no config.json); pass the folder "
-                            "`digail train` created.")
-        saved = json.loads(cfg_path.read_text())
-        args = from_dict(TrainArgs, saved["args"])
-        args = replace(args, out=run_dir, resume=run_dir, force=True)
-    device = resolve_device(args.device)
-    demos, env_id = _load_demos_for(args)
-    cfg = args.train
-    cfg = replace(cfg, method=args.method)
-    if args.bc_weight is not None:
-        cfg = replace(cfg, bc_weight=args.bc_weight)
-    vae_model = None
-    if args.vae is not None:
-        from digail.checkpoint import load_model
-
-        vae_model, meta = load_model(Path(args.vae) / "model.pt")
-        if meta.get("env_id") not in (None, env_id):
-            raise UserError(f"the VAE in {args.vae} was trained on {meta.get('env_id')}, not {env_id}; "
-                            "pre-train one on this env's demonstrations.")
-        if vae_model.obs_dim != int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1]):
-            raise UserError(f"the VAE in {args.vae} expects {vae_model.obs_dim}-d observations but the "
-                            "demonstrations have another size; pre-train it on these demonstrations.")
-    run_dir = Path(args.out) if args.out is not None else default_run_dir(env_id, cfg.method, args.seed)
-    if args.resume is None:
-        check_new_dir(run_dir, args.force)
-    trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
-                            device=device)
-    ckpt = run_dir / "checkpoint.pt"
-    if args.resume is not None:
-        if not ckpt.exists():
-            raise UserError(f"no checkpoint in {run_dir}; it was killed before the first one - start it again.")
-        trainer.load_checkpoint(ckpt)
-        print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
-    else:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        resolved = replace(args, train=cfg, env=env_id)
-        write_json(run_dir / "config.json", {"args": to_dict(resolved), "method": cfg.method, "env_id": env_id,
-                                             "demos": args.demos, "seed": args.seed})
-    trainer.run_dir = run_dir
-    trainer.train(evaluate=_periodic_evaluation(env_id, cfg))
-    trainer.save_checkpoint(ckpt)
-    return run_dir
-
-
-def _periodic_evaluation(env_id: str, cfg: TrainConfig):  # type: ignore[no-untyped-def]
-    """The `evaluate` hook of `GAIL.train` for `cfg.eval_every` > 0: deterministic closed-loop episodes from the
-    final evaluation's seeds, normalised by the expert measured once on the same seeds (None when disabled)."""
-    if cfg.eval_every <= 0:
-        return None
-    from digail.eval.returns import evaluate, expert_summary
-
-    seed = 10_000
-    expert = expert_summary(env_id, cfg.eval_episodes, seed)
-    denom = expert["mean_return"] if expert is not None else 0.0
-
-    def hook(model: HierarchicalPolicy) -> dict[str, float]:
-        result = evaluate(model, env_id, cfg.eval_episodes, seed, deterministic=True, with_expert=False)
-        out = {k: float(v) for k, v in result.items()
-               if isinstance(v, float) and k not in ("std_return",) and np.isfinite(v)}
-        if abs(denom) > 1e-6:
-            out["normalized_return"] = out["mean_return"] / denom
-        return out
-
-    return hook
-
-
-def _load_demos_for(args: TrainArgs) -> tuple[list[Trajectory], str]:
-    from digail.data.minari_io import check_matches_env, load_dataset
-
-    if not args.demos:
-        raise UserError("no demonstrations given; pass --demos with a Minari dataset folder or id.")
-    ds = load_dataset(args.demos)
-    env_id = args.env or ds.env_id
-    if not env_id:
-        raise UserError(f"the dataset {args.demos} does not name its environment; pass --env.")
-    check_matches_env(ds, env_id)
-    return list(ds.trajs), env_id

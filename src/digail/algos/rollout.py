@@ -13,9 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from digail.data.minari_io import make_env
-
-__all__ = ["VecEnv", "env_action_fn", "make_env"]
+from digail.envs import make_env
 
 
 class VecEnv:

@@ -44,22 +44,19 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from digail.config import VAEConfig, get_preset, to_dict
+from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy, MacroPolicy
-from digail.utils import resolve_device, seed_everything, set_torch_threads
-
-if TYPE_CHECKING:
-    from digail.cli import PretrainArgs
+from digail.utils import resolve_device, seed_everything
 
 LOSS_KEYS = ("losses/total", "losses/recon", "losses/kl", "losses/smooth")
 
@@ -416,7 +413,7 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     only ever saw the expert's exact states. With the codes fixed to `segment_many`'s causal decoding, pi is
     fitted by maximum likelihood and q by cross-entropy on states jittered by `cfg.q_noise` feature stds.
     """
-    from digail.eval.segmentation import segment_many
+    from digail.algos.decode import segment_many
 
     dev = next(model.parameters()).device
     codes_per_demo = segment_many(model, trajs)
@@ -516,64 +513,3 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
         for i, epoch in enumerate(history["epoch"]):
             for key in (*LOSS_KEYS, "vae/tau"):
                 writer.add_scalar(key, history[key][i], int(epoch))
-
-
-# ---------------------------------------------------------------------------------------------- command
-def pretrain_command(args: PretrainArgs) -> Path:
-    """`digail pretrain`: load demonstrations, pre-train, write the run folder; returns its path.
-
-    The run folder (written atomically: nothing is left on error) holds `model.pt`, `config.json` (the resolved
-    settings with `demos`, `env_id`, `seed`), `losses.csv`, and the segmentation of the training demonstrations
-    (`codes.npz`, `segmentation.json`, `figures/segmentation.png`).
-    """
-    import dataclasses
-
-    from digail import __version__
-    from digail.checkpoint import CONFIG_FILE, save_model
-    from digail.data.minari_io import load_dataset
-    from digail.eval.segmentation import write_segmentation
-    from digail.utils import atomic_dir, check_new_dir, default_run_dir, write_json
-
-    set_torch_threads(1)
-    dataset = load_dataset(args.demos)
-    env_id = dataset.env_id or "unknown-env"
-    cfg = args.vae
-    if args.preset is not None:
-        get_preset(args.preset, env_id)  # reports an unknown preset name
-    if args.codes is not None:
-        if args.codes < 1:
-            raise UserError(f"--codes must be at least 1, got {args.codes}.")
-        cfg = dataclasses.replace(cfg, codes=args.codes)
-    run = Path(args.out) if args.out is not None else default_run_dir(env_id, "vae", args.seed)
-    check_new_dir(run, args.force)
-    action_spec = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
-    demos_ref = str(Path(args.demos).resolve()) if Path(args.demos).exists() else args.demos
-    config: dict[str, Any] = {
-        "kind": "vae",
-        "demos": demos_ref,
-        "dataset_id": dataset.dataset_id,
-        "env_id": dataset.env_id,
-        "seed": args.seed,
-        "preset": args.preset,
-        "device": args.device,
-        "digail_version": __version__,
-        "vae": to_dict(cfg),
-    }
-    print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} (K = {cfg.codes}, "
-          f"{cfg.epochs} epochs)")
-    with atomic_dir(run, force=args.force) as tmp:
-        started = time.perf_counter()
-        model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
-                            log_dir=tmp)
-        config["train_time_s"] = round(time.perf_counter() - started, 2)
-        save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=dataset.env_id)
-        write_json(tmp / CONFIG_FILE, config)
-        metrics = write_segmentation(tmp, model, dataset.trajs, demos=demos_ref)
-    _print_summary(metrics)
-    return run
-
-
-def _print_summary(metrics: dict[str, Any]) -> None:
-    from digail.eval.segmentation import summary_line
-
-    print(summary_line(metrics))

@@ -91,6 +91,7 @@ def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed:
     `model` and `trajs` skip the loading when the caller holds them (`digail run`).
     """
     from digail.checkpoint import load_model
+    from digail.commands.common import run_env_id
     from digail.data.minari_io import load_dataset
     from digail.eval.composition import parse_schedule
     from digail.eval.segmentation import segment_many, viterbi
@@ -100,9 +101,7 @@ def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed:
     meta: dict[str, Any] = {}
     if model is None:
         model, meta = load_model(run / "model.pt")
-    env_id = str(meta.get("env_id") or cfg.get("env_id") or "")
-    if not env_id:
-        raise UserError(f"cannot tell which environment {run} was trained on; its config.json names none.")
+    env_id = run_env_id(run, meta)
     if trajs is None:
         if not cfg.get("demos"):
             raise UserError(f"{run}/config.json does not name its demonstrations, so its figures cannot be drawn; "

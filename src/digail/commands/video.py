@@ -30,6 +30,7 @@ class VideoArgs:
 def video_command(args: VideoArgs) -> tuple[Path, Path]:
     """Write RUN/videos/<name>.mp4 and .gif; returns their paths."""
     from digail.checkpoint import load_model
+    from digail.commands.common import run_env_id
     from digail.errors import UserError
     from digail.eval.composition import parse_schedule
     from digail.viz.video import record_video
@@ -38,7 +39,7 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     if args.episodes < 1:
         raise UserError(f"--episodes must be at least 1, got {args.episodes}.")
     model, meta = load_model(run / "model.pt")
-    env_id = _env_id(run, meta)
+    env_id = run_env_id(run, meta)
     schedule = parse_schedule(args.schedule, model.codes) if args.schedule else None
     name = args.name or ("composed" if schedule is not None else "closed_loop")
     mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=args.seed, episodes=args.episodes,
@@ -47,16 +48,3 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     print(f"wrote {mp4} and {gif}")
     return mp4, gif
 
-
-def _env_id(run: Path, meta: dict) -> str:  # type: ignore[type-arg]
-    """The run's environment (model.pt's record, else config.json's)."""
-    import json
-
-    from digail.errors import UserError
-
-    env_id = meta.get("env_id")
-    if not env_id and (run / "config.json").exists():
-        env_id = json.loads((run / "config.json").read_text()).get("env_id")
-    if not env_id:
-        raise UserError(f"cannot tell which environment {run} was trained on; its model.pt and config.json name none.")
-    return str(env_id)

@@ -24,11 +24,11 @@ from digail.data.minari_io import (
     check_matches_env,
     flatten_dict_obs,
     load_dataset,
-    make_env,
     minari_root,
     write_dataset,
 )
 from digail.data.trajectory import Trajectory
+from digail.envs import make_env
 from digail.errors import UserError
 from digail.utils import check_new_dir
 

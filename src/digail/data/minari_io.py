@@ -18,8 +18,6 @@ hook (`obs_hook`, default `flatten_dict_obs`), which also decides the dataset's 
 from __future__ import annotations
 
 import contextlib
-import difflib
-import io
 import json
 import os
 import shutil
@@ -33,8 +31,9 @@ import gymnasium as gym
 import numpy as np
 
 from digail.data.trajectory import Trajectory
+from digail.envs.registry import make_env
 from digail.errors import UserError
-from digail.utils import atomic_dir, json_default
+from digail.utils import atomic_dir, json_default, one_line
 
 SHIPPED_ROOT = Path(__file__).resolve().parent.parent / "datasets"
 """Minari root of the datasets shipped inside the package (ids resolve here first)."""
@@ -74,55 +73,6 @@ class Dataset:
     def num_steps(self) -> int:
         """Total transitions over all episodes."""
         return sum(len(t) for t in self.trajs)
-
-
-# ------------------------------------------------------------------------------------------ environments
-def make_env(env_id: str, **kwargs: Any) -> gym.Env:
-    """`gym.make(env_id, **kwargs)` that reports an unknown or unavailable id as one `UserError` sentence.
-
-    digail's own envs are registered by importing `digail`; robotics ids (e.g. FetchPickAndPlace-v4) are
-    registered on demand by importing `gymnasium_robotics` when it is installed.
-    """
-    import digail  # noqa: F401  (registers digail/* envs)
-
-    for attempt in range(2):
-        try:
-            return gym.make(env_id, **kwargs)
-        except (gym.error.NameNotFound, gym.error.NamespaceNotFound, gym.error.VersionNotFound) as exc:
-            if attempt == 0 and _register_robotics():
-                continue
-            raise UserError(f"unknown environment id {env_id!r}; {_known_ids_hint(env_id)}.") from exc
-        except gym.error.DependencyNotInstalled as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise UserError(f"environment {env_id!r} needs a package that is not installed ({first}).") \
-                from exc
-        except gym.error.Error as exc:
-            raise UserError(f"could not create environment {env_id!r}: {_one_line(exc)}.") from exc
-    raise AssertionError("unreachable")
-
-
-def _register_robotics() -> bool:
-    try:
-        # its import prints a version notice to stderr; keep the CLI's error output to one line
-        with contextlib.redirect_stderr(io.StringIO()):
-            import gymnasium_robotics
-    except ImportError:
-        return False
-    gym.register_envs(gymnasium_robotics)
-    return True
-
-
-def _known_ids_hint(env_id: str) -> str:
-    known = sorted(gym.registry)
-    close = difflib.get_close_matches(env_id, known, n=3, cutoff=0.6)
-    if close:
-        return "did you mean " + " or ".join(close)
-    return "known ids include digail/FourRooms-v0, digail/CircleWorld-v0, Pendulum-v1 and Hopper-v5"
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text.rstrip(".") if text else type(exc).__name__
 
 
 # --------------------------------------------------------------------------------------------- locations
@@ -176,7 +126,7 @@ def _read_metadata(data: Path) -> dict[str, Any]:
         with open(data / "metadata.json") as f:
             metadata = json.load(f)
     except (OSError, ValueError) as exc:
-        raise UserError(f"cannot read {data / 'metadata.json'} ({_one_line(exc)}); the dataset is corrupt, "
+        raise UserError(f"cannot read {data / 'metadata.json'} ({one_line(exc)}); the dataset is corrupt, "
                         "re-create it with `digail demos`.") from exc
     if not isinstance(metadata, dict):
         raise UserError(f"{data / 'metadata.json'} is not a JSON object; the dataset is corrupt, re-create "
@@ -269,7 +219,7 @@ def load_dataset(path_or_id: str | os.PathLike[str], *, obs_hook: ObsHook | None
     except UserError:
         raise
     except Exception as exc:  # h5py / json / minari raise many types for a damaged file
-        raise UserError(f"cannot read the Minari dataset at {folder} ({_one_line(exc)}); the files are "
+        raise UserError(f"cannot read the Minari dataset at {folder} ({one_line(exc)}); the files are "
                         "corrupt or from an unsupported Minari version, re-create it with `digail demos`.") \
             from exc
     if not episodes:
@@ -518,7 +468,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
     try:
         record = json.loads(json.dumps(record, default=json_default))
     except (TypeError, ValueError) as exc:
-        raise UserError(f"extra dataset metadata is not JSON-serialisable ({_one_line(exc)}).") from exc
+        raise UserError(f"extra dataset metadata is not JSON-serialisable ({one_line(exc)}).") from exc
 
     with atomic_dir(path, force=force) as tmp:
         root = (tmp / ".minari-root").resolve()  # Minari mis-joins relative roots

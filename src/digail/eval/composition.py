@@ -7,7 +7,6 @@ code 0's second. Which code learned which circle is arbitrary (`mapping` in the 
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
@@ -41,20 +40,13 @@ def compose(model: Any, env_id: str, schedule: list[int], episodes: int, seed: i
     return out, eps
 
 
-def compose_command(run: Path, *, schedule: str, episodes: int, seed: int) -> dict[str, Any]:
-    """`digail compose RUN --schedule S`: write RUN/compose.json and RUN/figures/compose.png."""
-    from digail.checkpoint import load_model
-    from digail.eval.returns import _env_of, _print_summary
-    from digail.utils import write_json
-    from digail.viz.plots import plot_episodes
-
-    model, meta = load_model(Path(run) / "model.pt")
-    env_id = _env_of(run, meta)
-    codes = parse_schedule(schedule, model.codes)
-    result, eps = compose(model, env_id, codes, episodes, seed)
-    result["schedule"] = schedule
-    fig = plot_episodes(eps, Path(run) / "figures" / "compose.png", title=f"composed: {schedule}")
-    result["figure"] = str(fig)
-    write_json(Path(run) / "compose.json", result)
-    _print_summary(result)
-    return result
+def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int]) -> str | None:
+    """'code:steps,...' for label-level `pairs`, using a segmentation's code -> label `mapping`; None when some
+    label has no code of its own (a collapsed segmentation cannot be composed)."""
+    by_label: dict[int, int] = {}
+    for code, label in mapping.items():
+        by_label.setdefault(int(label), int(code))
+    if any(label not in by_label for label, _ in pairs) or len({by_label[lb] for lb, _ in pairs}) < len(
+            {lb for lb, _ in pairs}):
+        return None
+    return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)

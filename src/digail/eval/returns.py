@@ -6,17 +6,16 @@ states, exactly what segmentation does offline. `digail compose` swaps q for a u
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from digail.algos.rollout import env_action_fn, make_env
+from digail.algos.rollout import env_action_fn
+from digail.envs import make_env
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
 
@@ -184,42 +183,3 @@ def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: 
             # distance to the expert's own path, so the expert scores 0 and the task metrics say more)
             out["normalized_return"] = float(out["mean_return"] / denom) if abs(denom) > 1e-6 else None
     return out
-
-
-def evaluate_command(run: Path, *, episodes: int, seed: int, deterministic: bool, video: bool) -> dict[str, Any]:
-    """`digail evaluate RUN`: write RUN/eval.json (and a video when asked)."""
-    from digail.checkpoint import load_model
-    from digail.utils import write_json
-
-    model, meta = load_model(Path(run) / "model.pt")
-    env_id = _env_of(run, meta)
-    result = evaluate(model, env_id, episodes, seed, deterministic)
-    result["kind"] = meta.get("kind")
-    write_json(Path(run) / "eval.json", result)
-    _print_summary(result)
-    if video:
-        from digail.viz.video import record_video
-
-        print(f"video: {record_video(model, env_id, Path(run) / 'videos' / 'eval.mp4', seed=seed)}")
-    return result
-
-
-def _env_of(run: Path, meta: dict[str, Any]) -> str:
-    from digail.errors import UserError
-
-    env_id = meta.get("env_id")
-    if not env_id:
-        cfg = Path(run) / "config.json"
-        if cfg.exists():
-            env_id = json.loads(cfg.read_text()).get("env_id")
-    if not env_id:
-        raise UserError(f"cannot tell which environment {run} was trained on; its model.pt and config.json "
-                        "name none.")
-    return str(env_id)
-
-
-def _print_summary(result: dict[str, Any]) -> None:
-    keys = ["mean_return", "std_return", "normalized_return", "success_rate", "path_length_ratio",
-            "order_correct_rate", "order_reversed_rate", "radius_error"]
-    parts = [f"{k}={result[k]:.3f}" for k in keys if isinstance(result.get(k), float)]
-    print(f"{result['episodes']} episodes: " + ", ".join(parts))

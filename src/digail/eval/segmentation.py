@@ -27,55 +27,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from digail.algos.decode import padded_obs, segment_many
 from digail.data.trajectory import Trajectory
-from digail.errors import UserError
-from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
 from digail.utils import atomic_write_bytes, write_json
 
 FIGURE_EPISODES = 6
-
-
-# -------------------------------------------------------------------------------------------- decoding
-def _padded_obs(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> tuple[torch.Tensor, np.ndarray]:
-    """(B, T_max, obs_dim) normalised observations s_0 .. s_{T-1} and the lengths T."""
-    lengths = np.array([len(t) for t in trajs])
-    obs = np.zeros((len(trajs), lengths.max(), model.obs_dim), np.float32)
-    for i, t in enumerate(trajs):
-        if int(np.prod(np.shape(t.obs)[1:])) != model.obs_dim:
-            raise UserError(f"the demonstrations have observations of shape {np.shape(t.obs)[1:]} but the model "
-                            f"expects {model.obs_dim} numbers; segment demonstrations of the model's environment.")
-        obs[i, :len(t)] = np.asarray(t.obs[:len(t)], np.float32).reshape(len(t), -1)
-    device = next(model.parameters()).device
-    with torch.no_grad():
-        obs_n = model.normalizer(torch.as_tensor(obs, device=device))
-    return obs_n, lengths
-
-
-@torch.no_grad()
-def segment_many(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> list[np.ndarray]:
-    """Causal codes for many demonstrations at once (batched over demonstrations, one loop over time).
-
-    Returns:
-        One (T_i,) int64 array per demonstration: c_t for the states s_0 .. s_{T_i - 1}.
-    """
-    if len(trajs) == 0:
-        return []
-    obs_n, lengths = _padded_obs(model, trajs)
-    B, T, _ = obs_n.shape
-    codes = torch.empty(B, T, dtype=torch.int64, device=obs_n.device)
-    prev = torch.zeros(B, model.codes, device=obs_n.device)
-    for t in range(T):
-        c = model.next_code(obs_n[:, t], prev)
-        codes[:, t] = c
-        prev = one_hot(c, model.codes)
-    out = codes.cpu().numpy()
-    return [out[i, :n].copy() for i, n in enumerate(lengths)]
-
-
-def segment(model: HierarchicalPolicy, traj: Trajectory) -> np.ndarray:
-    """Causal codes c_t = argmax q(. | s_t, c_{t-1}) of one demonstration: a (T,) int64 array."""
-    return segment_many(model, [traj])[0]
 
 
 @torch.no_grad()
@@ -89,7 +46,7 @@ def viterbi(model: HierarchicalPolicy, traj: Trajectory) -> np.ndarray:
     Returns:
         A (T,) int64 array of codes.
     """
-    obs_n, _ = _padded_obs(model, [traj])
+    obs_n, _ = padded_obs(model, [traj])
     obs_n = obs_n[0]
     T, K = len(traj), model.codes
     device = obs_n.device
@@ -322,40 +279,3 @@ def summary_line(metrics: dict[str, Any]) -> str:
                 f"(oracle {metrics['true_switches_per_episode']:.2f})")
     return (f"segmentation of {metrics.get('episodes', 0)} demos: {metrics.get('switches_per_episode', 0):.2f} "
             "switches/episode (no oracle labels)")
-
-
-# --------------------------------------------------------------------------------------------- command
-def segment_command(run: str | Path, demos: str | None = None) -> dict[str, Any]:
-    """`digail segment RUN [--demos D]`: segment with the run's macro-policy, write codes and scores into RUN.
-
-    Uses the run's training demonstrations (the `demos` entry of RUN/config.json) unless `demos` is given.
-    Returns the metrics written to RUN/segmentation.json.
-    """
-    import json
-
-    from digail.checkpoint import CONFIG_FILE, load_model
-    from digail.data.minari_io import load_dataset
-
-    run = Path(run)
-    if not run.is_dir():
-        raise UserError(f"run folder {run} does not exist; pass a folder made by `digail pretrain` or `digail train`.")
-    model, meta = load_model(run)
-    if demos is None:
-        config_path = run / CONFIG_FILE
-        config = meta["config"]
-        if config_path.is_file():
-            try:
-                config = json.loads(config_path.read_text())
-            except json.JSONDecodeError as exc:
-                raise UserError(f"{config_path} is not valid JSON ({exc}); pass --demos explicitly.") from exc
-        demos = config.get("demos")
-        if not demos:
-            raise UserError(f"{run} does not record its demonstrations; pass --demos.")
-    dataset = load_dataset(demos)
-    if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
-        raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
-                        "demonstrations; pass demonstrations of the model's environment.")
-    metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos))
-    print(summary_line(metrics))
-    print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
-    return metrics

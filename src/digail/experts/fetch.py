@@ -60,7 +60,7 @@ def evaluate_fetch_expert(episodes: int = 50, seed: int = 10_000) -> dict[str, A
 
     Also counts the episodes whose phase labels do not run 0 -> 1 -> 2 -> 3 one stage at a time.
     """
-    from digail.data.minari_io import make_env
+    from digail.envs import make_env
 
     env = make_env(FETCH_ENV_ID)
     successes, returns, out_of_order = [], [], 0

@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -42,9 +42,6 @@ from torch import nn
 
 from digail.errors import UserError
 from digail.utils import resolve_device, set_torch_threads, write_json
-
-if TYPE_CHECKING:
-    from digail.cli import ExpertArgs
 
 EXPERT_FORMAT = "digail-expert-v1"
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -289,8 +286,9 @@ def evaluate_expert(env_id: str, policy: Callable[[np.ndarray], np.ndarray], epi
     """Roll `policy` for `episodes` episodes (episode i reset with seed + i); raw undiscounted returns."""
     import gymnasium as gym
 
-    import digail  # noqa: F401  (registers digail envs)
+    from digail.envs import register_envs
 
+    register_envs()
     env = gym.make(env_id)
     returns, lengths = [], []
     for i in range(episodes):
@@ -328,8 +326,9 @@ def _learning_rate(value: Any) -> Any:
 def _make_vec_env(env_id: str, spec: ExpertSpec, seed: int) -> Any:
     from stable_baselines3.common.env_util import make_vec_env
 
-    import digail  # noqa: F401
+    from digail.envs import register_envs
 
+    register_envs()
     return make_vec_env(env_id, n_envs=spec.n_envs, seed=seed)
 
 
@@ -456,8 +455,26 @@ def _wall(out: Path, t_start: float) -> float:
     return round(previous + time.time() - t_start, 1)
 
 
-def expert_command(args: ExpertArgs) -> Path:
-    """`digail expert ENV`: train (or resume) a PPO expert, then evaluate it on 50 fresh episodes.
+@dataclass(frozen=True)
+class ExpertRun:
+    """One expert training run (what `digail expert` asks for)."""
+
+    env: str
+    """environment id with a recipe in `EXPERT_SPECS`"""
+    out: Path | None = None
+    """expert folder (default: experts_work/<env>)"""
+    steps: int | None = None
+    """environment steps (default: the recipe's budget)"""
+    resume: bool = False
+    """continue from the folder's last checkpoint"""
+    seed: int = 0
+    """random seed"""
+    device: str = "cpu"
+    """torch device for SB3"""
+
+
+def train_expert(args: ExpertRun) -> Path:
+    """Train (or resume) a PPO expert, then evaluate it on 50 fresh episodes.
 
     Writes into OUT: `checkpoints/` (resumable SB3 checkpoints), `expert.pt` / `best_expert.pt` (exported
     actors), `progress.json` (periodic evaluations) and `eval.json` (final 50-episode evaluation of
@@ -514,6 +531,10 @@ def expert_command(args: ExpertArgs) -> Path:
     if not math.isfinite(result["mean"]):
         raise RuntimeError("the final evaluation returned a non-finite mean")
     return out
+
+
+expert_command = train_expert
+"""the name this function had before the `commands` layer (`digail.commands.expert` runs it)"""
 
 
 # ---------------------------------------------------------------------------------------------- shipping

@@ -68,7 +68,8 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
             frame on a loaded CPU); None plays them to their end.
     """
-    from digail.algos.rollout import env_action_fn, make_env
+    from digail.algos.rollout import env_action_fn
+    from digail.envs import make_env
 
     if render:
         ensure_offscreen_gl()
@@ -188,7 +189,7 @@ def record_video(model: Any, env_id: str, path: Path, seed: int = 0, episodes: i
     Returns:
         The MP4 and GIF paths.
     """
-    from digail.algos.rollout import make_env
+    from digail.envs import make_env
 
     eps = play_episodes(model, env_id, episodes, seed, schedule=schedule, max_steps=max_steps)
     if fps is None:

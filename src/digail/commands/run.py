@@ -1,4 +1,4 @@
-"""`digail run`: the whole pipeline in one run folder.
+"""`digail run [ENV]`: the whole pipeline in one run folder.
 
 demonstrations (shipped, or recorded with the env's expert) -> VAE pre-training -> Directed-Info GAIL ->
 closed-loop evaluation -> segmentation -> composition (Circle-World: reversed circles) -> figures -> report.html.
@@ -7,33 +7,38 @@ closed-loop evaluation -> segmentation -> composition (Circle-World: reversed ci
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Annotated, Any
+
+import tyro
 
 from digail.config import get_preset, to_dict
 from digail.utils import check_new_dir, default_run_dir, resolve_device, set_torch_threads, write_json
 
-if TYPE_CHECKING:
-    from digail.cli import RunArgs
-
-# What `digail compose` runs at the end of the pipeline, per env: the schedule of an undemonstrated behaviour.
 COMPOSE_SCHEDULES = {"digail/CircleWorld-v0": ((1, 60), (0, 60))}
 """Composed behaviour per env as (oracle label, steps) pairs: Circle-World counter-clockwise first, then clockwise
 (never demonstrated). The run translates labels into its own code ids through the segmentation's matching."""
 
 
-def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int]) -> str | None:
-    """'code:steps,...' for label-level `pairs`, using a segmentation's code -> label `mapping`; None when some
-    label has no code of its own (a collapsed segmentation cannot be composed)."""
-    by_label: dict[int, int] = {}
-    for code, label in mapping.items():
-        by_label.setdefault(int(label), int(code))
-    if any(label not in by_label for label, _ in pairs) or len({by_label[lb] for lb, _ in pairs}) < len(
-            {lb for lb, _ in pairs}):
-        return None
-    return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)
+@dataclass(frozen=True)
+class RunArgs:
+    """The whole pipeline: demonstrations -> VAE -> Directed-Info GAIL -> evaluate -> segment -> report."""
 
+    env: Annotated[str, tyro.conf.Positional] = "digail/CircleWorld-v0"
+    """environment id"""
+    out: Path | None = None
+    """run folder (default: runs/<env>__digail__s<seed>__<time>)"""
+    preset: str | None = None
+    """settings preset (default: the env's)"""
+    seed: int = 0
+    """random seed"""
+    episodes: int | None = None
+    """evaluation episodes (default: the preset's)"""
+    device: str = "auto"
+    """torch device"""
+    force: bool = False
+    """overwrite an existing run folder"""
 
 VIDEO_MAX_STEPS = 300
 """Steps of the one video `digail run` records (MuJoCo renders in software here, about 0.5 s a frame)."""
@@ -65,14 +70,15 @@ def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
     return load_dataset(str(path)), str(path)
 
 
-def run_pipeline(args: RunArgs) -> Path:
+def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import pretrain
     from digail.checkpoint import save_model
     from digail.commands.report import make_figures
-    from digail.data.minari_io import check_matches_env, make_env
-    from digail.eval.composition import compose, parse_schedule
+    from digail.data.minari_io import check_matches_env
+    from digail.envs import make_env
+    from digail.eval.composition import compose, parse_schedule, schedule_in_codes
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
@@ -153,6 +159,7 @@ def run_pipeline(args: RunArgs) -> Path:
     report = write_report(run_dir)
     print(f"[5/5] segmentation, figures and video written; report: {report}")
     _print_headline(result, seg, composed)
+    print(f"done: {run_dir}")
     return run_dir
 
 

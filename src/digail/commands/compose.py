@@ -1,0 +1,45 @@
+"""`digail compose RUN --schedule S`: the sub-task policies under a code schedule instead of the macro-policy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
+
+
+@dataclass(frozen=True)
+class ComposeArgs:
+    """Run the sub-task policies under a code schedule instead of the learned macro-policy."""
+
+    run: Annotated[Path, tyro.conf.Positional]
+    """run folder of a trained policy"""
+    schedule: str = "1:60,0:60"
+    """code:steps pairs, e.g. '1:60,0:60' (Circle-World reversed circles when code 1 is the counter-clockwise one:
+    code ids are arbitrary, `mapping` in the run's segmentation.json says which code matched which sub-task)"""
+    episodes: int = 100
+    """episodes to roll out"""
+    seed: int = 20_000
+    """seed of the first episode"""
+
+
+def compose_command(args: ComposeArgs) -> dict[str, Any]:
+    """Write RUN/compose.json and RUN/figures/compose.png; returns the summary."""
+    from digail.checkpoint import load_model
+    from digail.commands.common import print_eval_summary, run_env_id
+    from digail.eval.composition import compose, parse_schedule
+    from digail.utils import write_json
+    from digail.viz.plots import plot_episodes
+
+    run = Path(args.run)
+    model, meta = load_model(run / "model.pt")
+    env_id = run_env_id(run, meta)
+    codes = parse_schedule(args.schedule, model.codes)
+    result, eps = compose(model, env_id, codes, args.episodes, args.seed)
+    result["schedule"] = args.schedule
+    fig = plot_episodes(eps, run / "figures" / "compose.png", title=f"composed: {args.schedule}")
+    result["figure"] = str(fig)
+    write_json(run / "compose.json", result)
+    print_eval_summary(result)
+    return result

@@ -1,0 +1,46 @@
+"""`digail evaluate RUN`: closed-loop evaluation of a run's hierarchical policy into RUN/eval.json."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
+
+
+@dataclass(frozen=True)
+class EvaluateArgs:
+    """Roll out a run's hierarchical policy (closed-loop macro-policy) and write eval.json."""
+
+    run: Annotated[Path, tyro.conf.Positional]
+    """run folder"""
+    episodes: int = 300
+    """evaluation episodes (paper: 300)"""
+    seed: int = 10_000
+    """seed of the first evaluation episode"""
+    stochastic: bool = False
+    """sample actions from pi instead of taking its mean / most likely action (the default, as in SB3)"""
+    video: bool = False
+    """also record a video of the first episodes into RUN/videos"""
+
+
+def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
+    """Write RUN/eval.json (and a video when asked); returns its content."""
+    from digail.checkpoint import load_model
+    from digail.commands.common import print_eval_summary, run_env_id
+    from digail.eval.returns import evaluate
+    from digail.utils import write_json
+
+    run = Path(args.run)
+    model, meta = load_model(run / "model.pt")
+    env_id = run_env_id(run, meta)
+    result = evaluate(model, env_id, args.episodes, args.seed, not args.stochastic)
+    result["kind"] = meta.get("kind")
+    write_json(run / "eval.json", result)
+    print_eval_summary(result)
+    if args.video:
+        from digail.viz.video import record_video
+
+        print(f"video: {record_video(model, env_id, run / 'videos' / 'eval.mp4', seed=args.seed)}")
+    return result

@@ -1,0 +1,145 @@
+"""`digail train`: GAIL or Directed-Info GAIL in a run folder (or `--resume` a killed one)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from digail.config import TrainConfig, from_dict, to_dict
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.nets.vae import HierarchicalPolicy
+
+
+@dataclass(frozen=True)
+class TrainArgs:
+    """Train with GAIL or Directed-Info GAIL (PPO on pi(a | s, c), discriminator reward, directed-info bonus)."""
+
+    env: str = ""
+    """environment id (default: the dataset's env)"""
+    demos: str = ""
+    """Minari dataset folder or id"""
+    method: Literal["digail", "gail"] = "digail"
+    """digail or gail"""
+    vae: Path | None = None
+    """pre-trained VAE run folder (required for digail: its q and its decoder as the initial policy)"""
+    preset: str | None = None
+    """settings preset (default: the env's)"""
+    out: Path | None = None
+    """run folder (default: runs/<env>__<method>__s<seed>__<time>)"""
+    bc_weight: float | None = None
+    """weight of the BC / L2 term (paper's Fetch experiment; default: the preset's)"""
+    resume: Path | None = None
+    """continue a killed run from its last checkpoint (other flags are ignored)"""
+    seed: int = 0
+    """random seed"""
+    device: str = "auto"
+    """torch device: auto, cpu or cuda"""
+    force: bool = False
+    """overwrite an existing run folder"""
+    train: TrainConfig = field(default_factory=TrainConfig)
+    """trainer settings (start from the preset)"""
+
+
+def defaults(argv: Sequence[str]) -> TrainArgs:
+    """Defaults whose trainer settings start from the preset the command line asks for."""
+    from digail.commands.common import preset_from_argv
+
+    preset, env_id, demos = preset_from_argv(argv)
+    return TrainArgs(env=env_id, demos=demos, train=preset.train)
+
+
+def train_command(args: TrainArgs) -> Path:
+    """Validate everything, then train (or resume) in a run folder; returns it."""
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.commands.common import new_run_dir
+    from digail.utils import resolve_device, set_torch_threads, write_json
+
+    set_torch_threads(1)
+    if args.resume is not None:
+        run_dir = Path(args.resume)
+        cfg_path = run_dir / "config.json"
+        if not cfg_path.exists():
+            raise UserError(f"{run_dir} is not a training run folder (no config.json); pass the folder "
+                            "`digail train` created.")
+        saved = json.loads(cfg_path.read_text())
+        args = from_dict(TrainArgs, saved["args"])
+        args = replace(args, out=run_dir, resume=run_dir, force=True)
+    device = resolve_device(args.device)
+    demos, env_id = load_demos(args.demos, args.env)
+    cfg = args.train
+    cfg = replace(cfg, method=args.method)
+    if args.bc_weight is not None:
+        cfg = replace(cfg, bc_weight=args.bc_weight)
+    vae_model = None
+    if args.vae is not None:
+        from digail.checkpoint import load_model
+
+        vae_model, meta = load_model(Path(args.vae) / "model.pt")
+        if meta.get("env_id") not in (None, env_id):
+            raise UserError(f"the VAE in {args.vae} was trained on {meta.get('env_id')}, not {env_id}; "
+                            "pre-train one on this env's demonstrations.")
+        if vae_model.obs_dim != int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1]):
+            raise UserError(f"the VAE in {args.vae} expects {vae_model.obs_dim}-d observations but the "
+                            "demonstrations have another size; pre-train it on these demonstrations.")
+    if args.resume is None:
+        run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force)
+    trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
+                            device=device)
+    ckpt = run_dir / "checkpoint.pt"
+    if args.resume is not None:
+        if not ckpt.exists():
+            raise UserError(f"no checkpoint in {run_dir}; it was killed before the first one - start it again.")
+        trainer.load_checkpoint(ckpt)
+        print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
+    else:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        resolved = replace(args, train=cfg, env=env_id)
+        write_json(run_dir / "config.json", {"args": to_dict(resolved), "method": cfg.method, "env_id": env_id,
+                                             "demos": args.demos, "seed": args.seed})
+    trainer.run_dir = run_dir
+    trainer.train(evaluate=periodic_evaluation(env_id, cfg))
+    trainer.save_checkpoint(ckpt)
+    print(f"run folder: {run_dir}")
+    return run_dir
+
+
+def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[HierarchicalPolicy], dict[str, float]] | None:
+    """The `evaluate` hook of `GAIL.train` for `cfg.eval_every` > 0: deterministic closed-loop episodes from the
+    final evaluation's seeds, normalised by the expert measured once on the same seeds (None when disabled)."""
+    if cfg.eval_every <= 0:
+        return None
+    from digail.eval.returns import evaluate, expert_summary
+
+    seed = 10_000
+    expert = expert_summary(env_id, cfg.eval_episodes, seed)
+    denom = expert["mean_return"] if expert is not None else 0.0
+
+    def hook(model: HierarchicalPolicy) -> dict[str, float]:
+        result = evaluate(model, env_id, cfg.eval_episodes, seed, deterministic=True, with_expert=False)
+        out = {k: float(v) for k, v in result.items()
+               if isinstance(v, float) and k not in ("std_return",) and np.isfinite(v)}
+        if abs(denom) > 1e-6:
+            out["normalized_return"] = out["mean_return"] / denom
+        return out
+
+    return hook
+
+
+def load_demos(demos: str, env: str = "") -> tuple[list[Trajectory], str]:
+    """The demonstrations of `demos` checked against `env` (default: the dataset's own env), and the env id."""
+    from digail.data.minari_io import check_matches_env, load_dataset
+
+    if not demos:
+        raise UserError("no demonstrations given; pass --demos with a Minari dataset folder or id.")
+    ds = load_dataset(demos)
+    env_id = env or ds.env_id
+    if not env_id:
+        raise UserError(f"the dataset {demos} does not name its environment; pass --env.")
+    check_matches_env(ds, env_id)
+    return list(ds.trajs), env_id
