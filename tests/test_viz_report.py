@@ -111,6 +111,19 @@ def test_run_writes_figures_video_and_a_report_chromium_renders(smoke_run, chrom
     assert all(i["width"] > 0 for i in phone)
 
 
+def test_four_rooms_run_report_renders(chromium, tmp_path):
+    run = tmp_path / "fr"
+    assert main(["run", "digail/FourRooms-v0", "--preset", "smoke", "--episodes", "4", "--out", str(run)]) == 0
+    for name in ("four_rooms_codes", "four_rooms_paths", "learning_curves", "codes_time", "pca_codes"):
+        assert (run / "figures" / f"{name}.png").stat().st_size > 1000, name
+    assert (run / "videos" / "closed_loop.gif").exists() and (run / "videos" / "closed_loop.mp4").exists()
+    text = (run / "report.html").read_text()
+    _check_page_text(text)
+    assert "Four Rooms" in text and "success rate" in text
+    images = browser_check(run / "report.html", chromium, tmp_path / "fr.png", width=390)
+    assert len(images) >= 6 and all(i["complete"] and i["width"] > 0 for i in images), images
+
+
 def test_video_and_report_commands(smoke_run, chromium, tmp_path):
     run = smoke_run
     assert main(["video", str(run), "--episodes", "1", "--schedule", "1:20,0:20", "--seed", "3"]) == 0
