@@ -128,8 +128,11 @@ def test_video_and_report_commands(smoke_run, chromium, tmp_path):
     run = smoke_run
     assert main(["video", str(run), "--episodes", "1", "--schedule", "1:20,0:20", "--seed", "3"]) == 0
     assert (run / "videos" / "composed.gif").exists() and (run / "videos" / "composed.mp4").exists()
-    assert main(["report", str(run), "--no-figures", "--out", str(tmp_path / "r.html")]) == 0
+    (run / "figures" / "segmentation_pair.png").unlink()
+    assert main(["report", str(run), "--unsmoothed", str(run / "vae"), "--out", str(tmp_path / "r.html")]) == 0
+    assert (run / "figures" / "segmentation_pair.png").exists()  # redrawn, beside the second VAE's segmentation
     assert "composed.mp4" in (tmp_path / "r.html").read_text()
+    assert main(["report", str(run), "--no-figures", "--out", str(tmp_path / "r2.html")]) == 0
     second = tmp_path / "cw_s1"
     shutil.copytree(run, second)
     cfg = json.loads((second / "config.json").read_text())
