@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.commands.run import COMPOSE_SCHEDULES
+from digail.envs.registry import env_spec
 from digail.eval.composition import schedule_in_codes
 
 HERE = Path(__file__).resolve().parent
@@ -57,7 +57,7 @@ def load(path: Path) -> dict[str, Any]:
 
 def reversed_schedule(vae: Path) -> str:
     """Counter-clockwise first, then clockwise, in the code ids the VAE's segmentation matched to those labels."""
-    schedule = schedule_in_codes(COMPOSE_SCHEDULES[TASKS["circleworld"]["env"]],
+    schedule = schedule_in_codes(env_spec(TASKS["circleworld"]["env"]).compose_schedule,
                                  load(vae / "segmentation.json")["mapping"])
     if schedule is None:
         raise SystemExit(f"{vae}: the segmentation gave no code of its own to each circle; nothing to compose")

@@ -72,7 +72,8 @@ def main() -> None:
     import digail
     from digail.algos.directed_info_gail import DirectedInfoGAIL
     from digail.algos.rollout import VecEnv
-    from digail.config import PPOConfig, TrainConfig, get_preset
+    from digail.config import PPOConfig, TrainConfig
+    from digail.envs.registry import preset_for
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
 
@@ -99,7 +100,7 @@ def main() -> None:
     model = HierarchicalPolicy(obs_dim, args.codes, ActionSpec.from_space(space))
     model.normalizer.fit(np.concatenate([t.obs for t in demos]))
     # compile as the env's preset does (the MuJoCo presets compile the PPO loss)
-    compile_loss = get_preset(None, args.env).train.ppo.compile
+    compile_loss = preset_for(args.env).train.ppo.compile
     ppo = PPOConfig(num_envs=args.num_envs, batch_size=args.batch, epochs=args.epochs,
                     minibatch_size=args.minibatch, compile=compile_loss)
     # value_warmup=0: every measured iteration updates the policy too (the default warm-up would skip its backward)

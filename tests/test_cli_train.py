@@ -12,6 +12,7 @@ import time
 import pytest
 import torch
 
+from digail.checkpoint import load_model
 from digail.cli import main
 
 ENV = "digail/CircleWorld-v0"
@@ -32,6 +33,11 @@ def test_train_evaluate_compose_segment_smoke(smoke_runs, capsys):
     assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--out", str(run)]) == 0
     for name in ("model.pt", "checkpoint.pt", "config.json", "metrics.csv"):
         assert (run / name).exists(), name
+    config = json.loads((run / "config.json").read_text())
+    assert config["schema"] == 1 and config["kind"] == "digail" and config["train"]["iterations"] == 2
+    assert config["demos"] == str(demos.resolve()) and config["vae_run"] == str(vae.resolve())  # cwd-independent
+    _, meta = load_model(run / "model.pt")
+    assert meta["config"] == config  # model.pt carries the run's config
     header = (run / "metrics.csv").read_text().splitlines()[0]
     for key in ("losses/policy", "disc/accuracy", "rollout/bonus", "perf/sps"):
         assert key in header

@@ -11,7 +11,6 @@ import pytest
 
 from digail.cli import main
 from digail.data.demos import (
-    DEFAULT_EPISODES,
     build_manifest,
     default_dataset_id,
     record_demos,
@@ -26,6 +25,7 @@ from digail.data.minari_io import (
     write_dataset,
 )
 from digail.envs import make_env
+from digail.envs.registry import ENV_SPECS
 from digail.errors import UserError
 from digail.experts.scripted import get_scripted_expert
 
@@ -116,8 +116,9 @@ def test_demos_with_rl_expert(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
 
 
 def test_default_sizes_and_ids() -> None:
-    assert DEFAULT_EPISODES["digail/FourRooms-v0"] == 300 and DEFAULT_EPISODES["digail/CircleWorld-v0"] == 100
-    assert DEFAULT_EPISODES["Hopper-v5"] == 50 and DEFAULT_EPISODES["Pendulum-v1"] == 25
+    assert ENV_SPECS["digail/FourRooms-v0"].demo_episodes == 300
+    assert ENV_SPECS["digail/CircleWorld-v0"].demo_episodes == 100
+    assert ENV_SPECS["Hopper-v5"].demo_episodes == 50 and ENV_SPECS["Pendulum-v1"].demo_episodes == 25
     assert default_dataset_id("Hopper-v5") == "digail/hopper/expert-v0"
     assert default_dataset_id("digail/FourRooms-v0") == "digail/fourrooms/expert-v0"
     with pytest.raises(UserError):
@@ -189,7 +190,7 @@ def test_shipped_dataset(dataset_id: str) -> None:
     ds = load_dataset(dataset_id)
     assert ds.path == SHIPPED_ROOT / dataset_id and ds.env_id is not None
     env_id = ds.env_id
-    assert len(ds.trajs) == ds.metadata["digail"]["episodes"] == DEFAULT_EPISODES[env_id]  # the paper's sizes
+    assert len(ds.trajs) == ds.metadata["digail"]["episodes"] == ENV_SPECS[env_id].demo_episodes  # the paper's sizes
     check_matches_env(ds, env_id)
     size = sum(f.stat().st_size for f in (ds.path / "data").iterdir())
     assert size < 6_000_000, size  # "a few MB" each (issue 5); Walker and Fetch are ~4.8 MB

@@ -161,19 +161,20 @@ def test_directed_info_gail_learns_four_rooms(rooms_demos):
 
 def test_direction_env_executes_its_canonical_action_unclipped():
     """Circle-World normalises the direction itself: clipping a sampled vector to the box first would bend it."""
-    from digail.algos.gail import action_transform
-    from digail.algos.rollout import env_action_fn
     from digail.envs import make_env
+    from digail.envs.actions import env_action_fn
 
     env = make_env("digail/CircleWorld-v0")
     acts = np.array([[1.6, 0.8], [-0.3, 0.1]], np.float32)
     executed = env_action_fn(env)(acts)
     np.testing.assert_allclose(executed, acts / np.linalg.norm(acts, axis=1, keepdims=True), rtol=1e-5)
     assert np.all(np.abs(executed) <= 1.0)  # in the action space's bounds without clipping
-    seen = action_transform(env)(torch.as_tensor(acts))  # what the discriminator sees is the same direction
+    seen = env_action_fn(env)(torch.as_tensor(acts))  # what the discriminator sees is the same direction
     np.testing.assert_allclose(seen.numpy(), executed, rtol=1e-5)
     box = make_env("Pendulum-v1")
     np.testing.assert_allclose(env_action_fn(box)(np.array([[3.0], [-0.5]], np.float32)), [[2.0], [-0.5]])
+    clipped = env_action_fn(box)(torch.tensor([[3.0], [-0.5]]))
+    assert isinstance(clipped, torch.Tensor) and clipped.tolist() == [[2.0], [-0.5]]
     assert env_action_fn(make_env("digail/FourRooms-v0")) is None
 
 

@@ -216,10 +216,10 @@ def test_segment_command_writes_codes_metrics_and_figure(tmp_path: Path, monkeyp
 
 
 def test_composed_schedules_follow_the_segmentations_code_matching() -> None:
-    from digail.commands.run import COMPOSE_SCHEDULES
+    from digail.envs.registry import ENV_SPECS
     from digail.eval.composition import schedule_in_codes
 
-    reversed_circles = COMPOSE_SCHEDULES["digail/CircleWorld-v0"]
+    reversed_circles = ENV_SPECS["digail/CircleWorld-v0"].compose_schedule
     assert schedule_in_codes(reversed_circles, {"0": 0, "1": 1}) == "1:60,0:60"
     assert schedule_in_codes(reversed_circles, {"0": 1, "1": 0}) == "0:60,1:60"
     assert schedule_in_codes(reversed_circles, {"0": 0, "1": 0}) is None  # collapsed: no counter-clockwise code

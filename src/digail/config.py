@@ -270,24 +270,8 @@ PRESETS: dict[str, Preset] = {
     ),
 }
 
-ENV_PRESET: dict[str, str] = {
-    "digail/FourRooms-v0": "four-rooms",
-    "digail/CircleWorld-v0": "circle-world",
-    "Pendulum-v1": "pendulum",
-    "InvertedPendulum-v5": "pendulum",
-    "Hopper-v5": "hopper",
-    "Walker2d-v5": "walker2d",
-    "FetchPickAndPlace-v4": "fetch",
-    "digail/FetchPickAndPlace-v4": "fetch",
-}
-
-
-def get_preset(name: str | None, env_id: str | None = None) -> Preset:
-    """The preset called `name`, or the one for `env_id` when `name` is None (defaults for unknown envs)."""
-    if name is None:
-        name = ENV_PRESET.get(env_id or "")
-        if name is None:
-            return Preset(VAEConfig(), TrainConfig())
+def get_preset(name: str) -> Preset:
+    """The preset called `name` (`digail.envs.registry.preset_for` finds an env's own)."""
     if name not in PRESETS:
         raise UserError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}.")
     return PRESETS[name]

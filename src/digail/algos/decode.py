@@ -41,6 +41,8 @@ def segment_many(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> list
     """
     if len(trajs) == 0:
         return []
+    if model.codes == 1:
+        return [np.zeros(len(t), dtype=np.int64) for t in trajs]
     obs_n, lengths = padded_obs(model, trajs)
     B, T, _ = obs_n.shape
     codes = torch.empty(B, T, dtype=torch.int64, device=obs_n.device)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import math
-import random
 import time
 from collections import deque
 from collections.abc import Callable
@@ -21,40 +20,20 @@ import numpy as np
 import torch
 from torch import nn
 
+from digail.algos.decode import segment_many
+from digail.algos.optim import adam
 from digail.algos.ppo import LeanStep, PPOBatch, compute_gae, maybe_compiled, ppo_update
 from digail.algos.rollout import VecEnv, env_action_fn
-from digail.config import TrainConfig
+from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
 from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
-from digail.utils import atomic_write_bytes
+from digail.utils import atomic_write_bytes, seed_everything
 
 CHECKPOINT_VERSION = 2
 """2: the PPO optimiser holds two parameter groups (policy, value), for `PPOConfig.policy_lr`"""
-
-
-def action_transform(env: gym.Env) -> Any:
-    """The map from a sampled action to what the env executes, as the discriminator should see it.
-
-    Box actions are clipped to their bounds, or mapped by the env's `canonical_action(acts)` where it has one (a
-    batch function, e.g. Circle-World normalises directions), so D cannot tell agent from expert by a detail the
-    env discards.
-    """
-    space: Any = env.action_space
-    canonical = getattr(env.unwrapped, "canonical_action", None)
-    if isinstance(space, gym.spaces.Discrete):
-        return None
-    if canonical is not None:
-        return canonical  # what the env executes (see `digail.algos.rollout.env_action_fn`), no clipping first
-    low = torch.as_tensor(space.low, dtype=torch.float32)
-    high = torch.as_tensor(space.high, dtype=torch.float32)
-
-    def transform(acts: torch.Tensor) -> torch.Tensor:
-        return torch.max(torch.min(acts, high), low)
-
-    return transform
 
 
 def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
@@ -66,15 +45,6 @@ def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
     loss = bce(logits_agent, torch.zeros_like(logits_agent)) + bce(logits_expert, torch.ones_like(logits_expert))
     parts = torch.stack([loss, (logits_agent < 0).float().mean(), (logits_expert > 0).float().mean()])
     return loss, parts.detach()
-
-
-def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
-    """Adam with the fused kernel where this torch build has it (about 1.6x faster PPO epochs for 2x64 nets on
-    CPU, measured), else the default implementation; the maths is the same. `params` may be parameter groups."""
-    try:
-        return torch.optim.Adam(params, lr=lr, eps=eps, fused=True)
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(params, lr=lr, eps=eps)
 
 
 @dataclass
@@ -112,10 +82,8 @@ class GAIL:
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.device = torch.device(device)
         self.progress = progress
-        torch.manual_seed(seed)
-        random.seed(seed)
+        self.np_rng = seed_everything(seed)
         self.gen = torch.Generator().manual_seed(seed)
-        self.np_rng = np.random.default_rng(seed)
 
         self.model = model.to(self.device)
         self.model.q.requires_grad_(False)
@@ -132,8 +100,8 @@ class GAIL:
         probe = self.envs.envs[0]
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
         self.n_actions = int(getattr(probe.action_space, "n", 0))
-        self._to_env_actions = env_action_fn(probe)
-        self._act_transform = action_transform(probe)
+        # what the envs execute for a sampled action, which is also what D sees (identity for discrete actions)
+        self._to_env_actions: Callable[[Any], Any] = env_action_fn(probe) or (lambda acts: acts)
         act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
@@ -154,6 +122,9 @@ class GAIL:
         self._obs: torch.Tensor | None = None  # normalised observations where the next rollout starts
         self._q_snap: Any = None  # weight snapshot of q, set for the duration of a rollout
         self._logger: ScalarLogger | None = None
+        self.model_config: dict[str, Any] = {"kind": self.method, "method": self.method, "env_id": env_id,
+                                             "seed": seed, "train": to_dict(cfg)}
+        """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
 
     # ------------------------------------------------------------------------------------------ expert data
     def _load_expert(self, demos: list[Trajectory]) -> None:
@@ -168,32 +139,18 @@ class GAIL:
             self.exp_acts = torch.as_tensor(acts_np, dtype=torch.float32, device=self.device)
         self.exp_act_in = self._act_input(self.exp_acts)
         self.exp_disc_in = torch.cat([self.exp_obs_n, self.exp_act_in], -1)  # D's input, built once
-        seqs = [self._decode_codes(t) for t in demos]
+        seqs = segment_many(self.model, demos)
         self.exp_codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=self.device)
         longest = max(len(s) for s in seqs)
         self.replay_codes = np.full((len(seqs), longest), -1, dtype=np.int64)
         for i, s in enumerate(seqs):
             self.replay_codes[i, : len(s)] = s
 
-    @torch.no_grad()
-    def _decode_codes(self, traj: Trajectory) -> np.ndarray:
-        """Causal decoding c_t = argmax q(. | s_t, c_{t-1}) of one demonstration (all zeros for one code)."""
-        if self.K == 1:
-            return np.zeros(len(traj), dtype=np.int64)
-        obs_n = self.model.normalizer(torch.as_tensor(np.asarray(traj.obs[:-1], np.float32), device=self.device))
-        prev = torch.zeros(1, self.K, device=self.device)
-        out = np.empty(len(traj), dtype=np.int64)
-        for t in range(len(traj)):
-            c = int(self.model.q(obs_n[t : t + 1], prev).argmax(-1))
-            out[t] = c
-            prev = self.eye[c : c + 1]
-        return out
-
     def _act_input(self, acts: torch.Tensor) -> torch.Tensor:
         """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
         if self.discrete:
             return nn.functional.one_hot(acts.long(), self.n_actions).float()
-        return self._act_transform(acts) if self._act_transform is not None else acts
+        return self._to_env_actions(acts)
 
     # ----------------------------------------------------------------------------------- macro-policy hooks
     def _new_code_state(self, n: int) -> CodeState:
@@ -518,7 +475,7 @@ class GAIL:
     def _save_model(self, path: Path) -> None:
         from digail.checkpoint import save_model
 
-        save_model(path, self.model, kind=self.method, config={}, env_id=self.env_id)
+        save_model(path, self.model, kind=self.method, config=self.model_config, env_id=self.env_id)
 
     def load_checkpoint(self, path: Path) -> None:
         self.load_state_dict(torch.load(path, map_location=self.device, weights_only=True))

@@ -14,6 +14,9 @@ import gymnasium as gym
 import numpy as np
 
 from digail.envs import make_env
+from digail.envs.actions import env_action_fn
+
+__all__ = ["VecEnv", "env_action_fn"]
 
 
 class VecEnv:
@@ -60,22 +63,3 @@ class VecEnv:
     def close(self) -> None:
         for env in self.envs:
             env.close()
-
-
-def env_action_fn(env: gym.Env) -> Any:
-    """The map from a batch of sampled NumPy actions to what is passed to `env.step` (None: as they are).
-
-    Box actions are clipped to their bounds, unless the env defines `canonical_action`, which is then applied
-    instead and must land in the bounds itself: Circle-World executes only the direction of an action, and
-    clipping a sampled vector to the box before that bends the direction whenever a component passes +-1 - a
-    bias of a degree or two at the policy's noise level, which the deterministic policy (never clipped) then
-    carries as a systematic turn, enough to ruin a drawn circle within a few PPO updates (measured).
-    """
-    space: Any = env.action_space
-    if isinstance(space, gym.spaces.Discrete):
-        return None
-    canonical = getattr(env.unwrapped, "canonical_action", None)
-    if canonical is not None:
-        return lambda acts: np.asarray(canonical(acts), dtype=np.float32)
-    low, high = space.low.astype(np.float32), space.high.astype(np.float32)
-    return lambda acts: np.clip(acts, low, high)

@@ -51,6 +51,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from digail.algos.optim import adam
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -360,7 +361,7 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     model.to(dev).train()
     data = pad_demos(trajs, model, dev)
     params = [p for p in model.parameters() if p.requires_grad]
-    opt = _adam(params, cfg.lr)
+    opt = adam(params, cfg.lr)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
@@ -435,7 +436,7 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     code_1h, prev_1h = table[codes], table[prevs]
     model.train()
     params = [*model.pi.parameters(), *model.q.parameters()]
-    opt = _adam(params, cfg.polish_lr)
+    opt = adam(params, cfg.polish_lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.polish_steps)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
     bar = _progress_bar(cfg.polish_steps, progress, desc="polish", unit="step")
@@ -475,14 +476,6 @@ def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:
         first = max(t - steps, switches[i - 1] + 1 if i else 1)
         out[first:t] = codes[t]
     return out
-
-
-def _adam(params: list[nn.Parameter], lr: float) -> torch.optim.Optimizer:
-    """Adam; the fused kernel where this torch has it (one call instead of a dozen small ones per step)."""
-    try:
-        return torch.optim.Adam(params, lr=lr, fused=True)
-    except (RuntimeError, TypeError):
-        return torch.optim.Adam(params, lr=lr)
 
 
 def _progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:

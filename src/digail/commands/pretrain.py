@@ -7,9 +7,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from digail.config import VAEConfig, get_preset, to_dict
+from digail.config import VAEConfig, get_preset
 from digail.errors import UserError
 
 
@@ -51,38 +50,28 @@ def pretrain_command(args: PretrainArgs) -> Path:
     (`codes.npz`, `segmentation.json`, `figures/segmentation.png`).
     """
     from digail.algos.vae_pretrain import pretrain
-    from digail.checkpoint import CONFIG_FILE, save_model
-    from digail.commands.common import new_run_dir
+    from digail.checkpoint import save_model
+    from digail.commands.common import new_run_dir, run_config, write_run_config
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
-    from digail.utils import atomic_dir, set_torch_threads, write_json
-    from digail.version import __version__
+    from digail.utils import atomic_dir, set_torch_threads
 
     set_torch_threads(1)
     dataset = load_dataset(args.demos)
     env_id = dataset.env_id or "unknown-env"
     cfg = args.vae
     if args.preset is not None:
-        get_preset(args.preset, env_id)  # reports an unknown preset name
+        get_preset(args.preset)  # reports an unknown preset name
     if args.codes is not None:
         if args.codes < 1:
             raise UserError(f"--codes must be at least 1, got {args.codes}.")
         cfg = dataclasses.replace(cfg, codes=args.codes)
     run = new_run_dir(args.out, env_id, "vae", args.seed, args.force)
     action_spec = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
-    demos_ref = str(Path(args.demos).resolve()) if Path(args.demos).exists() else args.demos
-    config: dict[str, Any] = {
-        "kind": "vae",
-        "demos": demos_ref,
-        "dataset_id": dataset.dataset_id,
-        "env_id": dataset.env_id,
-        "seed": args.seed,
-        "preset": args.preset,
-        "device": args.device,
-        "digail_version": __version__,
-        "vae": to_dict(cfg),
-    }
+    config = run_config(kind="vae", env_id=dataset.env_id, demos=args.demos, seed=args.seed, preset=args.preset,
+                        device=args.device, vae=cfg, args=args, dataset_id=dataset.dataset_id)
+    demos_ref = config["demos"]
     print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} (K = {cfg.codes}, "
           f"{cfg.epochs} epochs)")
     with atomic_dir(run, force=args.force) as tmp:
@@ -91,7 +80,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
                             log_dir=tmp)
         config["train_time_s"] = round(time.perf_counter() - started, 2)
         save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=dataset.env_id)
-        write_json(tmp / CONFIG_FILE, config)
+        write_run_config(tmp, config)
         metrics = write_segmentation(tmp, model, dataset.trajs, demos=demos_ref)
     print(summary_line(metrics))
     print(f"VAE run folder: {run}")

@@ -13,12 +13,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from digail.config import get_preset, to_dict
-from digail.utils import check_new_dir, default_run_dir, resolve_device, set_torch_threads, write_json
-
-COMPOSE_SCHEDULES = {"digail/CircleWorld-v0": ((1, 60), (0, 60))}
-"""Composed behaviour per env as (oracle label, steps) pairs: Circle-World counter-clockwise first, then clockwise
-(never demonstrated). The run translates labels into its own code ids through the segmentation's matching."""
+from digail.utils import resolve_device, set_torch_threads, write_json
 
 
 @dataclass(frozen=True)
@@ -75,9 +70,12 @@ def run_command(args: RunArgs) -> Path:
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import pretrain
     from digail.checkpoint import save_model
+    from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
     from digail.commands.report import make_figures
+    from digail.commands.train import TrainArgs
     from digail.data.minari_io import check_matches_env
     from digail.envs import make_env
+    from digail.envs.registry import env_spec, preset_for
     from digail.eval.composition import compose, parse_schedule, schedule_in_codes
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
@@ -88,9 +86,8 @@ def run_command(args: RunArgs) -> Path:
     set_torch_threads(1)
     device = resolve_device(args.device)
     make_env(args.env).close()  # an unknown id fails here, before anything is written
-    preset = get_preset(args.preset, args.env)
-    run_dir = Path(args.out) if args.out is not None else default_run_dir(args.env, "digail", args.seed)
-    check_new_dir(run_dir, args.force)
+    preset = preset_for(args.env, args.preset)
+    run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force)
     run_dir.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
 
@@ -107,25 +104,28 @@ def run_command(args: RunArgs) -> Path:
     action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
     vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
                             log_dir=vae_dir)
-    vae_cfg = {"kind": "vae", "demos": demos_ref, "env_id": args.env, "seed": args.seed,
-               "vae": to_dict(preset.vae)}
+    vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
+                         device=args.device, vae=preset.vae, pipeline=True)
     save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)
-    write_json(vae_dir / "config.json", vae_cfg)
+    write_run_config(vae_dir, vae_cfg)
     timings["pretrain_s"] = time.perf_counter() - t0
     print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
 
     t0 = time.perf_counter()
     cfg = replace(preset.train, method="digail")
-    write_json(run_dir / "config.json", {"method": "digail", "env_id": args.env, "demos": demos_ref,
-                                         "seed": args.seed, "preset": args.preset, "train": to_dict(cfg),
-                                         "vae": to_dict(preset.vae), "pipeline": True,
-                                         "command": run_command_line(args, run_dir)})
+    # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
+    train_args = TrainArgs(env=args.env, demos=str(path_ref(demos_ref)), method="digail", vae=vae_dir.resolve(),
+                           preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
+    config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
+                        device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
+                        pipeline=True, command=run_command_line(args, run_dir))
+    write_run_config(run_dir, config)
     trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                             device=device)
+    trainer.model_config = config
     trainer.train()
     trainer.save_checkpoint(run_dir / "checkpoint.pt")
     model = trainer.model
-    save_model(run_dir / "model.pt", model, kind="digail", config={"train": to_dict(cfg)}, env_id=args.env)
     timings["train_s"] = time.perf_counter() - t0
     print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
 
@@ -141,8 +141,9 @@ def run_command(args: RunArgs) -> Path:
     seg = write_segmentation(run_dir, model, trajs, demos=demos_ref)
     composed = None
     schedule = None
-    if args.env in COMPOSE_SCHEDULES and seg and "mapping" in seg:
-        schedule = schedule_in_codes(COMPOSE_SCHEDULES[args.env], seg["mapping"])
+    spec = env_spec(args.env)
+    if spec is not None and spec.compose_schedule is not None and seg and "mapping" in seg:
+        schedule = schedule_in_codes(spec.compose_schedule, seg["mapping"])
         if schedule is None:
             print("      composition skipped: the segmentation did not give every sub-task a code of its own")
     if schedule is not None:

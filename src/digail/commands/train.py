@@ -10,7 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from digail.config import TrainConfig, from_dict, to_dict
+from digail.config import TrainConfig, from_dict
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.vae import HierarchicalPolicy
@@ -57,8 +57,8 @@ def defaults(argv: Sequence[str]) -> TrainArgs:
 def train_command(args: TrainArgs) -> Path:
     """Validate everything, then train (or resume) in a run folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
-    from digail.commands.common import new_run_dir
-    from digail.utils import resolve_device, set_torch_threads, write_json
+    from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
+    from digail.utils import resolve_device, set_torch_threads
 
     set_torch_threads(1)
     if args.resume is not None:
@@ -97,11 +97,14 @@ def train_command(args: TrainArgs) -> Path:
             raise UserError(f"no checkpoint in {run_dir}; it was killed before the first one - start it again.")
         trainer.load_checkpoint(ckpt)
         print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
-    else:
+    config = run_config(kind=cfg.method, env_id=env_id, demos=args.demos, seed=args.seed, preset=args.preset,
+                        device=args.device, train=cfg, vae_run=args.vae,
+                        args=replace(args, train=cfg, env=env_id, demos=path_ref(args.demos) or "",
+                                     vae=None if args.vae is None else Path(args.vae).resolve()))
+    if args.resume is None:
         run_dir.mkdir(parents=True, exist_ok=True)
-        resolved = replace(args, train=cfg, env=env_id)
-        write_json(run_dir / "config.json", {"args": to_dict(resolved), "method": cfg.method, "env_id": env_id,
-                                             "demos": args.demos, "seed": args.seed})
+        write_run_config(run_dir, config)
+    trainer.model_config = config
     trainer.run_dir = run_dir
     trainer.train(evaluate=periodic_evaluation(env_id, cfg))
     trainer.save_checkpoint(ckpt)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import re
 from collections import Counter
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -29,23 +28,10 @@ from digail.data.minari_io import (
 )
 from digail.data.trajectory import Trajectory
 from digail.envs import make_env
+from digail.envs.registry import env_spec
 from digail.errors import UserError
+from digail.experts import Policy, expert_for
 from digail.utils import check_new_dir
-
-DEFAULT_EPISODES: dict[str, int] = {
-    "digail/FourRooms-v0": 300,
-    "digail/CircleWorld-v0": 100,
-    "Pendulum-v1": 25,
-    "InvertedPendulum-v5": 25,
-    "Hopper-v5": 50,
-    "Walker2d-v5": 50,
-    "FetchPickAndPlace-v4": 500,
-    "digail/FetchPickAndPlace-v4": 500,
-}
-"""Demonstrations per environment in the paper (section 5 and appendix)."""
-
-Policy = Callable[[gym.Env, Any], Any]
-"""An expert as the recorder uses it: (env, current observation) -> action."""
 
 
 def default_dataset_id(env_id: str) -> str:
@@ -54,23 +40,6 @@ def default_dataset_id(env_id: str) -> str:
     name = re.sub(r"-v\d+$", "", name).lower()
     name = re.sub(r"[^a-z0-9_-]", "", name) or "env"
     return f"digail/{name}/expert-v0"
-
-
-def _resolve_expert(env_id: str, expert: Path | None) -> tuple[Policy, str]:
-    """The expert to record and a short name of its kind (stored in the metadata)."""
-    if expert is None:
-        from digail.experts.scripted import get_scripted_expert
-
-        scripted = get_scripted_expert(env_id)
-        if scripted is not None:
-            return (lambda env, obs: scripted(env)), "scripted"
-    try:
-        from digail.experts.rl import load_expert
-    except ImportError as exc:
-        raise UserError(f"no scripted expert for {env_id} and the RL experts are unavailable ({exc}); "
-                        "install the rl extra (`pip install digail[rl]`).") from exc
-    policy = load_expert(env_id, expert)
-    return (lambda env, obs: policy(np.asarray(obs, dtype=np.float32)[None])[0]), "rl"
 
 
 def _flat(obs: Any, space: gym.Space) -> np.ndarray:
@@ -143,7 +112,7 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
 
     Args:
         env_id: a registered env id, e.g. "digail/CircleWorld-v0" or "Hopper-v5".
-        episodes: number of episodes (default: the paper's size, `DEFAULT_EPISODES`).
+        episodes: number of episodes (default: the paper's size, the env's `EnvSpec.demo_episodes`).
         out: dataset folder (default: `$MINARI_DATASETS_PATH` or `~/.minari/datasets`, then the dataset id,
             e.g. `digail/circleworld/expert-v0`, so the id resolves there).
         seed: episode `i` is reset with `seed + i`.
@@ -156,9 +125,10 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
             `force`, no expert available.
     """
     if episodes is None:
-        if env_id not in DEFAULT_EPISODES:
+        spec = env_spec(env_id)
+        if spec is None:
             raise UserError(f"no default number of episodes for {env_id}; pass --episodes N.")
-        episodes = DEFAULT_EPISODES[env_id]
+        episodes = spec.demo_episodes
     if episodes < 1:
         raise UserError(f"--episodes must be at least 1, got {episodes}.")
     if seed < 0:
@@ -168,7 +138,7 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
     check_new_dir(path, force)  # fail before the (possibly long) rollouts
     env = make_env(env_id)
     try:
-        policy, kind = _resolve_expert(env_id, None if expert is None else Path(expert))
+        policy, kind = expert_for(env_id, None if expert is None else Path(expert))
         obs_space = env.observation_space
         flat_space = gym.spaces.flatten_space(obs_space) if isinstance(obs_space, gym.spaces.Dict) else None
         trajs = rollout_episodes(env, policy, episodes, seed, desc=f"demos {env_id}")

@@ -1,29 +1,75 @@
-"""Gymnasium registration of digail's environments and `make_env`, the one way the package creates an env."""
+"""The registry of environments (one `EnvSpec` per env), their Gymnasium registration, and `make_env`."""
 
 from __future__ import annotations
 
 import contextlib
 import difflib
 import io
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 
+from digail.config import Preset, TrainConfig, VAEConfig, get_preset
 from digail.errors import UserError
 from digail.utils import one_line
 
 
+@dataclass(frozen=True)
+class EnvSpec:
+    """Everything digail knows about one environment; adding an environment is adding one of these."""
+
+    env_id: str
+    """Gymnasium id"""
+    preset: str
+    """name of its settings preset in `digail.config.PRESETS` (paper Table 3)"""
+    demo_episodes: int
+    """demonstrations `digail demos` records by default (the paper's dataset size)"""
+    entry_point: str | None = None
+    """`module:Class` for envs digail registers itself (None: Gymnasium or gymnasium-robotics registers it)"""
+    max_episode_steps: int | None = None
+    """time limit of an env digail registers"""
+    compose_schedule: tuple[tuple[int, int], ...] | None = None
+    """what `digail run` composes at the end: (oracle label, steps) pairs of a behaviour never demonstrated; the
+    run translates labels into its own code ids through the segmentation's matching"""
+
+
+ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
+    EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64),
+    # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
+    EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
+            compose_schedule=((1, 60), (0, 60))),
+    # gymnasium-robotics is imported only when this one is made (digail.envs.fetch)
+    EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50),
+    EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
+    EnvSpec("Pendulum-v1", "pendulum", 25),
+    EnvSpec("InvertedPendulum-v5", "pendulum", 25),
+    EnvSpec("Hopper-v5", "hopper", 50),
+    EnvSpec("Walker2d-v5", "walker2d", 50),
+)}
+"""The environments digail has settings, demonstrations sizes or experts for, by id."""
+
+
+def env_spec(env_id: str) -> EnvSpec | None:
+    """The registry entry of `env_id`, or None for an environment digail has no entry for."""
+    return ENV_SPECS.get(env_id)
+
+
+def preset_for(env_id: str | None, name: str | None = None) -> Preset:
+    """The preset called `name`, else the one of `env_id`'s entry (the defaults for an env without one)."""
+    if name is None:
+        spec = ENV_SPECS.get(env_id or "")
+        if spec is None:
+            return Preset(VAEConfig(), TrainConfig())
+        name = spec.preset
+    return get_preset(name)
+
+
 def register_envs() -> None:
-    """Register `digail/FourRooms-v0`, `digail/CircleWorld-v0`, `digail/FetchPickAndPlace-v4` (idempotent)."""
-    specs = {
-        "digail/FourRooms-v0": ("digail.envs.four_rooms:FourRoomsEnv", 64),
-        "digail/CircleWorld-v0": ("digail.envs.circle_world:CircleWorldEnv", 120),
-        # gymnasium-robotics is imported only when this one is made (digail.envs.fetch)
-        "digail/FetchPickAndPlace-v4": ("digail.envs.fetch:FlatFetchPickAndPlace", 50),
-    }
-    for env_id, (entry_point, steps) in specs.items():
-        if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry_point, max_episode_steps=steps)
+    """Register digail's own envs (the entries with an entry point) with Gymnasium (idempotent)."""
+    for spec in ENV_SPECS.values():
+        if spec.entry_point is not None and spec.env_id not in gym.registry:
+            gym.register(id=spec.env_id, entry_point=spec.entry_point, max_episode_steps=spec.max_episode_steps)
 
 
 def make_env(env_id: str, **kwargs: Any) -> gym.Env:

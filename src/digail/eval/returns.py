@@ -6,16 +6,17 @@ states, exactly what segmentation does offline. `digail compose` swaps q for a u
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch
 
-from digail.algos.rollout import env_action_fn
 from digail.envs import make_env
+from digail.envs.actions import env_action_fn
+from digail.errors import UserError
+from digail.experts import expert_for
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
 
@@ -130,26 +131,11 @@ def summarize(episodes: list[Episode]) -> dict[str, Any]:
             "mean_length": float(np.mean([e.length for e in episodes])), **task_metrics(episodes)}
 
 
-def expert_policy(env_id: str) -> Callable[[gym.Env, np.ndarray], Any] | None:
-    """The project's expert for `env_id` as a per-env callable, or None when there is none."""
-    from digail.experts.scripted import get_scripted_expert
-
-    scripted = get_scripted_expert(env_id)
-    if scripted is not None:
-        return lambda env, obs: scripted(env)
-    try:
-        from digail.experts.rl import load_expert
-
-        policy = load_expert(env_id)
-    except Exception:
-        return None
-    return lambda env, obs: policy(np.asarray(obs, np.float32)[None])[0]
-
-
 def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | None:
     """The expert measured the same way as the agent: same env, seeds and episode count."""
-    policy = expert_policy(env_id)
-    if policy is None:
+    try:
+        policy, _ = expert_for(env_id)
+    except (UserError, OSError):  # no expert for this env: nothing to normalise by
         return None
     env = make_env(env_id)
     eps = []

@@ -10,16 +10,12 @@ so that the step itself is a few small array operations. Results equal the modul
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from torch import nn
 
 from digail.nets.critic import ValueNet
-from digail.nets.policy import SubtaskPolicy
-
-LOG_2PI = math.log(2 * math.pi)
+from digail.nets.policy import LOG_2PI, SubtaskPolicy
 
 
 def _linears(seq: nn.Sequential) -> list[nn.Linear]:

@@ -59,11 +59,6 @@ class HierarchicalPolicy(nn.Module):
         self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, obs_slice=pi_obs)
 
     @torch.no_grad()
-    def next_code(self, obs_n: torch.Tensor, prev: torch.Tensor, sample: bool = False,
-                  generator: torch.Generator | None = None) -> torch.Tensor:
-        """c_t from q(. | s_t, c_{t-1}) for a batch: argmax (segmentation) or a sample (rollouts). Returns ints."""
-        logits = self.q(obs_n, prev)
-        if not sample:
-            return logits.argmax(-1)
-        probs = torch.softmax(logits, -1)
-        return torch.multinomial(probs, 1, generator=generator).squeeze(-1)
+    def next_code(self, obs_n: torch.Tensor, prev: torch.Tensor) -> torch.Tensor:
+        """c_t = argmax q(. | s_t, c_{t-1}) for a batch of normalised states and one-hot previous codes (ints)."""
+        return self.q(obs_n, prev).argmax(-1)

@@ -375,9 +375,10 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
         parts.append(_table(["stage", "wall-clock time"], rows))
     parts.append("<h2>How this run was made</h2>")
     parts.append(f"<pre>{_esc(run_command(cfg))}</pre>")
-    if cfg:
+    shown = {k: v for k, v in cfg.items() if k not in ("args", "schema", "command")}  # args repeat the settings
+    if shown:
         parts.append("<details><summary>Full configuration</summary>"
-                     + _table(["setting", "value"], _flatten(cfg)) + "</details>")
+                     + _table(["setting", "value"], _flatten(shown)) + "</details>")
     out = Path(out) if out is not None else run_dir / "report.html"
     atomic_write_bytes(out, _page(f"digail {run_dir.name}", "".join(parts)).encode())
     return out

@@ -68,8 +68,8 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
             frame on a loaded CPU); None plays them to their end.
     """
-    from digail.algos.rollout import env_action_fn
     from digail.envs import make_env
+    from digail.envs.actions import env_action_fn
 
     if render:
         ensure_offscreen_gl()

