@@ -406,10 +406,14 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
     groups: dict[str, list[Path]] = {}
     info: dict[Path, tuple[dict[str, Any], dict[str, Any], dict[str, Any]]] = {}
     for r in runs:
-        cfg, ev, seg = _load(r / "config.json"), _load(r / "eval.json"), _load(r / "segmentation.json")
-        info[r] = (cfg, ev, seg)
-        groups.setdefault(method_of(cfg), []).append(r)
+        info[r] = (_load(r / "config.json"), _load(r / "eval.json"), _load(r / "segmentation.json"))
     envs = sorted({str(c.get("env_id")) for c, _, _ in info.values() if c.get("env_id")})
+    for r in runs:
+        cfg = info[r][0]
+        env = str(cfg.get("env_id"))
+        # runs on different envs never share a row or a curve
+        key = method_of(cfg) + (f" on {ENV_NAMES.get(env, env)}" if len(envs) > 1 else "")
+        groups.setdefault(key, []).append(r)
     out = Path(out)
     fig_path = out.with_name(out.stem + "_learning_curves.png")
     fig = learning_curves_multi(groups, fig_path)
@@ -436,7 +440,8 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
                             + ([fmt(seg["accuracy"], "pct") if "accuracy" in seg else "–"] if has_seg else [])
                             + [r.name])
     env_names = ", ".join(ENV_NAMES.get(e, e) for e in envs) or "unknown environments"
-    parts = [f"<h1>digail: {len(groups)} method(s) × seeds on {_esc(env_names)}</h1>",
+    parts = [f"<h1>digail: {len(groups)} method(s) × seeds on {_esc(env_names)}</h1>" if len(envs) <= 1
+             else f"<h1>digail: {len(groups)} methods and environments × seeds</h1>",
              "<section class='headline'>"
              f"<p>{len(runs)} runs: " + ", ".join(f"{_esc(m)} ({len(rs)} seeds)" for m, rs in sorted(groups.items()))
              + ". Medians over seeds; evaluation is closed-loop.</p>" + _table(header, rows) + "</section>"]
