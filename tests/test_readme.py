@@ -27,7 +27,7 @@ def test_make_demo_smoke_variant(tmp_path):
     out = tmp_path / "run"
     assert main(["run", "--preset", "smoke", "--episodes", "3", "--out", str(out)]) == 0
     for name in ("model.pt", "vae/model.pt", "eval.json", "segmentation.json", "compose.json", "report.html",
-                 "figures/learning_curves.png", "figures/generated.png", "figures/composed.png",
+                 "figures/learning_curves.png", "figures/generated.png", "figures/compose.png",
                  "videos/closed_loop.mp4", "videos/closed_loop.gif"):
         assert (out / name).exists(), name
     ev = json.loads((out / "eval.json").read_text())

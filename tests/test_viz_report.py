@@ -91,7 +91,7 @@ def smoke_run(tmp_path_factory):
 
 def test_run_writes_figures_video_and_a_report_chromium_renders(smoke_run, chromium, tmp_path):
     run = smoke_run
-    for name in ("learning_curves", "codes_time", "pca_codes", "generated", "composed", "segmentation_pair"):
+    for name in ("learning_curves", "codes_time", "pca_codes", "generated", "compose", "segmentation_pair"):
         assert (run / "figures" / f"{name}.png").stat().st_size > 1000, name
     for ext in ("mp4", "gif"):
         assert (run / "videos" / f"closed_loop.{ext}").stat().st_size > 1000

@@ -26,11 +26,13 @@ class ComposeArgs:
 
 def compose_command(args: ComposeArgs) -> dict[str, Any]:
     """Write RUN/compose.json and RUN/figures/compose.png; returns the summary."""
+    import numpy as np
+
     from digail.checkpoint import load_model
     from digail.commands.common import print_eval_summary, run_env_id
     from digail.eval.composition import compose, parse_schedule
     from digail.utils import write_json
-    from digail.viz.plots import plot_episodes
+    from digail.viz.run_figures import composition_figure
 
     run = Path(args.run)
     model, meta = load_model(run / "model.pt")
@@ -38,7 +40,8 @@ def compose_command(args: ComposeArgs) -> dict[str, Any]:
     codes = parse_schedule(args.schedule, model.codes)
     result, eps = compose(model, env_id, codes, args.episodes, args.seed)
     result["schedule"] = args.schedule
-    fig = plot_episodes(eps, run / "figures" / "compose.png", title=f"composed: {args.schedule}")
+    fig = composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in eps], run / "figures" / "compose.png",
+                             args.schedule)
     result["figure"] = str(fig)
     write_json(run / "compose.json", result)
     print_eval_summary(result)

@@ -197,7 +197,7 @@ FIGURE_CAPTIONS = {
                         "free cell, the apple (red) fixed.",
     "four_rooms_paths": "Paths on the grid coloured by the active code; a star marks the start, red the apple.",
     "generated": "Closed-loop rollouts of the hierarchical policy, coloured by code (left) and by time (right).",
-    "composed": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
+    "compose": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
     "segmentation_pair": "Two segmentations of the same demonstrations side by side.",
     "segmentation": "Segmentation of the demonstrations: codes (coloured as their matched label) above the oracle "
                     "labels.",
@@ -205,9 +205,6 @@ FIGURE_CAPTIONS = {
     "pca_codes": "States projected on their first two principal components, coloured by code.",
     "pendulum_code_map": "Pendulum: angle against angular velocity, coloured by the active code.",
     "learning_curves": "Learning curves against environment steps.",
-    "training": "Training curves.",
-    "eval": "Evaluation episodes coloured by code.",
-    "compose": "Composed episodes coloured by code.",
 }
 FIGURE_ORDER = list(FIGURE_CAPTIONS)
 

@@ -7,7 +7,7 @@ schedule and a second segmentation to compare with; it rolls out a few closed-lo
 - all envs: `learning_curves.png` (from metrics.csv), `codes_time.png` (code strips, demonstrations and rollouts),
   `pca_codes.png` (states, first two principal components, coloured by code);
 - Four Rooms: `four_rooms_codes.png` (paper Figure 3, one arrow map per code) and `four_rooms_paths.png`;
-- 2-D worlds (Circle-World): `generated.png` (by code and by time), `composed.png` under the schedule, and
+- 2-D worlds (Circle-World): `generated.png` (by code and by time), `compose.png` under the schedule, and
   `segmentation_pair.png` when a second segmentation is given;
 - Pendulum: `pendulum_code_map.png` (demonstrations and rollouts).
 """
@@ -28,6 +28,16 @@ FOUR_ROOMS = "digail/FourRooms-v0"
 
 def _obs_dim(obs: np.ndarray) -> int:
     return int(np.prod(np.shape(obs)[1:]))
+
+
+def composition_figure(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, schedule_text: str = "") -> Path:
+    """Episodes run under a code schedule: paths coloured by code and by time for 2-D observations (the
+    reversed-order Circle-World), else code strips. Written by `digail compose` and by `digail run`."""
+    title = f"composition under the schedule {schedule_text}".strip()
+    shown = [(o, c) for o, c in episodes if len(o)]
+    if shown and _obs_dim(shown[0][0]) == 2:
+        return F.planar_trajectories(shown, path, title=title)
+    return F.code_strips({title: [c for _, c in episodes]}, path)
 
 
 def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence[np.ndarray],
@@ -71,9 +81,8 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
         paths.append(F.planar_trajectories(gen, out / "generated.png", title="closed-loop rollouts"))
         if schedule is not None:
             composed = play_episodes(model, env_id, episodes, seed + 10_000, schedule=schedule, render=False)
-            paths.append(F.planar_trajectories([(np.asarray(e.obs), np.asarray(e.codes)) for e in composed],
-                                               out / "composed.png",
-                                               title=f"composition under the schedule {schedule_text}".strip()))
+            paths.append(composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in composed],
+                                            out / "compose.png", schedule_text))
     if env_id.startswith("Pendulum") and dim == 3:
         paths.append(F.pendulum_code_map([o for o, _ in demos + gen], [c for _, c in demos + gen],
                                          out / "pendulum_code_map.png"))
