@@ -20,10 +20,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-import digail.algos.gail as gail_module
 from digail.algos.directed_info_gail import build_trainer
 from digail.checkpoint import load_model
 from digail.config import TrainConfig, get_preset
@@ -46,38 +44,20 @@ def first_step_geometry() -> None:
         print(f"   {err_deg:+5.1f} -> {ratio:.2f}")
 
 
-def trainer_for(vae: Path, cfg: TrainConfig, seed: int) -> Any:
+def trainer_for(vae: Path, cfg: TrainConfig, seed: int, reward_fn: Any = None) -> Any:
     model, _ = load_model(vae / "model.pt")
     demos = list(load_dataset(DEMOS).trajs)
-    return build_trainer(ENV, demos, cfg, vae_model=model, seed=seed, run_dir=None, progress=False)
+    return build_trainer(ENV, demos, cfg, vae_model=model, seed=seed, run_dir=None, progress=False,
+                         reward_fn=reward_fn)
 
 
 def radius_after(vae: Path, cfg: TrainConfig, updates: int, episodes: int, env_reward: bool) -> tuple[float, float]:
     """Deterministic closed-loop radius error before and after `updates` policy updates."""
-    trainer = trainer_for(vae, cfg, seed=0)
+    # with env_reward the env's own reward replaces D's: is the drift D's doing?
+    trainer = trainer_for(vae, cfg, seed=0, reward_fn=(lambda logits, batch: batch["rews"]) if env_reward else None)
     before = task_metrics(run_episodes(trainer.model, ENV, episodes, 10_000, deterministic=True))["radius_error"]
-    original = gail_module.generator_reward
-    if env_reward:
-        rewards: list[torch.Tensor] = []
-        step = trainer.envs.step
-
-        def recording_step(actions: np.ndarray) -> Any:
-            out = step(actions)
-            rewards.append(torch.as_tensor(out[1], dtype=torch.float32))
-            return out
-
-        def env_rewards(logits: torch.Tensor, kind: str) -> torch.Tensor:
-            out = torch.stack(rewards[-logits.shape[0]:])
-            rewards.clear()
-            return out
-
-        trainer.envs.step = recording_step
-        gail_module.generator_reward = env_rewards
-    try:
-        for _ in range(cfg.value_warmup + updates):
-            trainer.iterate()
-    finally:
-        gail_module.generator_reward = original
+    for _ in range(cfg.value_warmup + updates):
+        trainer.iterate()
     after = task_metrics(run_episodes(trainer.model, ENV, episodes, 10_000, deterministic=True))["radius_error"]
     return before, after
 
@@ -92,7 +72,7 @@ def discriminator_direction_sensitivity(vae: Path, cfg: TrainConfig) -> None:
         for deg in (-10, -2, 0, 2, 10):
             c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
             rot = torch.stack([c * acts[:, 0] - s * acts[:, 1], s * acts[:, 0] + c * acts[:, 1]], -1)
-            reward = generator_reward(trainer.disc(obs, trainer._act_input(rot)), cfg.reward)
+            reward = generator_reward(trainer.disc(obs, trainer.act_input(rot)), cfg.reward)
             print(f"   {deg:+4d} deg: {float(reward.mean()):.4f}")
 
 

@@ -2,39 +2,34 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
 import digail  # noqa: F401  (registers the envs)
+from digail.data.demos import rollout_episodes
 from digail.data.trajectory import Trajectory
 from digail.envs import make_env
-from digail.experts.scripted import get_scripted_expert
+from digail.experts import expert_for
 
 torch.set_num_threads(1)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Measured expert returns go to a cache of this test session, not the user's."""
+    import os
+
+    os.environ["DIGAIL_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
 
 
 def expert_trajectories(env_id: str, episodes: int, seed: int = 0) -> list[Trajectory]:
     """Roll out the scripted expert; labels kept."""
     env = make_env(env_id)
-    expert = get_scripted_expert(env_id)
-    assert expert is not None
-    out = []
-    for e in range(episodes):
-        o, info = env.reset(seed=seed + e)
-        obs, acts, labels = [o], [], [info["subtask"]]
-        while True:
-            a = expert(env)
-            o, _, term, trunc, info = env.step(a)
-            obs.append(o)
-            acts.append(a)
-            labels.append(info["subtask"])
-            if term or trunc:
-                break
-        out.append(Trajectory(np.asarray(obs, np.float32), np.asarray(acts), None, np.asarray(labels, np.int64),
-                              bool(term)))
+    policy, kind = expert_for(env_id)
+    assert kind == "scripted"
+    trajs = rollout_episodes(env, policy, episodes, seed, desc=f"test demos {env_id}")
     env.close()
-    return out
+    return trajs
 
 
 @pytest.fixture(scope="session")

@@ -121,7 +121,7 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, 
         model.q.net[0].weight[:, obs_dim:] += 3.0 * torch.randn(64, 3)  # the previous code matters
 
     demo_of: list[list[int]] = [[] for _ in range(N)]  # the demonstration each episode of each env replays
-    start = trainer._start_episodes
+    start = trainer.start_episodes
 
     def recording_start(idx):
         start(idx)
@@ -138,7 +138,7 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, 
         t_now[0] += 1
         return out
 
-    trainer._start_episodes, trainer.envs.step = recording_start, recording_step
+    trainer.start_episodes, trainer.envs.step = recording_start, recording_step
     b = trainer.collect()
     done = (b["terminated"] | b["truncated"]).numpy()
     assert done.sum() >= N and b["truncated"].any()
@@ -167,7 +167,7 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, 
             for t in range(T):
                 prev, t_ep = int(b["codes"][t, i]), t_ep + 1
                 s_n = norm(torch.from_numpy(finals[(t, i)])) if done[t, i] else (
-                    b["obs"][t + 1, i] if t + 1 < T else trainer._obs[i])
+                    b["obs"][t + 1, i] if t + 1 < T else torch.from_numpy(trainer.rollout_state.obs_n[i]))
                 code, logq = expected_code(i, episode, t_ep, s_n, prev)
                 assert abs(float(b["bonus"][t, i]) - logq) < 1e-4, (i, t)
                 if b["truncated"][t, i]:

@@ -53,7 +53,7 @@ def test_bonus_sign_raises_reward_for_confident_macro_policy(circle_demos):
     from digail.nets.critic import generator_reward
 
     flat = batch["obs"].reshape(-1, 2)
-    logits = trainer.disc(flat, trainer._act_input(batch["acts"].reshape(-1, 2)))
+    logits = trainer.disc(flat, trainer.act_input(batch["acts"].reshape(-1, 2)))
     r0 = generator_reward(logits, "positive")
     total = r0 + cfg.bonus_weight * batch["bonus"].reshape(-1)
     assert torch.all(total <= r0 + 1e-6)
@@ -78,7 +78,7 @@ def test_discriminator_loss_falls_on_fixed_batches(circle_demos):
                             seed=0, run_dir=None, progress=False)
     batch = trainer.collect()
     obs = batch["obs"].reshape(-1, 2)
-    act_in = trainer._act_input(batch["acts"].reshape(-1, 2))
+    act_in = trainer.act_input(batch["acts"].reshape(-1, 2))
     first = trainer.update_discriminator(obs, act_in)["disc/loss"]
     for _ in range(200):
         last = trainer.update_discriminator(obs, act_in)

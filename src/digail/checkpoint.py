@@ -16,6 +16,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from digail.errors import UserError
@@ -127,3 +128,36 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
         "extra": payload.get("extra", {}),
     }
     return model.to(device).eval(), meta
+
+
+# ------------------------------------------------------------------------------------- training state
+def save_training_state(path: Path, state: dict[str, Any]) -> None:
+    """Atomically write a trainer's full state (tensors, numbers, strings, nested dicts: weights_only-loadable)."""
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def load_training_state(path: Path, device: str | torch.device = "cpu") -> dict[str, Any]:
+    """What `save_training_state` wrote, loaded with `weights_only=True`."""
+    return torch.load(Path(path), map_location=device, weights_only=True)
+
+
+def rng_state(gen: torch.Generator, np_rng: np.random.Generator) -> dict[str, Any]:
+    """torch's global RNG, a torch generator and a NumPy PCG64 generator as checkpointable data (the NumPy
+    state's 128-bit integers as strings, which `weights_only` loading accepts)."""
+    st = np_rng.bit_generator.state
+    return {"torch": torch.get_rng_state(), "gen": gen.get_state(),
+            "numpy": {"state": str(st["state"]["state"]), "inc": str(st["state"]["inc"]),
+                      "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}}
+
+
+def set_rng_state(state: dict[str, Any], gen: torch.Generator, np_rng: np.random.Generator) -> None:
+    """Restore what `rng_state` captured."""
+    torch.set_rng_state(state["torch"])
+    gen.set_state(state["gen"])
+    data = state["numpy"]
+    st = dict(np_rng.bit_generator.state)
+    st["state"] = {"state": int(data["state"]), "inc": int(data["inc"])}
+    st["has_uint32"], st["uinteger"] = int(data["has_uint32"]), int(data["uinteger"])
+    np_rng.bit_generator.state = st

@@ -197,8 +197,8 @@ class Preset:
     """episodes for `digail evaluate` (paper: 300)"""
 
 
-def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any]) -> Preset:
-    return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)))
+def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eval_episodes: int = 300) -> Preset:
+    return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)), eval_episodes)
 
 
 PRESETS: dict[str, Preset] = {
@@ -262,11 +262,12 @@ PRESETS: dict[str, Preset] = {
         dict(iterations=2000, bonus_weight=0.01, bc_weight=0.0),
         dict(batch_size=4096, minibatch_size=512, compile=True),
     ),
-    # A few seconds end to end: for tests and trying the commands.
+    # A few seconds end to end on every env: for tests and trying the commands.
     "smoke": _preset(
         dict(codes=2, epochs=5, batch_size=8),
         dict(iterations=2, checkpoint_every=1, value_warmup=0),
         dict(num_envs=2, batch_size=64, epochs=2, minibatch_size=32),
+        eval_episodes=5,
     ),
 }
 

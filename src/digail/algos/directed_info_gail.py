@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from digail.algos.gail import GAIL
+from digail.algos.gail import GAIL, RewardFn
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -44,15 +44,15 @@ class DirectedInfoGAIL(GAIL):
         self._replay_table = np.full((len(self.replay_codes) + 1, length + 1), -1, dtype=np.int64)
         self._replay_table[:-1, :length] = self.replay_codes
 
-    def _start_episodes(self, idx: np.ndarray) -> None:
-        super()._start_episodes(idx)
+    def start_episodes(self, idx: np.ndarray) -> None:
+        super().start_episodes(idx)
         demo = self.np_rng.integers(len(self.replay_codes), size=len(idx))
         self.codes_state.replay_idx[idx] = np.where(idx < self.n_replay, demo, -1)
 
     def _is_closed_loop(self, i: int) -> bool:
         return i >= self.n_replay
 
-    def _choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
+    def choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
                       env_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """c_t and log q(c_t | s_t, c_{t-1}) for the envs `env_idx`; obs_n, prev and t_ep are aligned with it.
 
@@ -76,7 +76,7 @@ class DirectedInfoGAIL(GAIL):
 # -------------------------------------------------------------------------------------------- the trainer
 def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae_model: HierarchicalPolicy | None,
                   seed: int, run_dir: Path | None, device: str | torch.device = "cpu",
-                  progress: bool = True) -> GAIL:
+                  progress: bool = True, reward_fn: RewardFn | None = None) -> GAIL:
     """The trainer for `cfg.method` with its policy initialised as configured.
 
     digail needs the pre-trained VAE (its q and normaliser; its decoder initialises pi when `init_from_vae`).
@@ -93,7 +93,7 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
             fresh = HierarchicalPolicy(model.obs_dim, model.codes, model.action, cfg.hidden, pi_obs=model.pi_obs)
             model.pi.load_state_dict(fresh.pi.state_dict())
         return DirectedInfoGAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device,
-                                progress=progress)
+                                progress=progress, reward_fn=reward_fn)
     obs_dim = int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1])
     from digail.envs import make_env
 
@@ -102,4 +102,5 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
     probe.close()
     model = HierarchicalPolicy(obs_dim, 1, action, cfg.hidden)
     model.normalizer.fit(np.concatenate([np.asarray(t.obs) for t in demos]))
-    return GAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device, progress=progress)
+    return GAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device, progress=progress,
+                reward_fn=reward_fn)

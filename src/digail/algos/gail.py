@@ -11,7 +11,6 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,42 +20,25 @@ import torch
 from torch import nn
 
 from digail.algos.decode import segment_many
+from digail.algos.discriminator import discriminator_update
 from digail.algos.optim import adam
-from digail.algos.ppo import LeanStep, PPOBatch, compute_gae, maybe_compiled, ppo_update
-from digail.algos.rollout import VecEnv, env_action_fn
+from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
+from digail.algos.rollout import CodeState, RolloutState, VecEnv, collect_rollout
+from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
+from digail.envs.actions import env_action_fn
 from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
-from digail.utils import atomic_write_bytes, seed_everything
+from digail.utils import seed_everything
+
+RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
+"""(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
 
 CHECKPOINT_VERSION = 2
 """2: the PPO optimiser holds two parameter groups (policy, value), for `PPOConfig.policy_lr`"""
-
-
-def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
-              ) -> tuple[torch.Tensor, torch.Tensor]:
-    """D's binary cross-entropy on ready [obs, action] inputs, agent labelled 0 and expert 1; also the detached
-    (loss, agent accuracy, expert accuracy)."""
-    logits_agent, logits_expert = disc.net(x_agent).squeeze(-1), disc.net(x_expert).squeeze(-1)
-    bce = nn.functional.binary_cross_entropy_with_logits
-    loss = bce(logits_agent, torch.zeros_like(logits_agent)) + bce(logits_expert, torch.ones_like(logits_expert))
-    parts = torch.stack([loss, (logits_agent < 0).float().mean(), (logits_expert > 0).float().mean()])
-    return loss, parts.detach()
-
-
-@dataclass
-class CodeState:
-    """Per-env macro-policy state during rollouts."""
-
-    prev: np.ndarray
-    """(N,) previous code, -1 at an episode start (the start input c_{-1})"""
-    t_ep: np.ndarray
-    """(N,) step index within the current episode"""
-    replay_idx: np.ndarray
-    """(N,) expert demonstration whose code sequence the env replays (ignored for closed-loop envs)"""
 
 
 class GAIL:
@@ -71,14 +53,20 @@ class GAIL:
         seed: seeds torch, NumPy and the environments.
         run_dir: where checkpoints and scalars go (None: nowhere, e.g. in tests).
         device: torch device of the networks.
+        progress: show a progress bar while training.
+        reward_fn: the policy's reward before the bonus from D's `logits_expert_is_high` (T, N) and the rollout
+            batch (default: `generator_reward(logits, cfg.reward)`; e.g. `lambda logits, batch: batch["rews"]`
+            trains on the env's own reward).
     """
 
     method = "gail"
 
     def __init__(self, env_id: str, demos: list[Trajectory], model: HierarchicalPolicy, cfg: TrainConfig, *,
                  seed: int = 0, run_dir: Path | None = None, device: str | torch.device = "cpu",
-                 progress: bool = True) -> None:
+                 progress: bool = True, reward_fn: RewardFn | None = None) -> None:
         self.env_id, self.cfg, self.seed = env_id, cfg, seed
+        self.reward_fn: RewardFn = reward_fn or (lambda logits, batch: generator_reward(logits, cfg.reward))
+        """the policy's reward before the bonus, from D's logits (T, N) and the rollout batch"""
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.device = torch.device(device)
         self.progress = progress
@@ -119,7 +107,7 @@ class GAIL:
         self.recent_returns: deque[float] = deque(maxlen=50)
         self.recent_lengths: deque[float] = deque(maxlen=50)
         self.recent_closed_returns: deque[float] = deque(maxlen=50)
-        self._obs: torch.Tensor | None = None  # normalised observations where the next rollout starts
+        self.rollout_state: RolloutState | None = None  # where the next rollout continues (None: fresh episodes)
         self._q_snap: Any = None  # weight snapshot of q, set for the duration of a rollout
         self._logger: ScalarLogger | None = None
         self.model_config: dict[str, Any] = {"kind": self.method, "method": self.method, "env_id": env_id,
@@ -137,7 +125,7 @@ class GAIL:
             self.exp_acts = torch.as_tensor(acts_np, dtype=torch.long, device=self.device)
         else:
             self.exp_acts = torch.as_tensor(acts_np, dtype=torch.float32, device=self.device)
-        self.exp_act_in = self._act_input(self.exp_acts)
+        self.exp_act_in = self.act_input(self.exp_acts)
         self.exp_disc_in = torch.cat([self.exp_obs_n, self.exp_act_in], -1)  # D's input, built once
         seqs = segment_many(self.model, demos)
         self.exp_codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=self.device)
@@ -146,23 +134,19 @@ class GAIL:
         for i, s in enumerate(seqs):
             self.replay_codes[i, : len(s)] = s
 
-    def _act_input(self, acts: torch.Tensor) -> torch.Tensor:
+    def act_input(self, acts: torch.Tensor) -> torch.Tensor:
         """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
         if self.discrete:
             return nn.functional.one_hot(acts.long(), self.n_actions).float()
         return self._to_env_actions(acts)
 
     # ----------------------------------------------------------------------------------- macro-policy hooks
-    def _new_code_state(self, n: int) -> CodeState:
-        return CodeState(prev=np.full(n, -1, dtype=np.int64), t_ep=np.zeros(n, dtype=np.int64),
-                         replay_idx=np.zeros(n, dtype=np.int64))
-
-    def _start_episodes(self, idx: np.ndarray) -> None:
+    def start_episodes(self, idx: np.ndarray) -> None:
         """Reset the code state of the envs in `idx` at an episode start."""
         self.codes_state.prev[idx] = -1
         self.codes_state.t_ep[idx] = 0
 
-    def _choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
+    def choose_codes(self, obs_n: np.ndarray, prev: np.ndarray, t_ep: np.ndarray,
                       env_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Codes c_t for normalised observations s_t given integer c_{t-1}, and log q(c_t | s_t, c_{t-1}), in
         NumPy (the rollout's hot path). One code: always 0."""
@@ -170,19 +154,18 @@ class GAIL:
         return np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.float32)
 
     # ------------------------------------------------------------------------------------------ rollouts
-    def _reset_envs(self) -> torch.Tensor:
+    def _reset_envs(self) -> RolloutState:
+        """Fresh episodes in every env, seeded from (seed, iteration), and their first codes."""
         base = self.seed * 100_003 + self.iteration * 1_009
         obs, _ = self.envs.reset([base + i for i in range(self.envs.num_envs)])
         n = self.envs.num_envs
-        self.codes_state = self._new_code_state(n)
-        self._start_episodes(np.arange(n))
-        self.ep_returns = np.zeros(n)
-        self.ep_lengths = np.zeros(n, dtype=np.int64)
-        obs_n = self._normalize(obs)
-        self._codes, _ = self._choose_codes(obs_n.cpu().numpy(), self.codes_state.prev, self.codes_state.t_ep,
-                                            np.arange(n))
-        self.codes_state.prev = self._codes.copy()
-        return obs_n
+        self.codes_state = CodeState.new(n)
+        self.start_episodes(np.arange(n))
+        obs_n = self._normalize(obs).cpu().numpy()
+        codes, _ = self.choose_codes(obs_n, self.codes_state.prev, self.codes_state.t_ep, np.arange(n))
+        self.codes_state.prev = codes.copy()
+        return RolloutState(obs_n=obs_n, codes=codes, code_state=self.codes_state, ep_returns=np.zeros(n),
+                            ep_lengths=np.zeros(n, dtype=np.int64))
 
     def _env_actions(self, a: np.ndarray) -> np.ndarray:
         """Sampled actions -> what the envs execute; non-finite continuous actions stop the run."""
@@ -201,21 +184,14 @@ class GAIL:
 
     @torch.no_grad()
     def collect(self) -> dict[str, torch.Tensor]:
-        """One rollout of `steps_per_env` steps in every env: the on-policy batch, env rewards and the bonus.
-
-        The hot path runs in NumPy, where a step costs a few microseconds per array operation instead of torch's
-        dispatch per op: the networks run from float32 weight snapshots (`digail.nets.fast`, one forward for pi
-        and V together), the action noise is drawn from `np_rng` once per rollout, and the batch fills
-        preallocated arrays that become tensors once at the end.
-        """
+        """One rollout of `steps_per_env` steps in every env (`collect_rollout`) as tensors on the device."""
         from digail.nets.fast import ActorCritic, CodeMLP
 
-        cfg = self.cfg.ppo
-        T, N, obs_dim = cfg.steps_per_env, self.envs.num_envs, self.model.obs_dim
+        obs_dim = self.model.obs_dim
         ac = ActorCritic(self.model.pi, self.value, obs_dim)
         self._q_snap = CodeMLP([self.model.q.net], obs_dim) if self.K > 1 else None
-        if self._obs is None:
-            self._obs = self._reset_envs()
+        if self.rollout_state is None:
+            self.rollout_state = self._reset_envs()
         norm = self.model.normalizer
         mean, std, clip = norm.mean.cpu().numpy(), norm.std.cpu().numpy(), float(norm.clip)
 
@@ -225,83 +201,31 @@ class GAIL:
             np.maximum(x, -clip, out=x)
             return np.minimum(x, clip, out=x)
 
-        b_obs = np.empty((T, N, obs_dim), np.float32)
-        b_codes = np.empty((T, N), np.int64)
-        b_acts = (np.empty((T, N), np.int64) if ac.discrete else np.empty((T, N, ac.act_dim), np.float32))
-        b_logp, b_values, b_bonus = (np.empty((T, N), np.float32) for _ in range(3))
-        b_final_values = np.zeros((T, N), np.float32)
-        b_term, b_trunc = np.empty((T, N), bool), np.empty((T, N), bool)
-        noise = ac.sample_noise(self.np_rng, (T, N))
-        state, all_idx = self.codes_state, np.arange(N)
-        obs_n, codes, prev = self._obs.cpu().numpy(), self._codes, state.prev
-        for t in range(T):
-            acts, b_logp[t], b_values[t] = ac.sample(obs_n, codes, noise[t])
-            b_obs[t], b_codes[t], b_acts[t] = obs_n, codes, acts
-            next_obs, rews, terms, truncs, _, final = self.envs.step(self._env_actions(acts))
-            self.ep_returns += rews
-            self.ep_lengths += 1
-            state.t_ep += 1
-            next_n = normalize(next_obs)
-            if final:
-                done = np.fromiter(final, dtype=np.int64, count=len(final))
-                final_n = normalize(np.stack([final[i][0] for i in done]))
-                # the bonus scores the state the step produced: the final observation where an episode ended
-                bonus_obs = next_n.copy()
-                bonus_obs[done] = final_n
-                codes, b_bonus[t] = self._choose_codes(bonus_obs, prev, state.t_ep, all_idx)
-                tr = truncs[done]
-                if tr.any():  # a time limit is bootstrapped from V(final obs, its code)
-                    b_final_values[t, done[tr]] = ac.value(final_n[tr], codes[done[tr]])
-                for i in done:
-                    self._episode_done(int(i))
-                self._start_episodes(done)  # the start input c_{-1} in prev
-                codes[done], _ = self._choose_codes(next_n[done], prev[done], state.t_ep[done], done)
-            else:
-                codes, b_bonus[t] = self._choose_codes(next_n, prev, state.t_ep, all_idx)
-            b_term[t], b_trunc[t] = terms, truncs
-            prev[:] = codes
-            obs_n = next_n
-        dev = self.device
-        self._obs, self._codes = torch.from_numpy(obs_n).to(dev), codes
+        T = self.cfg.ppo.steps_per_env
+        batch = collect_rollout(self.envs, ac, self.rollout_state, T, self.np_rng, normalize=normalize,
+                                choose_codes=self.choose_codes, start_episodes=self.start_episodes,
+                                episode_done=self._episode_done, env_actions=self._env_actions)
         self._q_snap = None
-        self.global_step += T * N
-        batch = dict(obs=b_obs, codes=b_codes, acts=b_acts, logp=b_logp, values=b_values, bonus=b_bonus,
-                     final_values=b_final_values, terminated=b_term, truncated=b_trunc,
-                     last_values=ac.value(obs_n, codes))
-        return {k: torch.from_numpy(v).to(dev) for k, v in batch.items()}
+        self.global_step += T * self.envs.num_envs
+        return {k: torch.from_numpy(v).to(self.device) for k, v in batch.items()}
 
     def _episode_done(self, i: int) -> None:
-        self.recent_returns.append(float(self.ep_returns[i]))
-        self.recent_lengths.append(float(self.ep_lengths[i]))
+        assert self.rollout_state is not None
+        ret = float(self.rollout_state.ep_returns[i])
+        self.recent_returns.append(ret)
+        self.recent_lengths.append(float(self.rollout_state.ep_lengths[i]))
         if self._is_closed_loop(i):
-            self.recent_closed_returns.append(float(self.ep_returns[i]))
-        self.ep_returns[i] = 0.0
-        self.ep_lengths[i] = 0
+            self.recent_closed_returns.append(ret)
 
     def _is_closed_loop(self, i: int) -> bool:
         return True
 
     # ------------------------------------------------------------------------------------- discriminator
     def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> dict[str, float]:
-        """Binary cross-entropy on agent (label 0) vs expert (label 1) pairs; returns loss and accuracies."""
-        n = len(obs_n)
-        half = max(1, self.cfg.disc_minibatch_size // 2)
-        x_agent = torch.cat([obs_n, act_in], -1)
-        loss_fn = maybe_compiled(disc_loss, self.cfg.ppo.compile)
-        step = LeanStep(self.disc_optimizer, None)
-        stats = []
-        for _ in range(self.cfg.disc_updates):
-            perm = torch.randperm(n, generator=self.gen)
-            for start in range(0, n - half + 1, half):
-                e_idx = torch.randint(len(self.exp_disc_in), (half,), generator=self.gen)
-                loss, parts = loss_fn(self.disc, x_agent[perm[start:start + half]], self.exp_disc_in[e_idx])
-                self.disc_optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                step()
-                stats.append(parts)
-        loss_mean, acc_agent, acc_expert = torch.stack(stats).mean(0).tolist() if stats else [0.0] * 3
-        return {"disc/loss": loss_mean, "disc/acc_agent": acc_agent, "disc/acc_expert": acc_expert,
-                "disc/accuracy": 0.5 * (acc_agent + acc_expert)}
+        """`discriminator_update` on this rollout's (normalised obs, D-action) pairs against the expert's."""
+        return discriminator_update(self.disc, self.disc_optimizer, torch.cat([obs_n, act_in], -1), self.exp_disc_in,
+                                    updates=self.cfg.disc_updates, minibatch_size=self.cfg.disc_minibatch_size,
+                                    gen=self.gen, compile=self.cfg.ppo.compile)
 
     # ---------------------------------------------------------------------------------------- iteration
     def _bc_loss(self) -> torch.Tensor:
@@ -336,11 +260,11 @@ class GAIL:
         T, N = batch["logp"].shape
         flat_obs = batch["obs"].reshape(T * N, -1)
         flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
-        act_in = self._act_input(flat_acts)
+        act_in = self.act_input(flat_acts)
         stats = self.update_discriminator(flat_obs, act_in)
         with torch.no_grad():
             logits = self.disc(flat_obs, act_in).reshape(T, N)
-            disc_rew = generator_reward(logits, self.cfg.reward)
+            disc_rew = self.reward_fn(logits, batch)
             bonus = self.cfg.bonus_weight * batch["bonus"]
             rews = disc_rew + bonus
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
@@ -433,11 +357,7 @@ class GAIL:
             "disc": self.disc.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "disc_optimizer": self.disc_optimizer.state_dict(),
-            "rng": {
-                "torch": torch.get_rng_state(),
-                "gen": self.gen.get_state(),
-                "numpy": _np_state_to_tensors(self.np_rng),
-            },
+            "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
             "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
         }
@@ -455,41 +375,17 @@ class GAIL:
         self.disc.load_state_dict(state["disc"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
-        torch.set_rng_state(state["rng"]["torch"])
-        self.gen.set_state(state["rng"]["gen"])
-        _np_state_from_tensors(self.np_rng, state["rng"]["numpy"])
+        set_rng_state(state["rng"], self.gen, self.np_rng)
         self.recent_returns.extend(state["recent_returns"].tolist())
         if self._anchor_pi is not None and state.get("anchor_pi") is not None:
             self._anchor_pi.load_state_dict(state["anchor_pi"])
-        self._obs = None  # envs restart with fresh episodes seeded from (seed, iteration)
+        self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)
 
     def save_checkpoint(self, path: Path) -> None:
-        """Atomically write the full training state (weights_only-loadable)."""
-        import io
-
-        buf = io.BytesIO()
-        torch.save(self.state_dict(), buf)
-        atomic_write_bytes(Path(path), buf.getvalue())
-        self._save_model(Path(path).parent / "model.pt")
-
-    def _save_model(self, path: Path) -> None:
-        from digail.checkpoint import save_model
-
-        save_model(path, self.model, kind=self.method, config=self.model_config, env_id=self.env_id)
+        """Atomically write the full training state (weights_only-loadable) and, beside it, `model.pt`."""
+        save_training_state(Path(path), self.state_dict())
+        save_model(Path(path).parent / "model.pt", self.model, kind=self.method, config=self.model_config,
+                   env_id=self.env_id)
 
     def load_checkpoint(self, path: Path) -> None:
-        self.load_state_dict(torch.load(path, map_location=self.device, weights_only=True))
-
-
-def _np_state_to_tensors(rng: np.random.Generator) -> dict[str, Any]:
-    st = rng.bit_generator.state
-    return {"state": str(st["state"]["state"]), "inc": str(st["state"]["inc"]),
-            "has_uint32": int(st["has_uint32"]), "uinteger": int(st["uinteger"])}
-
-
-def _np_state_from_tensors(rng: np.random.Generator, data: dict[str, Any]) -> None:
-    st = dict(rng.bit_generator.state)
-    st["state"] = {"state": int(data["state"]), "inc": int(data["inc"])}
-    st["has_uint32"], st["uinteger"] = int(data["has_uint32"]), int(data["uinteger"])
-    rng.bit_generator.state = st
-
+        self.load_state_dict(load_training_state(Path(path), self.device))

@@ -28,6 +28,7 @@ from digail.data.minari_io import (
 )
 from digail.data.trajectory import Trajectory
 from digail.envs import make_env
+from digail.envs.episodes import play_episode
 from digail.envs.registry import env_spec
 from digail.errors import UserError
 from digail.experts import Policy, expert_for
@@ -56,35 +57,26 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
     observation. Actions are stored as given to the env (int64 for Discrete, float32 otherwise).
     """
     discrete = isinstance(env.action_space, gym.spaces.Discrete)
+
+    def act(env: gym.Env, obs: Any) -> Any:
+        action = policy(env, obs)
+        return int(action) if discrete else np.asarray(action, dtype=np.float32).reshape(env.action_space.shape)
+
     trajs: list[Trajectory] = []
     returns: list[float] = []
     bar = tqdm(range(episodes), desc=desc, unit="ep")
     for i in bar:
-        obs, info = env.reset(seed=seed + i)
-        obs_rows = [_flat(obs, env.observation_space)]
-        acts, rews = [], []
-        labels = [info.get(SUBTASK_KEY)]
-        while True:
-            action = policy(env, obs)
-            action = int(action) if discrete else np.asarray(action, dtype=np.float32).reshape(
-                env.action_space.shape)
-            obs, reward, terminated, truncated, info = env.step(action)
-            obs_rows.append(_flat(obs, env.observation_space))
-            acts.append(action)
-            rews.append(float(reward))
-            labels.append(info.get(SUBTASK_KEY))
-            if terminated or truncated:
-                break
-        has_labels = all(label is not None for label in labels)
+        ep = play_episode(env, act, seed + i, keep=True)
+        labels = [info.get(SUBTASK_KEY) for info in ep.infos]
         trajs.append(Trajectory(
-            obs=np.asarray(obs_rows, dtype=np.float32),
-            acts=np.asarray(acts, dtype=np.int64 if discrete else np.float32),
-            rews=np.asarray(rews, dtype=np.float32),
-            subtasks=np.asarray(labels, dtype=np.int64) if has_labels else None,
-            terminated=bool(terminated),
+            obs=np.asarray([_flat(o, env.observation_space) for o in ep.obs], dtype=np.float32),
+            acts=np.asarray(ep.acts, dtype=np.int64 if discrete else np.float32),
+            rews=np.asarray(ep.rews, dtype=np.float32),
+            subtasks=np.asarray(labels, dtype=np.int64) if all(lb is not None for lb in labels) else None,
+            terminated=ep.terminated,
         ))
-        returns.append(float(np.sum(rews)))
-        bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=len(acts))
+        returns.append(float(np.sum(ep.rews)))
+        bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=ep.length)
     return trajs
 
 

@@ -6,8 +6,12 @@ states, exactly what segmentation does offline. `digail compose` swaps q for a u
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
+import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -15,27 +19,18 @@ import torch
 
 from digail.envs import make_env
 from digail.envs.actions import env_action_fn
+from digail.envs.episodes import Episode, play_episodes
 from digail.errors import UserError
 from digail.experts import expert_for
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
+from digail.utils import write_json
+from digail.version import __version__
 
 # Final-info keys an env may report, and how eval.json names their aggregate.
 RATE_KEYS = {"is_success": "success_rate", "order_correct": "order_correct_rate",
              "order_reversed": "order_reversed_rate"}
 MEAN_KEYS = ("radius_error", "closure_error")
-
-
-@dataclass
-class Episode:
-    """One evaluated episode."""
-
-    ret: float
-    length: int
-    reset_info: dict[str, Any]
-    final_info: dict[str, Any]
-    codes: list[int] = field(default_factory=list)
-    obs: list[np.ndarray] = field(default_factory=list)
 
 
 @torch.no_grad()
@@ -61,7 +56,7 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
         next_ep += 1
         obs, info = env.reset(seed=seed + ep)
         slots.append(dict(env=env, ep=ep, obs=obs, prev=-1, t=0,
-                          rec=Episode(0.0, 0, info, {}, [], [obs] if ep < keep_obs else [])))
+                          rec=Episode(0.0, 0, info, obs=[obs] if ep < keep_obs else [])))
     while slots:
         obs_t = torch.as_tensor(np.stack([np.asarray(s["obs"], np.float32) for s in slots]), device=device)
         obs_n = model.normalizer(obs_t)
@@ -93,7 +88,7 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
                     next_ep += 1
                     obs, info = s["env"].reset(seed=seed + ep)
                     s.update(ep=ep, obs=obs, prev=-1, t=0,
-                             rec=Episode(0.0, 0, info, {}, [], [obs] if ep < keep_obs else []))
+                             rec=Episode(0.0, 0, info, obs=[obs] if ep < keep_obs else []))
                     keep.append(s)
             else:
                 keep.append(s)
@@ -131,27 +126,57 @@ def summarize(episodes: list[Episode]) -> dict[str, Any]:
             "mean_length": float(np.mean([e.length for e in episodes])), **task_metrics(episodes)}
 
 
+def expert_cache_file() -> Path:
+    """Where measured expert returns are kept: `$DIGAIL_CACHE_DIR`, else `$XDG_CACHE_HOME/digail`, else
+    `~/.cache/digail`, in `expert_returns.json`."""
+    root = os.environ.get("DIGAIL_CACHE_DIR") or str(
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "digail")
+    return Path(root) / "expert_returns.json"
+
+
+def _expert_key(env_id: str, kind: str, episodes: int, seed: int) -> str:
+    """What a measurement depends on: env, episodes, seeds, the expert (its weights' hash for an RL expert) and the
+    digail version (which fixes the envs and the scripted experts)."""
+    weights = ""
+    if kind == "rl":
+        from digail.experts.rl import shipped_expert_path
+
+        path = shipped_expert_path(env_id)
+        weights = hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.is_file() else "missing"
+    return f"{env_id}|episodes={episodes}|seed={seed}|{kind}{':' + weights if weights else ''}|{__version__}"
+
+
 def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | None:
-    """The expert measured the same way as the agent: same env, seeds and episode count."""
+    """The expert measured the same way as the agent: same env, seeds and episode count (None: no expert).
+
+    Measured once per (env, episodes, seed, expert) and kept in `expert_cache_file()`: the expert is deterministic
+    on seeded episodes, so every later evaluation reads the same numbers instead of playing them again.
+    """
     try:
-        policy, _ = expert_for(env_id)
+        policy, kind = expert_for(env_id)
     except (UserError, OSError):  # no expert for this env: nothing to normalise by
         return None
+    cache = expert_cache_file()
+    key = _expert_key(env_id, kind, episodes, seed)
+    try:
+        known = json.loads(cache.read_text()) if cache.is_file() else {}
+    except (OSError, ValueError):  # an unreadable cache is measured again and rewritten
+        known = {}
+    if isinstance(known, dict) and isinstance(known.get(key), dict):
+        return dict(known[key])
     env = make_env(env_id)
-    eps = []
-    for e in range(episodes):
-        obs, info = env.reset(seed=seed + e)
-        rec = Episode(0.0, 0, info, {})
-        while True:
-            obs, r, term, trunc, info = env.step(policy(env, obs))
-            rec.ret += float(r)
-            rec.length += 1
-            if term or trunc:
-                rec.final_info = info
-                break
-        eps.append(rec)
+    eps = play_episodes(env, policy, episodes, seed)
     env.close()
-    return summarize(eps)
+    result = summarize(eps)
+    try:
+        fresh = json.loads(cache.read_text()) if cache.is_file() else {}
+        fresh = fresh if isinstance(fresh, dict) else {}
+    except (OSError, ValueError):
+        fresh = {}
+    fresh[key] = result
+    with contextlib.suppress(OSError):  # a read-only home only costs the next evaluation a re-measurement
+        write_json(cache, fresh)
+    return result
 
 
 def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: int = 10_000,

@@ -61,20 +61,15 @@ def evaluate_fetch_expert(episodes: int = 50, seed: int = 10_000) -> dict[str, A
     Also counts the episodes whose phase labels do not run 0 -> 1 -> 2 -> 3 one stage at a time.
     """
     from digail.envs import make_env
+    from digail.envs.episodes import play_episodes
 
     env = make_env(FETCH_ENV_ID)
-    successes, returns, out_of_order = [], [], 0
-    for i in range(episodes):
-        _, info = env.reset(seed=seed + i)
-        labels, total = [info["subtask"]], 0.0
-        while True:
-            _, reward, terminated, truncated, info = env.step(fetch_expert(env))
-            labels.append(info["subtask"])
-            total += float(reward)
-            if terminated or truncated:
-                break
-        successes.append(bool(info["is_success"]))
-        returns.append(total)
+    eps = play_episodes(env, lambda env, obs: fetch_expert(env), episodes, seed, keep=True)
+    successes = [bool(ep.final_info["is_success"]) for ep in eps]
+    returns = [ep.ret for ep in eps]
+    out_of_order = 0
+    for ep in eps:
+        labels = [info["subtask"] for info in ep.infos]
         steps = set(np.diff(labels).tolist())
         out_of_order += int(labels[0] != Phase.REACH or not steps <= {0, 1})
     env.close()

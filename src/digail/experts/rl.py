@@ -284,24 +284,13 @@ def shipped_envs() -> list[str]:
 def evaluate_expert(env_id: str, policy: Callable[[np.ndarray], np.ndarray], episodes: int,
                     seed: int) -> dict[str, Any]:
     """Roll `policy` for `episodes` episodes (episode i reset with seed + i); raw undiscounted returns."""
-    import gymnasium as gym
+    from digail.envs import make_env
+    from digail.envs.episodes import play_episodes
 
-    from digail.envs import register_envs
-
-    register_envs()
-    env = gym.make(env_id)
-    returns, lengths = [], []
-    for i in range(episodes):
-        obs, _ = env.reset(seed=seed + i)
-        total, steps, done = 0.0, 0, False
-        while not done:
-            obs, rew, terminated, truncated, _ = env.step(policy(obs))
-            total += float(rew)
-            steps += 1
-            done = terminated or truncated
-        returns.append(total)
-        lengths.append(steps)
+    env = make_env(env_id)
+    eps = play_episodes(env, lambda env, obs: policy(obs), episodes, seed)
     env.close()
+    returns, lengths = [e.ret for e in eps], [e.length for e in eps]
     return {"env_id": env_id, "episodes": episodes, "seed": seed, "mean": float(np.mean(returns)),
             "std": float(np.std(returns)), "min": float(np.min(returns)), "max": float(np.max(returns)),
             "mean_length": float(np.mean(lengths)), "returns": returns}

@@ -68,43 +68,48 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
             frame on a loaded CPU); None plays them to their end.
     """
+    import gymnasium as gym
+
     from digail.envs import make_env
     from digail.envs.actions import env_action_fn
+    from digail.envs.episodes import play_episode
 
     if render:
         ensure_offscreen_gl()
     model.eval()
     device = next(model.parameters()).device
     env = make_env(env_id, render_mode="rgb_array") if render else make_env(env_id)
+    if max_steps is not None:
+        env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)  # the cut reads as a truncation
     to_env = env_action_fn(env)
     eye = torch.eye(model.codes, device=device)
-    out = []
+    out: list[RenderedEpisode] = []
+    rec = RenderedEpisode()
+
+    def act(env: Any, obs: Any) -> Any:
+        """Frame, code (schedule, or argmax q given the previous code), then pi's action."""
+        if render:
+            rec.frames.append(np.asarray(env.render()))
+        t = len(rec.codes)
+        obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32), device=device)[None])
+        if schedule is not None:
+            code = int(schedule[min(t, len(schedule) - 1)])
+        else:
+            prev = rec.codes[-1] if rec.codes else -1
+            code = int(model.q(obs_n, one_hot(torch.tensor([prev], device=device), model.codes)).argmax(-1))
+        rec.codes.append(code)
+        code_1h = eye[[code]]
+        action = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
+        action_np = action.cpu().numpy()
+        return (to_env(action_np) if to_env is not None else action_np)[0]
+
     try:
         for e in range(episodes):
-            obs, _ = env.reset(seed=seed + e)
-            rec = RenderedEpisode(obs=[np.asarray(obs)])
-            prev, t = -1, 0
-            while True:
-                if render:
-                    rec.frames.append(np.asarray(env.render()))
-                obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32), device=device)[None])
-                if schedule is not None:
-                    code = int(schedule[min(t, len(schedule) - 1)])
-                else:
-                    code = int(model.q(obs_n, one_hot(torch.tensor([prev], device=device), model.codes)).argmax(-1))
-                code_1h = eye[[code]]
-                act = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
-                act_np = act.cpu().numpy()
-                act_np = (to_env(act_np) if to_env is not None else act_np)[0]
-                obs, r, term, trunc, _ = env.step(act_np)
-                rec.codes.append(code)
-                rec.obs.append(np.asarray(obs))
-                rec.ret += float(r)
-                prev, t = code, t + 1
-                if term or trunc or (max_steps is not None and t >= max_steps):
-                    if render:
-                        rec.frames.append(np.asarray(env.render()))
-                    break
+            rec = RenderedEpisode()
+            ep = play_episode(env, act, seed + e, keep=True)
+            if render:
+                rec.frames.append(np.asarray(env.render()))
+            rec.obs, rec.ret = [np.asarray(o) for o in ep.obs], ep.ret
             out.append(rec)
     finally:
         env.close()
