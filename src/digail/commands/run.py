@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import tyro
 
+from digail.errors import UserError
 from digail.utils import resolve_device, set_torch_threads, write_json
 
 
@@ -154,7 +155,10 @@ def run_command(args: RunArgs) -> Path:
     timings["segment_compose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     make_figures(run_dir, model=model, trajs=trajs)
-    record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000, max_steps=VIDEO_MAX_STEPS)
+    try:
+        record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000, max_steps=VIDEO_MAX_STEPS)
+    except UserError as exc:  # a missing renderer costs the video, not the run
+        print(f"      video skipped: {exc}")
     timings["figures_video_s"] = time.perf_counter() - t0
     write_json(run_dir / "timings.json", timings)
     report = write_report(run_dir)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from digail.errors import UserError
 from digail.nets.mlp import one_hot
 
 GIF_WIDTH = 320
@@ -111,6 +112,9 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
                 rec.frames.append(np.asarray(env.render()))
             rec.obs, rec.ret = [np.asarray(o) for o in ep.obs], ep.ret
             out.append(rec)
+    except gym.error.DependencyNotInstalled as exc:  # e.g. Pendulum-v1 draws with pygame
+        raise UserError(f"{env_id} cannot draw its frames here ({exc}); install that package to record a video."
+                        ) from None
     finally:
         env.close()
     return out
