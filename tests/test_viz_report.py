@@ -173,3 +173,10 @@ def test_minimal_run_folder_report(tmp_path):
     _check_page_text(text)
     assert "3,500" in text and "3.66e+03" not in text and "95%" in text or "0.95" in text
     assert "3,662" in text  # the paper's number for Hopper
+    assert "about as well as the expert" in text
+    # costs: a return 15 times the expert's negative one is far worse, not better
+    (tmp_path / "eval.json").write_text(json.dumps({"episodes": 2, "mean_return": -994.0, "std_return": 94.8,
+                                                    "normalized_return": 15.1, "expert": {"mean_return": -65.7}}))
+    (tmp_path / "config.json").write_text(json.dumps({"method": "digail", "env_id": "Pendulum-v1", "seed": 0}))
+    text = write_report(tmp_path).read_text()
+    assert "has not learned the task" in text and "-994" in text

@@ -199,8 +199,8 @@ FIGURE_CAPTIONS = {
     "generated": "Closed-loop rollouts of the hierarchical policy, coloured by code (left) and by time (right).",
     "compose": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
     "segmentation_pair": "Two segmentations of the same demonstrations side by side.",
-    "segmentation": "Segmentation of the demonstrations: codes (coloured as their matched label) above the oracle "
-                    "labels.",
+    "segmentation": "Segmentation of the demonstrations: codes per step, above the oracle labels where the "
+                    "environment has them (codes then take the colour of their matched label).",
     "codes_time": "Codes against time: demonstrations (decoded by q) and closed-loop rollouts.",
     "pca_codes": "States projected on their first two principal components, coloured by code.",
     "pendulum_code_map": "Pendulum: angle against angular velocity, coloured by the active code.",
@@ -237,14 +237,19 @@ def meaning(ev: Mapping[str, Any], cfg: Mapping[str, Any]) -> str:
     if not ev:
         return "This run has no evaluation yet (eval.json is missing); `digail evaluate RUN` makes one."
     score = _task_score(ev)
+    expert_return = (ev.get("expert") or {}).get("mean_return")
     ratio: float | None = None
     what = ""
     if score is not None and score[2]:
         ratio = score[1] / float(score[2])
         what = f"{_label(score[0])[0]} at {fmt(score[1], 'pct')} against the expert's {fmt(score[2], 'pct')}"
-    elif isinstance(ev.get("normalized_return"), int | float):
-        ratio = float(ev["normalized_return"])
-        what = f"{fmt(ratio, 'pct')} of the expert's return"
+    elif isinstance(ev.get("mean_return"), int | float) and isinstance(expert_return, int | float) \
+            and abs(expert_return) > 1e-6:
+        agent, exp = float(ev["mean_return"]), float(expert_return)
+        # how close to the expert, 1 = as good, whatever the sign of the rewards: with negative returns (costs)
+        # agent / expert grows as the agent gets worse, so the ratio is inverted there
+        ratio = agent / exp if exp > 0 else (exp / agent if agent < 0 else 1.0)
+        what = f"a return of {fmt(agent)} against the expert's {fmt(exp)} per episode"
     small = cfg.get("preset") == "smoke"
     if ratio is None:
         sentence = "There is no expert score to compare with, so judge the run by the figures below."
