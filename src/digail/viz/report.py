@@ -18,6 +18,7 @@ import base64
 import html
 import json
 import math
+import os
 import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -336,8 +337,9 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
                          "shows the episode, the step and the active code (its colour matches the figures)."
                          "</figcaption></figure>")
         if mp4s:
-            links = ", ".join(f"<a href='videos/{_esc(p.name)}'>{_esc(p.name)}</a> ({fmt(p.stat().st_size / 1e6)} MB)"
-                              for p in mp4s)
+            page_dir = (Path(out) if out is not None else run_dir / "report.html").resolve().parent
+            links = ", ".join(f"<a href='{_esc(Path(os.path.relpath(p.resolve(), page_dir)).as_posix())}'>"
+                              f"{_esc(p.name)}</a> ({fmt(p.stat().st_size / 1e6)} MB)" for p in mp4s)
             parts.append(f"<p>Full-rate MP4 files beside this page: {links}.</p>")
 
     figs = {p.stem: p for p in sorted((run_dir / "figures").glob("*.png"))} if (run_dir / "figures").is_dir() else {}
