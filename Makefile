@@ -23,7 +23,11 @@ venv: $(VENV)/.installed
 demo: venv
 	MUJOCO_GL=egl $(BIN)/digail run
 
+# the default run leaves out the long learning checks (marked slow); `make test-all` runs everything
 test: venv
+	MUJOCO_GL=egl $(BIN)/python -m pytest -q -m "not slow"
+
+test-all: venv
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q
 
 bench: venv

@@ -27,7 +27,7 @@ def expert_trajectories(env_id: str, episodes: int, seed: int = 0) -> list[Traje
     env = make_env(env_id)
     policy, kind = expert_for(env_id)
     assert kind == "scripted"
-    trajs = rollout_episodes(env, policy, episodes, seed, desc=f"test demos {env_id}")
+    trajs = rollout_episodes(env, policy, episodes, seed, progress=False)
     env.close()
     return trajs
 

@@ -14,15 +14,10 @@ import numpy as np
 import pytest
 
 from digail.data import minari_io
-from digail.data.minari_io import (
-    check_matches_env,
-    dataset_env_id,
-    flatten_dict_obs,
-    load_dataset,
-    resolve_dataset,
-    write_dataset,
-)
+from digail.data.minari_io import dataset_env_id, flatten_dict_obs, load_dataset, resolve_dataset
+from digail.data.minari_write import write_dataset
 from digail.data.trajectory import Trajectory
+from digail.data.validation import check_matches_env
 from digail.envs import make_env
 from digail.errors import UserError
 

@@ -16,14 +16,9 @@ from digail.data.demos import (
     record_demos,
     rollout_episodes,
 )
-from digail.data.minari_io import (
-    SHIPPED_ROOT,
-    check_matches_env,
-    dataset_env_id,
-    load_dataset,
-    shipped_dataset_ids,
-    write_dataset,
-)
+from digail.data.minari_io import SHIPPED_ROOT, dataset_env_id, load_dataset, shipped_dataset_ids
+from digail.data.minari_write import write_dataset
+from digail.data.validation import check_matches_env
 from digail.envs import make_env
 from digail.envs.registry import ENV_SPECS
 from digail.errors import UserError

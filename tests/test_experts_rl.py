@@ -16,7 +16,7 @@ from digail.commands.expert import ExpertArgs, expert_command
 from digail.errors import UserError
 from digail.experts.rl import (
     EXPERT_SPECS,
-    _build_model,
+    build_sb3_model,
     evaluate_expert,
     export_expert,
     load_expert,
@@ -52,7 +52,7 @@ def test_unsupported_env_is_one_sentence_and_exit_status_2(capsys: pytest.Captur
 
 def test_expert_file_for_another_env_or_not_an_expert_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "pendulum.pt"
-    model, venv = _build_model("Pendulum-v1", EXPERT_SPECS["Pendulum-v1"], seed=0, device="cpu")
+    model, venv = build_sb3_model("Pendulum-v1", EXPERT_SPECS["Pendulum-v1"], seed=0, device="cpu")
     export_expert(model, venv, "Pendulum-v1", path, {"steps": 0})
     with pytest.raises(UserError, match="trained for 'Pendulum-v1', not 'Hopper-v5'"):
         load_expert("Hopper-v5", path)
@@ -80,7 +80,7 @@ def test_resume_without_checkpoints_is_refused(tmp_path: Path) -> None:
 def test_exported_actor_matches_sb3_deterministic_actions(tmp_path: Path, recipe: str) -> None:
     """The pickle-free export reproduces SB3's own deterministic prediction, normalisation included."""
     torch.manual_seed(0)
-    model, venv = _build_model("Pendulum-v1", EXPERT_SPECS[recipe], seed=0, device="cpu")
+    model, venv = build_sb3_model("Pendulum-v1", EXPERT_SPECS[recipe], seed=0, device="cpu")
     rng = np.random.default_rng(0)
     venv.obs_rms.mean = rng.normal(size=3)
     venv.obs_rms.var = rng.uniform(0.1, 4.0, size=3)
@@ -137,7 +137,8 @@ def test_shipped_expert_loads_and_runs(env_id: str) -> None:
 @pytest.mark.parametrize("dataset_id", [pytest.param(d, marks=_maybe_mujoco(env)) for d, (env, _)
                                         in SHIPPED_DATASETS.items()])
 def test_shipped_dataset_validates_against_its_env(dataset_id: str) -> None:
-    from digail.data.minari_io import SHIPPED_ROOT, check_matches_env, load_dataset
+    from digail.data.minari_io import SHIPPED_ROOT, load_dataset
+    from digail.data.validation import check_matches_env
 
     if not (SHIPPED_ROOT / dataset_id).is_dir():
         pytest.skip(f"{dataset_id} is not shipped yet")
@@ -157,7 +158,8 @@ def test_shipped_dataset_validates_against_its_env(dataset_id: str) -> None:
 
 
 def test_dataset_for_another_env_is_refused() -> None:
-    from digail.data.minari_io import SHIPPED_ROOT, check_matches_env, load_dataset
+    from digail.data.minari_io import SHIPPED_ROOT, load_dataset
+    from digail.data.validation import check_matches_env
 
     if not (SHIPPED_ROOT / "digail/pendulum/expert-v0").is_dir():
         pytest.skip("the Pendulum dataset is not shipped yet")

@@ -88,7 +88,7 @@ def test_actor_critic_samples_follow_the_policy():
 
 def test_actor_critic_handles_a_policy_that_sees_part_of_the_observation():
     torch.manual_seed(0)
-    pi, v = SubtaskPolicy(5, 3, ActionSpec(False, 2), obs_slice=(1, 4)), ValueNet(5, 3)
+    pi, v = SubtaskPolicy(5, 3, ActionSpec(False, 2), pi_obs=(1, 4)), ValueNet(5, 3)
     ac = ActorCritic(pi, v, 5)
     obs, codes = torch.randn(9, 5), torch.randint(3, (9,))
     out = ac(obs.numpy(), codes.numpy())

@@ -14,12 +14,11 @@ import torch
 import torch.nn.functional as F
 
 from digail.algos.decode import segment_many
+from digail.algos.gumbel import gumbel_softmax_chain
+from digail.algos.polish import anticipate_switches, polish
 from digail.algos.vae_pretrain import (
-    anticipate_switches,
     categorical_kl,
-    gumbel_softmax_chain,
     pad_demos,
-    polish,
     pretrain,
     smoothing_penalty,
     vae_loss,

@@ -47,9 +47,8 @@ class VAEConfig:
     learn_prior: bool = True
     """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
     decoder_obs: tuple[int, int] | None = None
-    """observation features [start, stop) the sub-task policy pi sees (None: all; q always sees all); e.g. (0, 26)
-    in Four Rooms, the agent's position: with the goal in view pi needs no code and the codes carry nothing.
-    Not yet honoured by the GAIL trainer's fast rollout snapshots (digail.nets.fast)"""
+    """observation features [start, stop) the sub-task policy pi sees, kept in the model as `pi_obs` (None: all; q
+    always sees all); e.g. (0, 26) in Four Rooms, the agent's position: with the goal in view pi needs no code"""
     entropy_weight: float = 0.0
     """bonus on the entropy of q(. | s_t, c_{t-1}) per step (keeps q from saturating early)"""
     max_grad_norm: float | None = None
@@ -126,7 +125,7 @@ class PPOConfig:
     this machine cannot compile"""
 
     @property
-    def policy_learning_rate(self) -> float:
+    def effective_policy_lr(self) -> float:
         """the policy's Adam learning rate: `policy_lr`, or `lr` when that is None"""
         return self.lr if self.policy_lr is None else self.policy_lr
 
@@ -202,43 +201,21 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eva
 
 
 PRESETS: dict[str, Preset] = {
-    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch. The long MuJoCo runs compile
-    # the PPO loss (`PPOConfig.compile`): a one-off ~20 s against minibatch steps about 1.25x faster.
+    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch. Why each departure from the
+    # paper: docs/experiments.md. The long MuJoCo runs compile the PPO loss (`PPOConfig.compile`).
     "four-rooms": _preset(
-        # The polish lifts DI-GAIL's success from 0.93 to 0.97 (seed 0, 300 episodes, deterministic).
         dict(codes=4, epochs=500, batch_size=32, polish_steps=20000),
-        # The episode ends at the apple, so a survival reward -log(1 - D) would teach the agent to avoid it:
-        # log D (a step cost) keeps the expert's incentive to finish (measured: success 0.04 vs 1.0).
+        # the episode ends at the apple: a step cost log D, not a survival bonus that would teach avoiding it
         dict(iterations=1000, bonus_weight=0.1, reward="negative"),
-        # The deterministic policy fails by looping between two cells, which the stochastic training policy
-        # escapes. No entropy bonus and a learning rate decayed to 0 let the final policy settle: deterministic
-        # success of the last iterate, 300 episodes, seeds 0 / 1 / 2 - 0.94 / 0.97 / 0.94 without the bonus at a
-        # constant rate, 0.99 / 0.98 / 0.98 with the decay (seed 2 with ent_coef 0.01: 0.90 constant, 0.96 decayed).
+        # no entropy bonus and a decaying rate let the final (deterministic) policy settle out of its loops
         dict(batch_size=256, minibatch_size=64, ent_coef=0.0, anneal_lr=True),
     ),
     "circle-world": _preset(
-        # smoothing_weight 1.0 (and 0.1 alone) collapsed onto one code in about half the seeds; with the KL and
-        # smoothing warm-up and the small entropy bonus 6 of 6 seeds segment perfectly (see vae_pretrain).
-        # The polish (`digail evaluate` of the VAE run, seed 0, 300 episodes): radius error 0.11 -> 0.05 and, with
-        # q noise 0.08 letting the macro-policy switch near the origin, not only on it, order_correct 0.41 -> 0.88.
-        # q then still switched only within ~0.045 of the origin, and an agent whose circle closes a fraction of
-        # a step off misses that (benchmarks/circleworld_switch.py). Switching already on the last state of the
-        # first circle (q_anticipate 1) takes the VAE's order_correct to about 1.0 (the same VAEs polished once
-        # more, 300 episodes: 0.91 / 0.89 / 0.86 without, 1.0 / 1.0 / 1.0 with 2 steps, 0.997 on seed 2 with 1).
-        # Two steps cost the segmentation's boundary F1 (1.0 -> 0.8, the boundary lands 3 steps early); one keeps
-        # it within the +-2-step tolerance.
+        # warm-up and a small entropy bonus against collapse; the polish with q noise and one step of anticipation
+        # lets the macro-policy switch when the agent passes near the origin, not only exactly on it
         dict(codes=2, epochs=1000, batch_size=16, smoothing_weight=0.1, warmup_epochs=200, entropy_weight=0.03,
              polish_steps=20000, q_noise=0.08, q_anticipate=1),
-        # The drawing's radius is set by sub-degree directions near the origin (README, Results), and PPO at the
-        # paper's rate turns the mean direction by about a degree per update. Fine-tuning therefore keeps the
-        # policy close to the VAE's: exploration noise of 0.01 (0.6 degrees), a policy learning rate of 1e-5
-        # decayed to 0, a critic warm-up and a KL guard. Seeds 0 / 1 / 2, 100 episodes: order_correct
-        # 0.94 / 0.92 / 0.82 and radius error 0.11 / 0.09 / 0.09, against 0.47 / 0.41 / 0.00 and 0.23-0.33
-        # with noise 0.1 at the paper's rate.
-        # Even so the last iterate landed anywhere between order_correct 0.49 and 0.99 (radius error 0.19-0.08;
-        # evaluated every 100 iterations it swings between 0.0 and 1.0): D's reward keeps pushing the precise
-        # drawing around. An anchor to the VAE's mean actions on the rollout's own states (anchor_weight 100)
-        # keeps it between 0.88 and 1.0 (seed 0, every 100 iterations, 300 episodes).
+        # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
         dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
         dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),
     ),

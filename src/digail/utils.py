@@ -113,3 +113,12 @@ def one_line(exc: BaseException) -> str:
     """An exception's message as one line without a final full stop (for `UserError` sentences)."""
     text = " ".join(str(exc).split())
     return text.rstrip(".") if text else type(exc).__name__
+
+
+def progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:
+    """A tqdm bar for a long loop (None when `enabled` is False)."""
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)

@@ -94,7 +94,7 @@ class GAIL:
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.policy_learning_rate},
+        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.effective_policy_lr},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
         self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
@@ -272,7 +272,7 @@ class GAIL:
                                    self.cfg.ppo.gae_lambda)
         if self.cfg.ppo.anneal_lr:
             frac = max(0.0, 1.0 - self.iteration / max(self._total_iterations, 1))
-            bases = (self.cfg.ppo.policy_learning_rate, self.cfg.ppo.lr)  # the optimiser's groups, in order
+            bases = (self.cfg.ppo.effective_policy_lr, self.cfg.ppo.lr)  # the optimiser's groups, in order
             for group, base in zip(self.optimizer.param_groups, bases, strict=True):
                 group["lr"] = base * frac
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
@@ -291,6 +291,7 @@ class GAIL:
         out.update(stats)
         out.update({
             "rollout/disc_reward": float(disc_rew.mean()),
+            "rollout/reward": float(rews.mean()),
             "rollout/bonus": float(batch["bonus"].mean()),
             "rollout/ep_return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
             "rollout/ep_length": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
@@ -343,6 +344,9 @@ class GAIL:
                     self.save_checkpoint(self.run_dir / "checkpoint.pt")
         finally:
             bar.close()
+            if self._logger is not None:  # flushes TensorBoard's events; a later train() opens a new writer
+                self._logger.close()
+                self._logger = None
         return last
 
     # --------------------------------------------------------------------------------------- checkpoints
@@ -359,6 +363,8 @@ class GAIL:
             "disc_optimizer": self.disc_optimizer.state_dict(),
             "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
+            "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
+            "recent_closed_returns": torch.tensor(list(self.recent_closed_returns), dtype=torch.float64),
             "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
         }
 
@@ -376,7 +382,11 @@ class GAIL:
         self.optimizer.load_state_dict(state["optimizer"])
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
         set_rng_state(state["rng"], self.gen, self.np_rng)
-        self.recent_returns.extend(state["recent_returns"].tolist())
+        empty = torch.zeros(0, dtype=torch.float64)  # checkpoints written before these were kept
+        for name in ("recent_returns", "recent_lengths", "recent_closed_returns"):
+            recent: deque[float] = getattr(self, name)
+            recent.clear()
+            recent.extend(state.get(name, empty).tolist())
         if self._anchor_pi is not None and state.get("anchor_pi") is not None:
             self._anchor_pi.load_state_dict(state["anchor_pi"])
         self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)

@@ -30,7 +30,6 @@ class VecEnv:
     def __init__(self, env_fns: Sequence[Callable[[], gym.Env]]) -> None:
         self.envs = [fn() for fn in env_fns]
         self.num_envs = len(self.envs)
-        self.single_observation_space = self.envs[0].observation_space
         self.single_action_space = self.envs[0].action_space
 
     @staticmethod

@@ -14,26 +14,12 @@ The third term is the smoothing penalty of the paper's appendix (Circle-World): 
 per switch between one-hots. The KL is the exact categorical KL (no sampling). Every sum is divided by the number
 of steps in the batch, so the logged numbers are per-step averages; Adam does not care about the overall scale.
 
-Choices beyond the paper, each measured on the shipped Circle-World demonstrations (100 episodes, K = 2, 1000
-epochs, the paper's temperature schedule; "collapse" = one code for whole episodes, accuracy 0.5):
+Choices beyond the paper (the gradient stopped at q's previous-code input unless `bptt`, a warm-up of the KL and
+smoothing weights, an entropy bonus on q, the polish) are measured in docs/experiments.md.
 
-- Gradient through the previous code (`VAEConfig.bptt`, default off). The samples are always drawn sequentially;
-  by default the gradient stops at q's previous-code input (q's logits at every step are recomputed in one batched
-  pass from the sampled previous codes). Exact backpropagation through the chain (`bptt=True`, hand-written in
-  `_GumbelChain`) was slower (about 90 s instead of 60 s) and less reliable: 0 of 5 runs ended segmented (most
-  left the plateau, then collapsed), against 2 of 3 with the same settings and the gradient stopped.
-- Warm-up (`warmup_epochs`) of the KL and smoothing weights from 0, and a small entropy bonus eta on q
-  (`entropy_weight`). Without them about half the runs collapsed: q sits on the learned prior while the decoder
-  ignores the codes, or, with a warm-up alone, q turns into a saturated constant just as the switch forms. With a
-  warm-up of 200 epochs and eta = 0.03 (the circle-world preset), 6 of 6 seeds found the clockwise /
-  counter-clockwise split; eta = 0.1 kept q too undecided for the decoder to use the codes.
-- The circle-world preset's smoothing weight is 0.1: at 1.0 the penalty on undecided (soft) codes pushed q onto a
-  single code (2 of 2 runs).
-
-Speed: only the sampling chain is sequential. The first layer of q is split into its state and code parts; the
-state part for every step, the Gumbel noise and the output bias are computed before the time loop, so each step
-costs one small matrix product per layer and a softmax. The decoder, the KL, the smoothing and entropy terms are
-evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and masked.
+Speed: only the sampling chain is sequential (`digail.algos.gumbel`); the decoder, the KL, the smoothing and entropy
+terms are evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and
+masked.
 """
 
 from __future__ import annotations
@@ -44,20 +30,21 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
+from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.optim import adam
+from digail.algos.polish import polish
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
+from digail.data.validation import check_demos
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec
-from digail.nets.vae import HierarchicalPolicy, MacroPolicy
-from digail.utils import resolve_device, seed_everything
+from digail.nets.vae import HierarchicalPolicy
+from digail.utils import progress_bar, resolve_device, seed_everything
 
 LOSS_KEYS = ("losses/total", "losses/recon", "losses/kl", "losses/smooth")
 
@@ -84,36 +71,6 @@ class DemoBatch:
         return DemoBatch(self.obs_n[idx, :t_max], self.acts[idx, :t_max], mask[:, :t_max])
 
 
-def check_demos(trajs: Sequence[Trajectory], action_spec: ActionSpec | None = None) -> tuple[int, ActionSpec]:
-    """Validate a list of demonstrations for the model; return (obs_dim, action spec).
-
-    Raises:
-        UserError: no demonstrations, or inconsistent observation / action shapes or types.
-    """
-    if len(trajs) == 0:
-        raise UserError("no demonstrations were given; pass a dataset with at least one episode.")
-    obs_dims = {int(np.prod(np.shape(t.obs)[1:], dtype=np.int64)) for t in trajs}
-    if len(obs_dims) != 1:
-        raise UserError(f"demonstrations have different observation sizes {sorted(obs_dims)}; use one environment.")
-    kinds = {t.discrete for t in trajs}
-    if len(kinds) != 1:
-        raise UserError("demonstrations mix discrete and continuous actions; use one environment.")
-    if action_spec is None:
-        acts = np.concatenate([np.asarray(t.acts).reshape(len(t), -1) for t in trajs])
-        action_spec = ActionSpec.from_actions(acts[:, 0] if trajs[0].discrete else acts)
-    if action_spec.discrete != trajs[0].discrete:
-        kind = "discrete" if action_spec.discrete else "continuous"
-        raise UserError(f"the action space is {kind} but the demonstrations' actions are not; check the dataset.")
-    for t in trajs:
-        acts = np.asarray(t.acts)
-        if action_spec.discrete:
-            if acts.reshape(len(t), -1).shape[1] != 1 or acts.min() < 0 or acts.max() >= action_spec.dim:
-                raise UserError(f"discrete actions must be indices in [0, {action_spec.dim}); check the dataset.")
-        elif acts.reshape(len(t), -1).shape[1] != action_spec.dim:
-            raise UserError(f"expected {action_spec.dim}-dimensional actions, got shape {acts.shape[1:]}.")
-    return obs_dims.pop(), action_spec
-
-
 def pad_demos(trajs: Sequence[Trajectory], model: HierarchicalPolicy, device: torch.device) -> DemoBatch:
     """Pad every demonstration to the longest and normalise observations with the model's normaliser."""
     t_max = max(len(t) for t in trajs)
@@ -136,153 +93,6 @@ def pad_demos(trajs: Sequence[Trajectory], model: HierarchicalPolicy, device: to
 
 
 # ------------------------------------------------------------------------------------------------ loss
-def gumbel_softmax_chain(q: MacroPolicy, obs_n: torch.Tensor, tau: float, hard: bool = False,
-                         generator: torch.Generator | None = None,
-                         gumbel: torch.Tensor | None = None, bptt: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """Draw relaxed codes c~_0 .. c~_{T-1} sequentially from q(. | s_t, c~_{t-1}).
-
-    Args:
-        q: the macro-policy (`MacroPolicy`: a ReLU MLP on [obs_n, prev] whose layers are read directly).
-        obs_n: (B, T, obs_dim) normalised observations.
-        tau: Gumbel-softmax temperature.
-        hard: straight-through: the forward pass uses exact one-hots (also as the next step's previous code),
-            the backward pass the relaxed sample's gradient.
-        generator: source of the Gumbel noise.
-        gumbel: (B, T, K) Gumbel(0, 1) noise to use instead of drawing it (tests, reproductions).
-        bptt: backpropagate through q's previous-code input too: the exact gradient of the sequential samples,
-            through a hand-written backward loop. False (the default) draws the chain without gradient, then
-            recomputes every step's logits from the sampled previous codes in one batched pass: the same samples
-            and the same gradient except the path from c~_{t-1} into q(. | s_t, c~_{t-1}).
-
-    Returns:
-        `(logits, codes)`, both (B, T, K): q's logits at each step (given the sampled previous code) and the
-        relaxed (or straight-through hard) samples. Gradients reach q through both.
-    """
-    linears = [m for m in q.net if isinstance(m, nn.Linear)]
-    first, middle, last = linears[0], linears[1:-1], linears[-1]
-    B, T, D = obs_n.shape
-    K = last.out_features
-    # Everything that does not depend on the previous code is computed for all steps at once, time-major.
-    pre = F.linear(obs_n, first.weight[:, :D], first.bias).transpose(0, 1)
-    if gumbel is None:
-        u = torch.rand((T, B, K), generator=generator, device=obs_n.device).clamp_(1e-10, 1.0 - 1e-7)
-        gumbel_tm = -torch.log(-torch.log(u))
-    else:
-        gumbel_tm = gumbel.transpose(0, 1)
-    noise = (last.bias + gumbel_tm) / tau
-    mids = [t for m in middle for t in (m.weight, m.bias)]
-    if bptt:
-        codes, h_last = _GumbelChain.apply(hard, pre, first.weight[:, D:], last.weight / tau, noise, *mids)
-        logits = F.linear(h_last, last.weight, last.bias)
-        return logits.transpose(0, 1), codes.transpose(0, 1)
-    with torch.no_grad():
-        fed = _sample_chain(hard, pre, first.weight[:, D:], last.weight / tau, noise, *mids)
-    prev = torch.cat([torch.zeros_like(fed[:1]), fed[:-1]]).transpose(0, 1)
-    logits = q(obs_n, prev)
-    codes = ((logits + gumbel_tm.transpose(0, 1)) / tau).softmax(-1)
-    if hard:
-        codes = F.one_hot(codes.argmax(-1), K).to(codes.dtype) + (codes - codes.detach())
-    return logits, codes
-
-
-def _sample_chain(hard: bool, pre: torch.Tensor, w_prev: torch.Tensor, w_out: torch.Tensor, noise: torch.Tensor,
-                  *mids: torch.Tensor) -> torch.Tensor:
-    """The sampling loop of `_GumbelChain` alone (no gradient, nothing kept): the codes fed forward (T, B, K)."""
-    K = w_out.shape[0]
-    pairs = [(mids[i].t(), mids[i + 1]) for i in range(0, len(mids), 2)]
-    w_prev_t, w_out_t = w_prev.t(), w_out.t()
-    prev = pre.new_zeros(pre.shape[1], K)
-    fed = []
-    for pre_t, noise_t in zip(pre.unbind(0), noise.unbind(0), strict=True):
-        h = torch.addmm(pre_t, prev, w_prev_t).relu_()
-        for w_t, b in pairs:
-            h = torch.addmm(b, h, w_t).relu_()
-        prev = torch.addmm(noise_t, h, w_out_t).softmax(-1)
-        if hard:
-            prev = F.one_hot(prev.argmax(-1), K).to(prev.dtype)
-        fed.append(prev)
-    return torch.stack(fed)
-
-
-class _GumbelChain(torch.autograd.Function):
-    """The sequential part of `gumbel_softmax_chain` as one autograd node with hand-written backpropagation.
-
-    Per step t: h_1 = relu(pre_t + prev_{t-1} @ w_prev.T), h_i = relu(h_{i-1} @ w_i.T + b_i),
-    y_t = softmax(h_L @ w_out.T + noise_t), prev_t = y_t (or its one-hot when `hard`, straight-through).
-
-    Why by hand: the loop is the whole cost of pre-training, and on a CPU that cost is the number of tiny tensor
-    operations per step. The backward loop below carries only the gradient flowing into the previous code (six
-    operations a step); every weight gradient is then one matrix product over all steps. Outputs: the codes fed
-    forward (T, B, K) and the last hidden layer (T, B, H_L), from which the caller computes q's logits with
-    ordinary autograd. Checked against plain autograd in tests/test_vae.py.
-    """
-
-    @staticmethod
-    def forward(ctx: Any, hard: bool, pre: torch.Tensor, w_prev: torch.Tensor, w_out: torch.Tensor,
-                noise: torch.Tensor, *mids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        T, B, _ = pre.shape
-        K = w_out.shape[0]
-        pairs = [(mids[i].t(), mids[i + 1]) for i in range(0, len(mids), 2)]
-        w_prev_t, w_out_t = w_prev.t(), w_out.t()
-        prev = pre.new_zeros(B, K)
-        layers: list[list[torch.Tensor]] = [[] for _ in range(len(pairs) + 1)]
-        soft, fed = [], []
-        for pre_t, noise_t in zip(pre.unbind(0), noise.unbind(0), strict=True):
-            h = torch.addmm(pre_t, prev, w_prev_t).relu_()
-            layers[0].append(h)
-            for i, (w_t, b) in enumerate(pairs):
-                h = torch.addmm(b, h, w_t).relu_()
-                layers[i + 1].append(h)
-            y = torch.addmm(noise_t, h, w_out_t).softmax(-1)
-            soft.append(y)
-            prev = F.one_hot(y.argmax(-1), K).to(y.dtype) if hard else y
-            fed.append(prev)
-        hs = [torch.stack(hl) for hl in layers]
-        y_soft = torch.stack(soft)
-        y_fed = torch.stack(fed) if hard else y_soft
-        ctx.save_for_backward(y_soft, y_fed, w_prev, w_out, *hs, *mids)
-        ctx.n_mid = len(pairs)
-        return y_fed, hs[-1]
-
-    @staticmethod
-    def backward(ctx: Any, g_codes: torch.Tensor, g_hidden: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        y_soft, y_fed, w_prev, w_out, *rest = ctx.saved_tensors
-        n_mid = ctx.n_mid
-        hs, mids = rest[:n_mid + 1], rest[n_mid + 1:]
-        weights = [mids[2 * i] for i in range(n_mid)]
-        relu_grad = torch.ops.aten.threshold_backward
-        y_steps, g_code_steps, g_hidden_steps = y_soft.unbind(0), g_codes.unbind(0), g_hidden.unbind(0)
-        h_steps = [h.unbind(0) for h in hs]
-        T = len(y_steps)
-        g_z_steps: list[torch.Tensor] = []
-        g_a_steps: list[list[torch.Tensor]] = [[] for _ in hs]
-        g_y = g_code_steps[-1]
-        for t in range(T - 1, -1, -1):
-            # softmax, then each ReLU layer down to the first; straight-through uses the soft sample's Jacobian
-            g_z = torch._softmax_backward_data(g_y, y_steps[t], -1, g_y.dtype)
-            g_z_steps.append(g_z)
-            g_h = torch.addmm(g_hidden_steps[t], g_z, w_out)
-            for i in range(n_mid, 0, -1):
-                g_a = relu_grad(g_h, h_steps[i][t], 0.0)
-                g_a_steps[i].append(g_a)
-                g_h = g_a @ weights[i - 1]
-            g_a = relu_grad(g_h, h_steps[0][t], 0.0)
-            g_a_steps[0].append(g_a)
-            if t > 0:  # the code fed at step t - 1 gets its own gradient plus what flowed back through q
-                g_y = torch.addmm(g_code_steps[t - 1], g_a, w_prev)
-        g_z_all = torch.stack(g_z_steps[::-1])
-        g_a_all = [torch.stack(steps[::-1]) for steps in g_a_steps]
-        prev_all = torch.cat([torch.zeros_like(y_fed[:1]), y_fed[:-1]])
-
-        def outer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-            return a.reshape(-1, a.shape[-1]).t() @ b.reshape(-1, b.shape[-1])
-
-        g_mids: list[torch.Tensor] = []
-        for i in range(n_mid):
-            g_mids += [outer(g_a_all[i + 1], hs[i]), g_a_all[i + 1].sum((0, 1))]
-        return (None, g_a_all[0], outer(g_a_all[0], prev_all), outer(g_z_all, hs[-1]), g_z_all, *g_mids)
-
-
 def categorical_kl(logits_q: torch.Tensor, logits_p: torch.Tensor) -> torch.Tensor:
     """KL(q || p) over the last axis for categorical logits."""
     log_q = logits_q.log_softmax(-1)
@@ -366,7 +176,7 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
     start = time.perf_counter()
-    bar = _progress_bar(cfg.epochs, progress)
+    bar = progress_bar(cfg.epochs, progress)
     for epoch in range(cfg.epochs):
         tau = cfg.tau(epoch)
         order = torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
@@ -404,86 +214,6 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         write_losses_csv(Path(log_dir) / "losses.csv", history)
         write_tensorboard(Path(log_dir), history)
     return model.eval(), history
-
-
-def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfig, *, seed: int = 0,
-           progress: bool = True, minibatch: int = 256) -> HierarchicalPolicy:
-    """Sharpen pi and q on the VAE's own causal segmentation of `trajs` (`VAEConfig.polish_steps`); in place.
-
-    The VAE's joint objective stops at a loose decoder (its few thousand steps share the codes' noise), and q
-    only ever saw the expert's exact states. With the codes fixed to `segment_many`'s causal decoding, pi is
-    fitted by maximum likelihood and q by cross-entropy on states jittered by `cfg.q_noise` feature stds.
-    """
-    from digail.algos.decode import segment_many
-
-    dev = next(model.parameters()).device
-    codes_per_demo = segment_many(model, trajs)
-    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32).reshape(len(t.acts), -1)
-                                          for t in trajs]), device=dev)
-    acts = torch.as_tensor(np.concatenate([np.asarray(t.acts) for t in trajs]), device=dev)
-    if not model.action.discrete:
-        acts = acts.float().reshape(len(acts), -1)
-    codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
-    # q's targets anticipate each switch; its previous-code inputs stay the segmentation's, so the switching
-    # state itself (previous code still the old one) keeps its target too
-    q_codes = torch.as_tensor(np.concatenate([anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]),
-                              device=dev)
-    start = model.codes  # index of the zero row: c_{-1}
-    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
-    table = torch.cat([torch.eye(model.codes, device=dev), torch.zeros(1, model.codes, device=dev)])
-    with torch.no_grad():
-        obs_n = model.normalizer(obs)
-    code_1h, prev_1h = table[codes], table[prevs]
-    model.train()
-    params = [*model.pi.parameters(), *model.q.parameters()]
-    opt = adam(params, cfg.polish_lr)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.polish_steps)
-    gen = torch.Generator(device=dev).manual_seed(seed + 7919)
-    bar = _progress_bar(cfg.polish_steps, progress, desc="polish", unit="step")
-    for step in range(cfg.polish_steps):
-        idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
-        log_pi, _ = model.pi.log_prob_entropy(obs_n[idx], code_1h[idx], acts[idx])
-        noisy = obs_n[idx]
-        if cfg.q_noise > 0:
-            noisy = noisy + cfg.q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
-        loss = -log_pi.mean() + F.cross_entropy(model.q(noisy, prev_1h[idx]), q_codes[idx])
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        schedule.step()
-        if bar is not None and step % 200 == 0:
-            bar.update(min(200, cfg.polish_steps - step))
-            bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
-    if bar is not None:
-        bar.close()
-    if not all(torch.isfinite(p).all() for p in params):
-        raise UserError("the VAE polish diverged (non-finite weights); lower --vae.polish-lr or set "
-                        "--vae.polish-steps 0.")
-    return model.eval()
-
-
-def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:
-    """`codes` with every switch moved up to `steps` steps earlier (never before the previous switch).
-
-    The polish takes q's targets from this sequence (q's previous-code inputs and pi keep the original): the
-    macro-policy then switches anywhere on the last `steps` states before the expert's switch as well as on it.
-    """
-    out = np.array(codes, copy=True)
-    if steps <= 0:
-        return out
-    switches = np.flatnonzero(np.diff(codes)) + 1
-    for i, t in enumerate(switches):
-        first = max(t - steps, switches[i - 1] + 1 if i else 1)
-        out[first:t] = codes[t]
-    return out
-
-
-def _progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:

@@ -74,7 +74,7 @@ def run_command(args: RunArgs) -> Path:
     from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
     from digail.commands.report import make_figures
     from digail.commands.train import TrainArgs
-    from digail.data.minari_io import check_matches_env
+    from digail.data.validation import check_matches_env
     from digail.envs import make_env
     from digail.envs.registry import env_spec, preset_for
     from digail.eval.composition import compose, parse_schedule, schedule_in_codes

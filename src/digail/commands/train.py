@@ -136,7 +136,8 @@ def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[Hierarchical
 
 def load_demos(demos: str, env: str = "") -> tuple[list[Trajectory], str]:
     """The demonstrations of `demos` checked against `env` (default: the dataset's own env), and the env id."""
-    from digail.data.minari_io import check_matches_env, load_dataset
+    from digail.data.minari_io import load_dataset
+    from digail.data.validation import check_matches_env
 
     if not demos:
         raise UserError("no demonstrations given; pass --demos with a Minari dataset folder or id.")

@@ -18,15 +18,10 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from digail.data.minari_io import (
-    SUBTASK_KEY,
-    check_matches_env,
-    flatten_dict_obs,
-    load_dataset,
-    minari_root,
-    write_dataset,
-)
+from digail.data.minari_io import SUBTASK_KEY, flatten_dict_obs, load_dataset, minari_root
+from digail.data.minari_write import write_dataset
 from digail.data.trajectory import Trajectory
+from digail.data.validation import check_matches_env
 from digail.envs import make_env
 from digail.envs.episodes import play_episode
 from digail.envs.registry import env_spec
@@ -50,7 +45,7 @@ def _flat(obs: Any, space: gym.Space) -> np.ndarray:
 
 
 def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0, *,
-                     desc: str = "demos") -> list[Trajectory]:
+                     desc: str = "demos", progress: bool = True) -> list[Trajectory]:
     """Run `policy` for `episodes` episodes, episode `i` reset with `seed + i`, with a progress bar.
 
     Dict observations are stored flattened (`flatten_dict_obs`); the policy still sees the env's own
@@ -64,7 +59,7 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
 
     trajs: list[Trajectory] = []
     returns: list[float] = []
-    bar = tqdm(range(episodes), desc=desc, unit="ep")
+    bar = tqdm(range(episodes), desc=desc, unit="ep", disable=not progress)
     for i in bar:
         ep = play_episode(env, act, seed + i, keep=True)
         labels = [info.get(SUBTASK_KEY) for info in ep.infos]
@@ -80,7 +75,7 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
     return trajs
 
 
-def summarize(trajs: list[Trajectory]) -> dict[str, Any]:
+def summarize_demos(trajs: list[Trajectory]) -> dict[str, Any]:
     """Return statistics and label counts (over all stored labels, T + 1 per episode) of some episodes."""
     returns = np.array([float(t.rews.sum()) if t.rews is not None else np.nan for t in trajs])
     lengths = np.array([len(t) for t in trajs])
@@ -136,7 +131,7 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
         trajs = rollout_episodes(env, policy, episodes, seed, desc=f"demos {env_id}")
     finally:
         env.close()
-    summary = summarize(trajs)
+    summary = summarize_demos(trajs)
     record = {"seed": seed, "episodes": episodes, "expert": kind,
               "expert_file": None if expert is None else str(expert), **summary}
     labels = "; oracle labels in infos['subtask']." if "label_counts" in summary else "."
@@ -189,7 +184,7 @@ def manifest_entry(path_or_id: str | os.PathLike[str], command: str) -> dict[str
     data = ds.path / "data"
     entry: dict[str, Any] = {"id": ds.dataset_id, "env": ds.env_id, "seed": record.get("seed"),
                              "expert": record.get("expert"), "expert_file": record.get("expert_file"),
-                             "command": command, **summarize(ds.trajs),
+                             "command": command, **summarize_demos(ds.trajs),
                              "size_bytes": sum(f.stat().st_size for f in data.iterdir() if f.is_file())}
     return entry
 

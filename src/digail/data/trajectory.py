@@ -6,6 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SUBTASK_KEY = "subtask"
+"""Episode-info key holding the oracle sub-task labels (`info["subtask"]` at every step)."""
+
 
 @dataclass(frozen=True)
 class Trajectory:

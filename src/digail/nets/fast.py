@@ -39,9 +39,9 @@ class CodeMLP:
     """
 
     def __init__(self, seqs: list[nn.Sequential], obs_dim: int,
-                 obs_slices: list[tuple[int, int] | None] | None = None) -> None:
+                 input_slices: list[tuple[int, int] | None] | None = None) -> None:
         layers = [_linears(s) for s in seqs]
-        slices = obs_slices or [None] * len(seqs)
+        slices = input_slices or [None] * len(seqs)
         with torch.no_grad():
             first = [ls[0] for ls in layers]
             # a net that sees only a slice of the observation gets zero weights for the rest
@@ -81,7 +81,7 @@ class ActorCritic:
     """pi and V together: `sample(obs_n, codes, noise)` -> actions, log-probabilities and values (NumPy)."""
 
     def __init__(self, pi: SubtaskPolicy, value: ValueNet, obs_dim: int) -> None:
-        self.net = CodeMLP([pi.net, value.net], obs_dim, [getattr(pi, "obs_slice", None), None])
+        self.net = CodeMLP([pi.net, value.net], obs_dim, [pi.pi_obs, None])
         self.discrete = pi.action.discrete
         self.act_dim = pi.action.dim
         if not self.discrete:

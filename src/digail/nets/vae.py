@@ -56,7 +56,7 @@ class HierarchicalPolicy(nn.Module):
         self.normalizer = ObsNormalizer(obs_dim)
         self.q = MacroPolicy(obs_dim, codes, hidden)
         self.prior = CodePrior(codes, learn_prior)
-        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, obs_slice=pi_obs)
+        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, pi_obs=pi_obs)
 
     @torch.no_grad()
     def next_code(self, obs_n: torch.Tensor, prev: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,90 @@
+"""The polish after VAE pre-training: the codes fixed to q's own causal segmentation of the demonstrations, pi fitted
+by maximum likelihood and q by cross-entropy on jittered states (`VAEConfig.polish_steps`, `q_noise`, `q_anticipate`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from digail.algos.optim import adam
+from digail.config import VAEConfig
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.nets.vae import HierarchicalPolicy
+from digail.utils import progress_bar
+
+
+def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfig, *, seed: int = 0,
+           progress: bool = True, minibatch: int = 256) -> HierarchicalPolicy:
+    """Sharpen pi and q on the VAE's own causal segmentation of `trajs` (`VAEConfig.polish_steps`); in place.
+
+    The VAE's joint objective stops at a loose decoder (its few thousand steps share the codes' noise), and q
+    only ever saw the expert's exact states. With the codes fixed to `segment_many`'s causal decoding, pi is
+    fitted by maximum likelihood and q by cross-entropy on states jittered by `cfg.q_noise` feature stds.
+    """
+    from digail.algos.decode import segment_many
+
+    dev = next(model.parameters()).device
+    codes_per_demo = segment_many(model, trajs)
+    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32).reshape(len(t.acts), -1)
+                                          for t in trajs]), device=dev)
+    acts = torch.as_tensor(np.concatenate([np.asarray(t.acts) for t in trajs]), device=dev)
+    if not model.action.discrete:
+        acts = acts.float().reshape(len(acts), -1)
+    codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
+    # q's targets anticipate each switch; its previous-code inputs stay the segmentation's, so the switching
+    # state itself (previous code still the old one) keeps its target too
+    q_codes = torch.as_tensor(np.concatenate([anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]),
+                              device=dev)
+    start = model.codes  # index of the zero row: c_{-1}
+    prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
+    table = torch.cat([torch.eye(model.codes, device=dev), torch.zeros(1, model.codes, device=dev)])
+    with torch.no_grad():
+        obs_n = model.normalizer(obs)
+    code_1h, prev_1h = table[codes], table[prevs]
+    model.train()
+    params = [*model.pi.parameters(), *model.q.parameters()]
+    opt = adam(params, cfg.polish_lr)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.polish_steps)
+    gen = torch.Generator(device=dev).manual_seed(seed + 7919)
+    bar = progress_bar(cfg.polish_steps, progress, desc="polish", unit="step")
+    for step in range(cfg.polish_steps):
+        idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
+        log_pi, _ = model.pi.log_prob_entropy(obs_n[idx], code_1h[idx], acts[idx])
+        noisy = obs_n[idx]
+        if cfg.q_noise > 0:
+            noisy = noisy + cfg.q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
+        loss = -log_pi.mean() + F.cross_entropy(model.q(noisy, prev_1h[idx]), q_codes[idx])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        schedule.step()
+        if bar is not None and step % 200 == 0:
+            bar.update(min(200, cfg.polish_steps - step))
+            bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
+    if bar is not None:
+        bar.close()
+    if not all(torch.isfinite(p).all() for p in params):
+        raise UserError("the VAE polish diverged (non-finite weights); lower --vae.polish-lr or set "
+                        "--vae.polish-steps 0.")
+    return model.eval()
+
+
+def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:
+    """`codes` with every switch moved up to `steps` steps earlier (never before the previous switch).
+
+    The polish takes q's targets from this sequence (q's previous-code inputs and pi keep the original): the
+    macro-policy then switches anywhere on the last `steps` states before the expert's switch as well as on it.
+    """
+    out = np.array(codes, copy=True)
+    if steps <= 0:
+        return out
+    switches = np.flatnonzero(np.diff(codes)) + 1
+    for i, t in enumerate(switches):
+        first = max(t - steps, switches[i - 1] + 1 if i else 1)
+        out[first:t] = codes[t]
+    return out
