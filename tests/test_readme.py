@@ -27,11 +27,12 @@ def test_make_demo_smoke_variant(tmp_path):
     out = tmp_path / "run"
     assert main(["run", "--preset", "smoke", "--episodes", "3", "--out", str(out)]) == 0
     for name in ("model.pt", "vae/model.pt", "eval.json", "segmentation.json", "compose.json", "report.html",
-                 "figures/training.png", "figures/eval.png", "figures/compose.png"):
+                 "figures/learning_curves.png", "figures/generated.png", "figures/compose.png",
+                 "videos/closed_loop.mp4", "videos/closed_loop.gif"):
         assert (out / name).exists(), name
     ev = json.loads((out / "eval.json").read_text())
     assert ev["episodes"] == 3 and "order_correct_rate" in ev
-    assert "Evaluation" in (out / "report.html").read_text()
+    assert "Evaluation" in (out / "report.html").read_text()  # opened in Chromium by tests/test_viz_report.py
 
 
 def test_python_api_example_runs():

@@ -30,6 +30,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compose": ("ComposeArgs", "compose_command"),
     "run": ("RunArgs", "run_command"),
     "expert": ("ExpertArgs", "expert_command"),
+    "video": ("VideoArgs", "video_command"),
+    "report": ("ReportArgs", "report_command"),
     "sweep": ("SweepArgs", "sweep_command"),
 }
 """subcommand -> (argument dataclass, function) in the module `digail.commands.<subcommand>`"""

@@ -32,11 +32,13 @@ class ComposeArgs:
 
 def compose_command(args: ComposeArgs) -> dict[str, Any]:
     """Write RUN/compose.json and RUN/figures/compose.png; returns the summary."""
+    import numpy as np
+
     from digail.checkpoint import load_model
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.eval.composition import compose, episode_limit, parse_schedule
     from digail.utils import write_json
-    from digail.viz.plots import plot_episodes
+    from digail.viz.run_figures import composition_figure
 
     run = check_output_folder(args.run)
     model, meta = load_model(run / "model.pt")
@@ -44,7 +46,8 @@ def compose_command(args: ComposeArgs) -> dict[str, Any]:
     pairs = parse_schedule(args.schedule, model.codes, episode_limit(env_id))
     result, eps = compose(model, env_id, pairs, args.episodes, args.seed)
     result["schedule"] = args.schedule
-    fig = plot_episodes(eps, run / "figures" / "compose.png", title=f"composed: {args.schedule}")
+    fig = composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in eps], run / "figures" / "compose.png",
+                             args.schedule)
     result["figure"] = str(fig)
     write_json(run / "compose.json", result)
     print_eval_summary(result)

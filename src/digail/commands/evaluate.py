@@ -48,5 +48,6 @@ def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
     if args.video:
         from digail.viz.video import record_video
 
-        print(f"video: {record_video(model, env_id, run / 'videos' / 'eval.mp4', seed=args.seed)}")
+        mp4, gif = record_video(model, env_id, run / "videos" / "eval.mp4", seed=args.seed)
+        print(f"video: {mp4} and {gif}")
     return result

@@ -14,6 +14,7 @@ from typing import Annotated, Any
 import tyro
 
 from digail.config import check_at_least, check_seed
+from digail.errors import UserError
 from digail.utils import check_writable, fresh_dir, remove_path, resolve_device, set_torch_threads, write_json
 
 
@@ -44,6 +45,24 @@ class RunArgs:
         check_seed(self.seed)
 
 
+VIDEO_MAX_STEPS = 300
+"""Steps of the one video `digail run` records (MuJoCo renders in software here, about 0.5 s a frame)."""
+
+
+def run_command_line(args: RunArgs, run_dir: Path) -> str:
+    """The `digail run` command line that remakes this run (recorded in config.json for the report)."""
+    import shlex
+
+    parts = ["digail", "run", args.env, "--out", str(run_dir), "--seed", str(args.seed)]
+    if args.preset is not None:
+        parts += ["--preset", args.preset]
+    if args.episodes is not None:
+        parts += ["--episodes", str(args.episodes)]
+    if args.device != "auto":
+        parts += ["--device", args.device]
+    return shlex.join(parts)
+
+
 def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
     """The shipped dataset for `env_id` when there is one, else freshly recorded demonstrations."""
     from digail.data.demos import default_dataset_id, record_demos
@@ -64,17 +83,18 @@ def run_command(args: RunArgs) -> Path:
     from digail.algos.vae_pretrain import pretrain
     from digail.checkpoint import load_model, save_model
     from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
+    from digail.commands.report import make_figures
     from digail.commands.train import TrainArgs
     from digail.config import to_dict
     from digail.data.validation import check_matches_env
     from digail.envs import make_env
     from digail.envs.registry import env_spec, preset_for
     from digail.eval.composition import compose, episode_limit, parse_schedule, schedule_in_codes
-    from digail.eval.returns import evaluate, run_episodes
+    from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
-    from digail.viz.plots import plot_episodes, plot_training
     from digail.viz.report import write_report
+    from digail.viz.video import record_video
 
     set_torch_threads(1)
     resuming = False
@@ -129,7 +149,7 @@ def run_command(args: RunArgs) -> Path:
                            preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
     config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                         device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
-                        pipeline=True, run_args=to_dict(run_args))
+                        pipeline=True, run_args=to_dict(run_args), command=run_command_line(args, run_dir))
     write_run_config(run_dir, config)
     trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                             device=device)
@@ -153,8 +173,6 @@ def run_command(args: RunArgs) -> Path:
     result = evaluate(model, args.env, episodes)
     result["kind"] = "digail"
     write_json(run_dir / "eval.json", result)
-    shown = run_episodes(model, args.env, min(6, episodes), 10_000, keep_obs=6)
-    plot_episodes(shown, run_dir / "figures" / "eval.png", title="closed-loop macro-policy")
     timings["evaluate_s"] = time.perf_counter() - t0
     print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")
 
@@ -169,15 +187,20 @@ def run_command(args: RunArgs) -> Path:
             print("      composition skipped: the segmentation did not give every sub-task a code of its own")
     if schedule is not None:
         pairs = parse_schedule(schedule, model.codes, episode_limit(args.env))
-        composed, eps = compose(model, args.env, pairs, min(episodes, 100), 20_000)
+        composed, _ = compose(model, args.env, pairs, min(episodes, 100), 20_000)
         composed["schedule"] = schedule
-        plot_episodes(eps, run_dir / "figures" / "compose.png", title=f"composed: {schedule}")
         write_json(run_dir / "compose.json", composed)
-    plot_training(run_dir)
     timings["segment_compose_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    make_figures(run_dir, model=model, trajs=trajs)
+    try:
+        record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000, max_steps=VIDEO_MAX_STEPS)
+    except UserError as exc:  # a missing renderer costs the video, not the run
+        print(f"      video skipped: {exc}")
+    timings["figures_video_s"] = time.perf_counter() - t0
     write_json(run_dir / "timings.json", timings)
     report = write_report(run_dir)
-    print(f"[5/5] segmentation and figures written; report: {report}")
+    print(f"[5/5] segmentation, figures and video written; report: {report}")
     _print_headline(result, seg, composed)
     print(f"done: {run_dir}")
     return run_dir

@@ -1,48 +1,458 @@
-"""A single-file HTML report of a run folder: headline numbers, segmentation scores and every figure."""
+"""Self-contained HTML reports: one page per run folder, one page comparing methods over seeds.
+
+A page is a single file: figures and the GIF are embedded as base64 data URIs, the style sheet is inline, there
+is no JavaScript and nothing is fetched, so it opens from a phone's downloads as well as from a laptop. It reads
+only the run folder (`config.json`, `eval.json`, `segmentation.json`, `compose.json`, `timings.json`,
+`metrics.csv`, `figures/*.png`, `videos/*`); numbers are rounded and named with their units, and an entry whose
+value is undefined (`None` in JSON) is left out rather than printed.
+
+`write_report(RUN)` opens with a headline (what was run, the numbers that matter next to the expert's and, where
+the paper reports one, the paper's, and one sentence on what they mean) before the details.
+`write_compare_report(RUNS, OUT)` groups runs by method, draws the multi-seed learning curves and tables the
+medians.
+"""
 
 from __future__ import annotations
 
 import base64
 import html
 import json
+import math
+import os
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from digail.utils import atomic_write_bytes
 
-def _load(path: Path) -> dict[str, Any] | None:
-    return json.loads(path.read_text()) if path.exists() else None
+PAPER_RETURNS: dict[str, tuple[float, float]] = {
+    "Pendulum-v1": (-125.39, 103.75),
+    "InvertedPendulum-v5": (1000.0, 14.97),
+    "Hopper-v5": (3662.1, 21.7),
+    "Walker2d-v5": (5083.9, 356.3),
+    "digail/FetchPickAndPlace-v4": (-11.74, 5.87),
+}
+"""Directed-Info GAIL's mean return ± std in the paper (Table 1, 300 episodes; Fetch: Table 2, dense reward, 100
+episodes). The paper used the -v0/-v2 versions of these envs; the grid and circle worlds have no paper numbers."""
+
+ENV_NAMES = {"digail/CircleWorld-v0": "Circle-World", "digail/FourRooms-v0": "Four Rooms",
+             "digail/FetchPickAndPlace-v4": "Fetch pick-and-place"}
+METHOD_NAMES = {"digail": "Directed-Info GAIL", "gail": "GAIL", "vae": "VAE behaviour cloning"}
+
+# key -> (label, kind); kind: "pct" (a rate or share shown in %), "num" (3 significant digits), "int",
+# "x" (a ratio shown as "1.23 x"), "s" (seconds), or a unit string appended to a number.
+METRICS: dict[str, tuple[str, str]] = {
+    "mean_return": ("mean return", "per episode"),
+    "std_return": ("return standard deviation", "per episode"),
+    "normalized_return": ("normalised return (agent / expert)", "x"),
+    "mean_length": ("mean episode length", "steps"),
+    "success_rate": ("success rate", "pct"),
+    "path_length_ratio": ("path length / shortest path (successful episodes)", "x"),
+    "order_correct_rate": ("circles drawn in the demonstrated order", "pct"),
+    "order_reversed_rate": ("circles drawn in the reversed order", "pct"),
+    "radius_error": ("radius error (relative to the radius, capped at 100%)", "pct"),
+    "radius_error_median": ("radius error, median", "pct"),
+    "closure_error": ("closure error (relative to the radius, capped at 100%)", "pct"),
+    "closure_error_median": ("closure error, median", "pct"),
+    "episodes": ("episodes", "int"),
+    "accuracy": ("accuracy after matching codes to labels", "pct"),
+    "nmi": ("normalised mutual information (0 to 1)", "num"),
+    "boundary_precision": ("boundary precision", "pct"),
+    "boundary_recall": ("boundary recall", "pct"),
+    "boundary_f1": ("boundary F1", "pct"),
+    "boundary_tolerance": ("boundary tolerance", "steps"),
+    "switches_per_episode": ("code switches per episode", "num"),
+    "true_switches_per_episode": ("oracle switches per episode", "num"),
+    "steps": ("steps scored", "int"),
+    "schedule_length": ("schedule length", "steps"),
+    "codes": ("codes K", "int"),
+}
+TASK_KEYS = ("success_rate", "order_correct_rate", "order_reversed_rate", "path_length_ratio", "radius_error")
+
+STYLE = """
+:root{color-scheme:light}
+body{font:16px/1.5 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0 auto;max-width:64rem;
+padding:0 1rem 3rem;color:#1b1b1b;background:#fff}
+h1{font-size:1.5rem;margin:1.2rem 0 .4rem}h2{font-size:1.2rem;margin-top:2rem;border-bottom:1px solid #ddd}
+h3{font-size:1rem;margin:1.2rem 0 .3rem}
+.headline{background:#f3f6fb;border-left:4px solid #2a6ebb;padding:.6rem 1rem;margin:1rem 0}
+.headline p{margin:.3rem 0}.meaning{font-weight:600}
+.scroll{overflow-x:auto;-webkit-overflow-scrolling:touch}
+table{border-collapse:collapse;margin:.4rem 0;font-size:.95rem}
+th,td{border:1px solid #d6d6d6;padding:.25rem .6rem;text-align:left;vertical-align:top}
+td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}th{background:#f4f4f4}
+figure{margin:1rem 0}img{max-width:100%;height:auto;display:block;border:1px solid #eee}
+figcaption{font-size:.9rem;color:#555}code,pre{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.9rem}
+pre{white-space:pre-wrap;word-break:break-all;background:#f6f6f6;padding:.5rem}
+details{margin:.5rem 0}summary{cursor:pointer;font-weight:600}
+@media (max-width:40rem){body{font-size:15px;padding:0 .6rem 2rem}.headline{padding:.4rem .6rem}
+th,td{padding:.2rem .35rem}table{font-size:.88rem}}
+"""
 
 
-def _table(title: str, data: dict[str, Any] | None) -> str:
-    if not data:
+# ------------------------------------------------------------------------------------------ formatting
+def fmt(value: Any, kind: str = "num") -> str:
+    """A number for people: `pct` as a percentage, `x` as a ratio, `int`, `s` as a duration, else 3
+    significant digits followed by `kind` as the unit. Non-finite numbers read 'not defined'."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if not isinstance(value, int | float):
+        return str(value)
+    v = float(value)
+    if not math.isfinite(v):
+        return "not defined" if math.isnan(v) else ("∞" if v > 0 else "−∞")
+    if kind == "int":
+        return f"{round(v):,}"
+    if kind == "pct":
+        return f"{100 * v:.1f}%"
+    if kind == "x":
+        return f"{v:.3g} ×"
+    if kind == "s":
+        return f"{v:.1f} s" if v < 120 else f"{int(v // 60)} min {int(round(v % 60))} s"
+    if abs(v) < 5e-4:
+        text = "0"  # rounding noise (e.g. the scripted expert's -7e-08) reads as what it is
+    elif abs(v) >= 1000:
+        text = f"{v:,.0f}"
+    else:
+        text = f"{v:.3g}"
+    return text if kind == "num" else f"{text} {kind}"
+
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x))
+
+
+def _label(key: str) -> tuple[str, str]:
+    return METRICS.get(key, (key.replace("_", " "), "num"))
+
+
+def _table(header: Sequence[str], rows: Iterable[Sequence[str]], numeric_from: int = 1) -> str:
+    """An HTML table of already formatted strings (cells from column `numeric_from` on are right-aligned)."""
+    body = "".join("<tr>" + "".join(f"<td class='n'>{_esc(c)}</td>" if i >= numeric_from else f"<td>{_esc(c)}</td>"
+                                    for i, c in enumerate(r)) + "</tr>" for r in rows)
+    if not body:
         return ""
-    rows = "".join(
-        f"<tr><td>{html.escape(str(k))}</td><td>{v:.4g}</td></tr>" if isinstance(v, float)
-        else f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>"
-        for k, v in data.items() if not isinstance(v, dict | list)
-    )
-    return f"<h2>{html.escape(title)}</h2><table>{rows}</table>"
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    return f"<div class='scroll'><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>"
 
 
-def write_report(run_dir: Path) -> Path:
-    """Write RUN/report.html from the JSON results and PNG figures present in the run folder."""
+def metric_rows(columns: Sequence[Mapping[str, Any] | None], keys: Iterable[str] | None = None) -> list[list[str]]:
+    """Rows `label, column 1, column 2, ...` for every scalar key present (and not None) in some column."""
+    cols = [c or {} for c in columns]
+    if keys is None:
+        seen: dict[str, None] = {}
+        for c in cols:
+            for k, v in c.items():
+                if isinstance(v, int | float) and not isinstance(v, bool) or isinstance(v, bool):
+                    seen.setdefault(k)
+        keys = [k for k in METRICS if k in seen] + [k for k in seen if k not in METRICS]
+    rows = []
+    for k in keys:
+        if all(c.get(k) is None for c in cols):
+            continue
+        label, kind = _label(k)
+        rows.append([label] + [fmt(c[k], kind) if c.get(k) is not None else "–" for c in cols])
+    return rows
+
+
+def _flatten(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
+    out: list[tuple[str, str]] = []
+    for k, v in data.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out += _flatten(v, name + ".")
+        elif v is None:
+            continue
+        elif isinstance(v, list | tuple):
+            sep = " × " if all(isinstance(x, int) for x in v) else ", "
+            out.append((name, sep.join(map(str, v))))
+        else:
+            out.append((name, fmt(v)))
+    return out
+
+
+def _img(path: Path, alt: str) -> str:
+    mime = "image/gif" if path.suffix == ".gif" else "image/png"
+    data = base64.b64encode(path.read_bytes()).decode()
+    return f"<img src='data:{mime};base64,{data}' alt='{_esc(alt)}' loading='eager'>"
+
+
+def _load(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _page(title: str, body: str) -> str:
+    return ("<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+            "<meta name='viewport' content='width=device-width,initial-scale=1'>"
+            f"<title>{_esc(title)}</title><style>{STYLE}</style></head><body>{body}</body></html>")
+
+
+# ------------------------------------------------------------------------------------------ run report
+FIGURE_CAPTIONS = {
+    "four_rooms_codes": "Four Rooms (paper Figure 3): the most likely action of each code's sub-task policy in every "
+                        "free cell, the apple (red) fixed.",
+    "four_rooms_paths": "Paths on the grid coloured by the active code; a star marks the start, red the apple.",
+    "generated": "Closed-loop rollouts of the hierarchical policy, coloured by code (left) and by time (right).",
+    "compose": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
+    "segmentation_pair": "Two segmentations of the same demonstrations side by side.",
+    "segmentation": "Segmentation of the demonstrations: codes per step, above the oracle labels where the "
+                    "environment has them (codes then take the colour of their matched label).",
+    "codes_time": "Codes against time: demonstrations (decoded by q) and closed-loop rollouts.",
+    "pca_codes": "States projected on their first two principal components, coloured by code.",
+    "pendulum_code_map": "Pendulum: angle against angular velocity, coloured by the active code.",
+    "learning_curves": "Learning curves against environment steps.",
+}
+FIGURE_ORDER = list(FIGURE_CAPTIONS)
+
+
+def run_command(cfg: Mapping[str, Any]) -> str:
+    """The command that made a run: `command` in config.json, else rebuilt from its settings."""
+    if cfg.get("command"):
+        return str(cfg["command"])
+    env, seed = cfg.get("env_id", "ENV"), cfg.get("seed", 0)
+    preset = f" --preset {cfg['preset']}" if cfg.get("preset") else ""
+    if cfg.get("pipeline"):
+        return f"digail run {env}{preset} --seed {seed}"
+    if cfg.get("kind") == "vae":
+        return f"digail pretrain --demos {cfg.get('demos', 'DEMOS')} --seed {seed}"
+    return f"digail train --env {env} --demos {cfg.get('demos', 'DEMOS')} --method {cfg.get('method', 'digail')} " \
+           f"--seed {seed}"
+
+
+def _task_score(ev: Mapping[str, Any]) -> tuple[str, float, float | None] | None:
+    """The env's main task score of the agent and the expert: (key, agent, expert)."""
+    expert = ev.get("expert") or {}
+    for key in ("order_correct_rate", "success_rate"):
+        if isinstance(ev.get(key), int | float):
+            return key, float(ev[key]), expert.get(key)
+    return None
+
+
+def meaning(ev: Mapping[str, Any], cfg: Mapping[str, Any]) -> str:
+    """One sentence on what the headline numbers mean."""
+    if not ev:
+        return "This run has no evaluation yet (eval.json is missing); `digail evaluate RUN` makes one."
+    score = _task_score(ev)
+    expert_return = (ev.get("expert") or {}).get("mean_return")
+    ratio: float | None = None
+    what = ""
+    if score is not None and score[2]:
+        ratio = score[1] / float(score[2])
+        what = f"{_label(score[0])[0]} at {fmt(score[1], 'pct')} against the expert's {fmt(score[2], 'pct')}"
+    elif isinstance(ev.get("mean_return"), int | float) and isinstance(expert_return, int | float) \
+            and abs(expert_return) > 1e-6:
+        agent, exp = float(ev["mean_return"]), float(expert_return)
+        # how close to the expert, 1 = as good, whatever the sign of the rewards: with negative returns (costs)
+        # agent / expert grows as the agent gets worse, so the ratio is inverted there
+        ratio = agent / exp if exp > 0 else (exp / agent if agent < 0 else 1.0)
+        what = f"a return of {fmt(agent)} against the expert's {fmt(exp)} per episode"
+    small = cfg.get("preset") == "smoke"
+    if ratio is None:
+        sentence = "There is no expert score to compare with, so judge the run by the figures below."
+    elif ratio >= 0.9:
+        sentence = f"The learned hierarchical policy does the task about as well as the expert ({what})."
+    elif ratio >= 0.5:
+        sentence = f"The policy has learned much of the task but not all of it ({what})."
+    else:
+        sentence = f"The policy has not learned the task ({what})."
+    if small:
+        sentence += " This is a smoke-test run (a few iterations), which checks the plumbing, not the method."
+    return sentence
+
+
+def headline(run_dir: Path) -> str:
+    """The opening block of a run report: what ran, the main numbers next to the expert's and the paper's."""
+    cfg = _load(run_dir / "config.json")
+    ev = _load(run_dir / "eval.json")
+    seg = _load(run_dir / "segmentation.json")
+    comp = _load(run_dir / "compose.json")
+    env = str(cfg.get("env_id") or ev.get("env_id") or "an unknown environment")
+    method = METHOD_NAMES.get(str(cfg.get("method") or cfg.get("kind")), str(cfg.get("method") or "a model"))
+    train = cfg.get("train") or {}
+    steps = _total_steps(run_dir)
+    what = (f"{method} on {ENV_NAMES.get(env, env)} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
+            + (f", preset <code>{_esc(cfg['preset'])}</code>" if cfg.get("preset") else "")
+            + (f", {fmt(train['iterations'], 'int')} training iterations" if train.get("iterations") else "")
+            + (f" ({fmt(steps, 'int')} environment steps)" if steps else "") + ".")
+    rows: list[list[str]] = []
+    if ev:
+        expert = ev.get("expert") or {}
+        paper = PAPER_RETURNS.get(env)
+        rows.append(["mean return ± std (per episode)",
+                     f"{fmt(ev.get('mean_return'))} ± {fmt(ev.get('std_return'))}",
+                     f"{fmt(expert['mean_return'])} ± {fmt(expert.get('std_return'))}" if expert else "–",
+                     f"{fmt(paper[0])} ± {fmt(paper[1])}" if paper else "–"])
+        if isinstance(ev.get("normalized_return"), int | float):
+            rows.append(["normalised return (agent / expert)", fmt(ev["normalized_return"], "x"), "1 ×", "–"])
+        for key in TASK_KEYS:
+            if isinstance(ev.get(key), int | float):
+                label, kind = _label(key)
+                rows.append([label, fmt(ev[key], kind), fmt(expert[key], kind) if key in expert else "–", "–"])
+    if "accuracy" in seg:
+        rows.append(["segmentation accuracy (demonstrations)", fmt(seg["accuracy"], "pct"), "–", "–"])
+    if isinstance(comp.get("order_reversed_rate"), int | float):
+        rows.append([f"composed ({comp.get('schedule', 'schedule')}): reversed order drawn",
+                     fmt(comp["order_reversed_rate"], "pct"), "–", "–"])
+    episodes = f" over {fmt(ev['episodes'], 'int')} closed-loop episodes" if ev.get("episodes") else ""
+    header = ["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"]
+    if env not in PAPER_RETURNS:
+        header, rows = header[:3], [r[:3] for r in rows]
+    table = _table(header, rows)
+    return (f"<section class='headline'><p>{what}</p>"
+            f"<p class='meaning'>{_esc(meaning(ev, cfg))}</p>{table}"
+            f"<p>Numbers{episodes}; the expert is measured on the same seeds.</p></section>")
+
+
+def _total_steps(run_dir: Path) -> float | None:
+    from digail.viz.figures import read_metrics
+
+    m = read_metrics(run_dir)
+    if "step" in m and len(m["step"]):
+        return float(m["step"][-1])
+    return None
+
+
+def write_report(run_dir: Path, out: Path | None = None) -> Path:
+    """Write RUN/report.html (or `out`) from what the run folder holds; returns its path."""
     run_dir = Path(run_dir)
-    cfg = _load(run_dir / "config.json") or {}
-    parts = [f"<h1>digail run: {html.escape(run_dir.name)}</h1>",
-             f"<p>env <b>{html.escape(str(cfg.get('env_id')))}</b>, method <b>{html.escape(str(cfg.get('method')))}"
-             f"</b>, seed {html.escape(str(cfg.get('seed')))}, demonstrations {html.escape(str(cfg.get('demos')))}</p>"]
-    parts.append(_table("Evaluation (closed-loop macro-policy)", _load(run_dir / "eval.json")))
-    ev = _load(run_dir / "eval.json") or {}
-    parts.append(_table("Expert, measured the same way", ev.get("expert")))
-    parts.append(_table("Segmentation of the demonstrations", _load(run_dir / "segmentation.json")))
-    parts.append(_table("Composition", _load(run_dir / "compose.json")))
-    parts.append(_table("Timings (s)", _load(run_dir / "timings.json")))
-    for png in sorted((run_dir / "figures").glob("*.png")) if (run_dir / "figures").exists() else []:
-        data = base64.b64encode(png.read_bytes()).decode()
-        parts.append(f"<h3>{html.escape(png.stem)}</h3><img src='data:image/png;base64,{data}'/>")
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse}"
-             "td{border:1px solid #ccc;padding:2px 8px}img{max-width:100%}")
-    out = run_dir / "report.html"
-    out.write_text(f"<!doctype html><html><head><meta charset='utf-8'><style>{style}</style>"
-                   f"<title>digail {html.escape(run_dir.name)}</title></head><body>{''.join(parts)}</body></html>")
+    cfg = _load(run_dir / "config.json")
+    ev = _load(run_dir / "eval.json")
+    seg = _load(run_dir / "segmentation.json")
+    comp = _load(run_dir / "compose.json")
+    timings = _load(run_dir / "timings.json")
+    parts = [f"<h1>digail run <code>{_esc(run_dir.name)}</code></h1>", headline(run_dir)]
+
+    videos = run_dir / "videos"
+    gifs = sorted(videos.glob("*.gif")) if videos.is_dir() else []
+    mp4s = sorted(videos.glob("*.mp4")) if videos.is_dir() else []
+    if gifs or mp4s:
+        parts.append("<h2>Video</h2>")
+        for gif in gifs[:2]:
+            parts.append(f"<figure>{_img(gif, gif.stem)}<figcaption>{_esc(gif.stem.replace('_', ' '))}: every frame "
+                         "shows the episode, the step and the active code (its colour matches the figures)."
+                         "</figcaption></figure>")
+        if mp4s:
+            page_dir = (Path(out) if out is not None else run_dir / "report.html").resolve().parent
+            links = ", ".join(f"<a href='{_esc(Path(os.path.relpath(p.resolve(), page_dir)).as_posix())}'>"
+                              f"{_esc(p.name)}</a> ({fmt(p.stat().st_size / 1e6)} MB)" for p in mp4s)
+            parts.append(f"<p>Full-rate MP4 files beside this page: {links}.</p>")
+
+    figs = {p.stem: p for p in sorted((run_dir / "figures").glob("*.png"))} if (run_dir / "figures").is_dir() else {}
+    if figs:
+        parts.append("<h2>Figures</h2>")
+        for stem in sorted(figs, key=lambda s: (FIGURE_ORDER.index(s) if s in FIGURE_ORDER else 99, s)):
+            caption = FIGURE_CAPTIONS.get(stem, stem.replace("_", " "))
+            parts.append(f"<figure>{_img(figs[stem], stem)}<figcaption>{_esc(caption)}</figcaption></figure>")
+
+    if ev:
+        parts.append("<h2>Evaluation (closed-loop macro-policy)</h2>")
+        parts.append(_table(["metric", "agent", "expert"], metric_rows([ev, ev.get("expert")])))
+        extra = [f"{fmt(ev['episodes'], 'int')} episodes" if ev.get("episodes") else "",
+                 f"seeds from {ev['seed']}" if "seed" in ev else "",
+                 "deterministic actions" if ev.get("deterministic") else "sampled actions" if "deterministic" in ev
+                 else "", str(ev.get("macro_policy", ""))]
+        parts.append(f"<p>{_esc('; '.join(x for x in extra if x))}.</p>")
+    if seg:
+        parts.append("<h2>Segmentation of the demonstrations</h2>")
+        if "accuracy" in seg:
+            vit = seg.get("viterbi")
+            parts.append(_table(["metric", "causal (argmax q)"] + (["Viterbi smoother"] if vit else []),
+                                metric_rows([seg, vit] if vit else [seg])))
+            if seg.get("mapping"):
+                pairs = ", ".join(f"code {c} → label {lab}" for c, lab in sorted(seg["mapping"].items()))
+                parts.append(f"<p>Code-to-label matching ({_esc(seg.get('matching', ''))}): {_esc(pairs)}.</p>")
+        else:
+            parts.append(_table(["metric", "value"], metric_rows([seg])))
+            parts.append("<p>The demonstrations carry no oracle labels, so only the switch count is reported.</p>")
+    if comp:
+        parts.append(f"<h2>Composition (schedule <code>{_esc(comp.get('schedule', ''))}</code>)</h2>")
+        parts.append(_table(["metric", "value"], metric_rows([comp])))
+    if timings:
+        parts.append("<h2>Timings</h2>")
+        rows = [[k.removesuffix("_s").replace("_", " "), fmt(v, "s")] for k, v in timings.items()
+                if isinstance(v, int | float)]
+        parts.append(_table(["stage", "wall-clock time"], rows))
+    parts.append("<h2>How this run was made</h2>")
+    parts.append(f"<pre>{_esc(run_command(cfg))}</pre>")
+    shown = {k: v for k, v in cfg.items() if k not in ("args", "schema", "command")}  # args repeat the settings
+    if shown:
+        parts.append("<details><summary>Full configuration</summary>"
+                     + _table(["setting", "value"], _flatten(shown)) + "</details>")
+    out = Path(out) if out is not None else run_dir / "report.html"
+    atomic_write_bytes(out, _page(f"digail {run_dir.name}", "".join(parts)).encode())
+    return out
+
+
+# -------------------------------------------------------------------------------------- compare report
+def _median(values: Sequence[float]) -> float | None:
+    vals = [v for v in values if isinstance(v, int | float) and math.isfinite(v)]
+    return statistics.median(vals) if vals else None
+
+
+def method_of(cfg: Mapping[str, Any]) -> str:
+    """How a run is grouped on the compare page: its method (and K when the VAE settings give it)."""
+    method = str(cfg.get("method") or cfg.get("kind") or "unknown")
+    bc = (cfg.get("train") or {}).get("bc_weight")
+    return METHOD_NAMES.get(method, method) + (" + L2" if isinstance(bc, int | float) and bc > 0 else "")
+
+
+def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
+    """One page over many run folders: learning curves (mean and spread over seeds per method) and tables of
+    medians and of each seed's main numbers. Returns `out`."""
+    from digail.viz.figures import learning_curves_multi
+
+    runs = [Path(r) for r in runs]
+    groups: dict[str, list[Path]] = {}
+    info: dict[Path, tuple[dict[str, Any], dict[str, Any], dict[str, Any]]] = {}
+    for r in runs:
+        info[r] = (_load(r / "config.json"), _load(r / "eval.json"), _load(r / "segmentation.json"))
+    envs = sorted({str(c.get("env_id")) for c, _, _ in info.values() if c.get("env_id")})
+    for r in runs:
+        cfg = info[r][0]
+        env = str(cfg.get("env_id"))
+        # runs on different envs never share a row or a curve
+        key = method_of(cfg) + (f" on {ENV_NAMES.get(env, env)}" if len(envs) > 1 else "")
+        groups.setdefault(key, []).append(r)
+    out = Path(out)
+    fig_path = out.with_name(out.stem + "_learning_curves.png")
+    fig = learning_curves_multi(groups, fig_path)
+    keys = ["mean_return", "normalized_return", *TASK_KEYS]
+    present = [k for k in keys if any(isinstance(ev.get(k), int | float) for _, ev, _ in info.values())]
+    has_seg = any("accuracy" in s for _, _, s in info.values())
+    header = ["method", "seeds"] + [_label(k)[0] for k in present] + (["segmentation accuracy"] if has_seg else [])
+    rows = []
+    for method, rs in sorted(groups.items()):
+        row = [method, str(len(rs))]
+        for k in present:
+            m = _median([info[r][1].get(k) for r in rs])  # type: ignore[misc]
+            row.append(fmt(m, _label(k)[1]) if m is not None else "–")
+        if has_seg:
+            m = _median([info[r][2].get("accuracy") for r in rs])  # type: ignore[misc]
+            row.append(fmt(m, "pct") if m is not None else "–")
+        rows.append(row)
+    per_seed = []
+    for method, rs in sorted(groups.items()):
+        for r in sorted(rs, key=lambda p: info[p][0].get("seed", 0)):
+            cfg, ev, seg = info[r]
+            per_seed.append([method, str(cfg.get("seed", "–"))]
+                            + [fmt(ev[k], _label(k)[1]) if isinstance(ev.get(k), int | float) else "–" for k in present]
+                            + ([fmt(seg["accuracy"], "pct") if "accuracy" in seg else "–"] if has_seg else [])
+                            + [r.name])
+    env_names = ", ".join(ENV_NAMES.get(e, e) for e in envs) or "unknown environments"
+    parts = [f"<h1>digail: {len(groups)} method(s) × seeds on {_esc(env_names)}</h1>" if len(envs) <= 1
+             else f"<h1>digail: {len(groups)} methods and environments × seeds</h1>",
+             "<section class='headline'>"
+             f"<p>{len(runs)} runs: " + ", ".join(f"{_esc(m)} ({len(rs)} seeds)" for m, rs in sorted(groups.items()))
+             + ". Medians over seeds; evaluation is closed-loop.</p>" + _table(header, rows) + "</section>"]
+    if fig is not None:
+        parts.append("<h2>Learning curves</h2><figure>" + _img(fig, "learning curves")
+                     + "<figcaption>Mean over seeds (line) and min–max over seeds (band) against environment steps."
+                     "</figcaption></figure>")
+    parts.append("<h2>Every run</h2>" + _table(header[:1] + ["seed"] + header[2:] + ["run folder"], per_seed))
+    atomic_write_bytes(out, _page("digail comparison", "".join(parts)).encode())
     return out

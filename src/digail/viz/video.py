@@ -1,41 +1,209 @@
-"""Videos of evaluation episodes (rgb_array rendering; MuJoCo headless via MUJOCO_GL=egl)."""
+"""Videos of a hierarchical policy: every frame shows the active code and the step.
+
+Episodes run closed-loop (c_t = argmax q(. | s_t, c_{t-1}), exactly as `digail evaluate` does) or under a code
+schedule (composition), one env at a time with `render_mode="rgb_array"`: the env's own image for Four Rooms and
+Circle-World, offscreen MuJoCo for the MuJoCo envs. MuJoCo needs `MUJOCO_GL` before it is first imported:
+`ensure_offscreen_gl` picks `egl`, falling back to `osmesa` where no EGL library is installed.
+
+Each video is written twice: an MP4 (H.264 through imageio-ffmpeg) to download, and a smaller GIF (at most
+`GIF_WIDTH` pixels wide, every `gif_stride`-th frame) that an HTML page can embed without JavaScript.
+"""
 
 from __future__ import annotations
 
+import ctypes.util
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from digail.errors import UserError
 from digail.nets.mlp import one_hot
+
+GIF_WIDTH = 320
+"""Largest GIF width in pixels (frames are shrunk, never enlarged)."""
+GIF_MAX_FRAMES = 150
+"""Most frames a GIF keeps (the stride grows for long videos), so that a report embedding it stays small."""
+BANNER_PIXELS = 24
+"""Height of the caption strip drawn above every frame."""
+
+
+def ensure_offscreen_gl() -> str:
+    """Set `MUJOCO_GL` for headless rendering unless the user chose one: `egl`, or `osmesa` without libEGL.
+
+    Only effective before MuJoCo is first imported. Returns the value in force.
+    """
+    if "MUJOCO_GL" not in os.environ:
+        has_egl = ctypes.util.find_library("EGL") is not None
+        has_osmesa = ctypes.util.find_library("OSMesa") is not None
+        os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
+    return os.environ["MUJOCO_GL"]
+
+
+@dataclass
+class RenderedEpisode:
+    """One episode: frames[t] is the image of the state in which codes[t] was chosen (plus the final one)."""
+
+    frames: list[np.ndarray] = field(default_factory=list)
+    codes: list[int] = field(default_factory=list)
+    obs: list[np.ndarray] = field(default_factory=list)
+    ret: float = 0.0
 
 
 @torch.no_grad()
-def record_video(model, env_id: str, path: Path, seed: int = 0, episodes: int = 1, fps: int = 30) -> Path:  # type: ignore[no-untyped-def]
-    """Roll out the closed-loop hierarchical policy and write an mp4 of `episodes` episodes."""
-    import imageio.v2 as imageio
+def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, schedule: Sequence[int] | None = None,
+                  render: bool = True, deterministic: bool = True,
+                  max_steps: int | None = None) -> list[RenderedEpisode]:
+    """Run `episodes` episodes (episode e reset with `seed + e`) and keep frames, codes and observations.
+
+    Args:
+        model: a `HierarchicalPolicy`.
+        env_id: a registered environment id.
+        schedule: code per step (the last repeats once it runs out); None for the closed-loop macro-policy.
+        render: keep `env.render()` images (off for plots that need only states and codes).
+        deterministic: pi's most likely / mean action, as in evaluation.
+        max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
+            frame on a loaded CPU); None plays them to their end.
+    """
+    import gymnasium as gym
 
     from digail.envs import make_env
+    from digail.envs.actions import env_action_fn
     from digail.envs.episodes import play_episode
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    env = make_env(env_id, render_mode="rgb_array")
-    frames: list[Any] = []
-    prev = torch.tensor([-1])
+    if render:
+        ensure_offscreen_gl()
+    model.eval()
+    device = next(model.parameters()).device
+    env = make_env(env_id, render_mode="rgb_array") if render else make_env(env_id)
+    if max_steps is not None:
+        env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)  # the cut reads as a truncation
+    to_env = env_action_fn(env)
+    eye = torch.eye(model.codes, device=device)
+    out: list[RenderedEpisode] = []
+    rec = RenderedEpisode()
 
-    def act(env: Any, obs: Any) -> np.ndarray:
-        nonlocal prev
-        frames.append(np.asarray(env.render()))
-        obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32))[None])
-        code = model.q(obs_n, one_hot(prev, model.codes)).argmax(-1)
-        prev = code
-        return model.pi.mode(obs_n, torch.eye(model.codes)[code])[0].numpy()
+    def act(env: Any, obs: Any) -> Any:
+        """Frame, code (schedule, or argmax q given the previous code), then pi's action."""
+        if render:
+            rec.frames.append(np.asarray(env.render()))
+        t = len(rec.codes)
+        obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32), device=device)[None])
+        if schedule is not None:
+            code = int(schedule[min(t, len(schedule) - 1)])
+        else:
+            prev = rec.codes[-1] if rec.codes else -1
+            code = int(model.q(obs_n, one_hot(torch.tensor([prev], device=device), model.codes)).argmax(-1))
+        rec.codes.append(code)
+        code_1h = eye[[code]]
+        action = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
+        action_np = action.cpu().numpy()
+        return (to_env(action_np) if to_env is not None else action_np)[0]
 
-    for e in range(episodes):
-        prev = torch.tensor([-1])
-        play_episode(env, act, seed + e)
-    env.close()
-    imageio.mimsave(path, frames, fps=fps)
-    return path
+    try:
+        for e in range(episodes):
+            rec = RenderedEpisode()
+            ep = play_episode(env, act, seed + e, keep=True)
+            if render:
+                rec.frames.append(np.asarray(env.render()))
+            rec.obs, rec.ret = [np.asarray(o) for o in ep.obs], ep.ret
+            out.append(rec)
+    except gym.error.DependencyNotInstalled as exc:  # e.g. Pendulum-v1 draws with pygame
+        raise UserError(f"{env_id} cannot draw its frames here ({exc}); install that package to record a video."
+                        ) from None
+    finally:
+        env.close()
+    return out
+
+
+def annotate(frame: np.ndarray, text: str, code: int | None) -> np.ndarray:
+    """`frame` under a white caption strip holding `text`, with a swatch in the code's colour (tab10)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    from digail.viz.figures import code_colour
+
+    img = np.asarray(frame, np.uint8)[..., :3]
+    h, w = img.shape[:2]
+    canvas = Image.new("RGB", (w, h + BANNER_PIXELS), (255, 255, 255))
+    canvas.paste(Image.fromarray(img), (0, BANNER_PIXELS))
+    draw = ImageDraw.Draw(canvas)
+    try:
+        font: Any = ImageFont.load_default(size=15)
+    except TypeError:  # Pillow < 10.1 has one bitmap size
+        font = ImageFont.load_default()
+    x = 4
+    if code is not None:
+        rgb = tuple(int(255 * v) for v in code_colour(code)[:3])
+        draw.rectangle((4, 4, 4 + BANNER_PIXELS - 8, BANNER_PIXELS - 4), fill=rgb)
+        x += BANNER_PIXELS - 2
+    draw.text((x, 3), text, fill=(0, 0, 0), font=font)
+    return np.asarray(canvas)
+
+
+def _pad16(frame: np.ndarray) -> np.ndarray:
+    """Pad with white to multiples of 16 pixels, which H.264 encoders need (instead of imageio's resize)."""
+    h, w = frame.shape[:2]
+    ph, pw = -h % 16, -w % 16
+    return np.pad(frame, ((0, ph), (0, pw), (0, 0)), constant_values=255) if ph or pw else frame
+
+
+def captioned_frames(episodes: Sequence[RenderedEpisode], label: str = "") -> list[np.ndarray]:
+    """Every frame of every episode with `ep e  step t  code c` (and `label`) drawn above it."""
+    frames = []
+    for e, ep in enumerate(episodes):
+        for t, frame in enumerate(ep.frames):
+            code = ep.codes[min(t, len(ep.codes) - 1)] if ep.codes else None
+            text = f"ep {e}  step {t}  code {code}" + (f"  {label}" if label else "")
+            frames.append(annotate(frame, text, code))
+    return frames
+
+
+def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_stride: int = 2) -> tuple[Path, Path]:
+    """Write `stem`.mp4 (every frame) and `stem`.gif (every `gif_stride`-th frame, at most GIF_WIDTH wide)."""
+    import imageio.v2 as imageio
+    from PIL import Image
+
+    if not frames:
+        raise ValueError("no frames to write")
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    mp4, gif = stem.with_suffix(".mp4"), stem.with_suffix(".gif")
+    imageio.mimsave(mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
+    small: list[Any] = []
+    gif_stride = max(gif_stride, -(-len(frames) // GIF_MAX_FRAMES))
+    for f in frames[::max(1, gif_stride)]:
+        img = Image.fromarray(f)
+        if img.width > GIF_WIDTH:
+            img = img.resize((GIF_WIDTH, round(img.height * GIF_WIDTH / img.width)), Image.Resampling.LANCZOS)
+        small.append(np.asarray(img))
+    imageio.mimsave(gif, small, duration=1000 * max(1, gif_stride) / fps, loop=0)
+    return mp4, gif
+
+
+def record_video(model: Any, env_id: str, path: Path, seed: int = 0, episodes: int = 1,
+                 schedule: Sequence[int] | None = None, fps: int | None = None, label: str = "",
+                 max_steps: int | None = None) -> tuple[Path, Path]:
+    """Render `episodes` episodes (closed-loop, or under `schedule`) to `path` as MP4 and GIF.
+
+    Args:
+        path: the MP4 path or stem; the GIF goes beside it with the same name.
+        fps: frames per second (default: the env's `render_fps`, else 30).
+        label: extra caption text, e.g. the schedule.
+        max_steps: cut each episode after this many steps (None: play it to its end).
+
+    Returns:
+        The MP4 and GIF paths.
+    """
+    from digail.envs import make_env
+
+    eps = play_episodes(model, env_id, episodes, seed, schedule=schedule, max_steps=max_steps)
+    if fps is None:
+        probe = make_env(env_id)
+        fps = int(probe.metadata.get("render_fps") or 30)
+        probe.close()
+    return write_mp4_gif(captioned_frames(eps, label), Path(path).with_suffix(""), fps=fps,
+                         gif_stride=2 if fps >= 20 else 1)

@@ -1,0 +1,125 @@
+"""`digail report RUN`: figures and one self-contained report.html; `digail report --compare RUN...`: one page
+over methods and seeds."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import tyro
+
+from digail.errors import UserError
+
+
+@dataclass(frozen=True)
+class ReportArgs:
+    """Write a run's figures and its self-contained report.html, or (--compare) one page over many runs."""
+
+    runs: Annotated[tuple[Path, ...], tyro.conf.Positional]
+    """a run folder; with --compare, several run folders or one sweep folder holding them"""
+    compare: bool = False
+    """build a methods-by-seeds page (learning curves, table of medians) instead of one run's report"""
+    out: Path | None = None
+    """output page (default: RUN/report.html; with --compare, compare.html in the runs' common folder)"""
+    figures: bool = True
+    """redraw the run's figures from its model and demonstrations first (--no-figures: use those present)"""
+    unsmoothed: Path | None = None
+    """a VAE run folder trained without the smoothing term, shown beside the run's own segmentation"""
+
+
+def report_command(args: ReportArgs) -> Path:
+    """Write the page; returns its path."""
+    from digail.viz.report import write_compare_report, write_report
+
+    if not args.runs:
+        raise UserError("name a run folder: `digail report RUN` (or several with --compare).")
+    missing = [str(r) for r in args.runs if not Path(r).is_dir()]
+    if missing:
+        raise UserError(f"run folder {missing[0]} does not exist; pass a folder made by `digail run` or "
+                        "`digail train`.")
+    if args.compare:
+        runs = find_runs(args.runs)
+        if not runs:
+            raise UserError(f"no run folders (with a config.json) in {', '.join(map(str, args.runs))}.")
+        out = args.out or _common_parent(runs) / "compare.html"
+        page = write_compare_report(runs, out)
+        print(f"compared {len(runs)} runs: {page}")
+        return page
+    if len(args.runs) != 1:
+        raise UserError(f"got {len(args.runs)} run folders; pass one, or add --compare for a comparison page.")
+    run = Path(args.runs[0])
+    if args.figures and (run / "model.pt").exists():
+        make_figures(run, unsmoothed=args.unsmoothed)
+    page = write_report(run, args.out)
+    print(f"report: {page}")
+    return page
+
+
+def find_runs(paths: tuple[Path, ...] | list[Path]) -> list[Path]:
+    """Run folders among `paths`: each path holding a config.json, else its sub-folders that do (a sweep)."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if (p / "config.json").exists():
+            out.append(p)
+        else:
+            out += sorted(c.parent for c in p.glob("*/config.json"))
+    return out
+
+
+def _common_parent(runs: list[Path]) -> Path:
+    import os
+
+    return Path(os.path.commonpath([str(r.resolve().parent) for r in runs]))
+
+
+def _demo_codes(run: Path) -> list[np.ndarray] | None:
+    path = run / "codes.npz"
+    if not path.exists():
+        return None
+    with np.load(path) as z:
+        return [z[k] for k in sorted(z.files)]
+
+
+def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed: Path | None = None,
+                 episodes: int = 6) -> list[Path]:
+    """Every figure of `run` (viz.run_figures) from its model.pt, its demonstrations (config.json's `demos`) and
+    its codes.npz (segmented again when missing); composition from compose.json's schedule.
+
+    `model` and `trajs` skip the loading when the caller holds them (`digail run`).
+    """
+    from digail.checkpoint import load_model
+    from digail.commands.common import run_env_id
+    from digail.data.minari_io import load_dataset
+    from digail.eval.composition import parse_schedule
+    from digail.eval.segmentation import segment_many, viterbi
+    from digail.viz.run_figures import write_run_figures
+
+    cfg = json.loads((run / "config.json").read_text()) if (run / "config.json").exists() else {}
+    meta: dict[str, Any] = {}
+    if model is None:
+        model, meta = load_model(run / "model.pt")
+    env_id = run_env_id(run, meta)
+    if trajs is None:
+        if not cfg.get("demos"):
+            raise UserError(f"{run}/config.json does not name its demonstrations, so its figures cannot be drawn; "
+                            "pass --no-figures.")
+        trajs = list(load_dataset(cfg["demos"]).trajs)
+    codes = _demo_codes(run)
+    if codes is None or len(codes) != len(trajs):
+        codes = segment_many(model, trajs)
+    comp = json.loads((run / "compose.json").read_text()) if (run / "compose.json").exists() else {}
+    schedule_text = str(comp.get("schedule") or "")
+    schedule = parse_schedule(schedule_text, model.codes) if schedule_text else None
+    pair = None
+    shown = trajs[:6]
+    if unsmoothed is not None:
+        other, _ = load_model(Path(unsmoothed) / "model.pt" if Path(unsmoothed).is_dir() else Path(unsmoothed))
+        pair = (segment_many(other, shown), ("this run (with its smoothing weight)", "VAE without smoothing"))
+    elif np.shape(trajs[0].obs)[1:] == (2,):
+        pair = ([viterbi(model, t) for t in shown], ("causal argmax q (online)", "Viterbi with the prior (offline)"))
+    paths = write_run_figures(run, model, env_id, [t.obs for t in trajs], codes, schedule=schedule,
+                              schedule_text=schedule_text, pair=pair, episodes=episodes)
+    return paths

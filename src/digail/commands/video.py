@@ -1,0 +1,50 @@
+"""`digail video RUN [--episodes N] [--schedule S]`: MP4 and GIF of a run's policy, code and step on every frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+
+@dataclass(frozen=True)
+class VideoArgs:
+    """Render episodes of a run's policy (closed-loop, or under a code schedule) to RUN/videos as MP4 and GIF."""
+
+    run: Annotated[Path, tyro.conf.Positional]
+    """run folder of a trained policy (holding model.pt)"""
+    episodes: int = 1
+    """episodes to render, one after the other in one video"""
+    schedule: str | None = None
+    """code:steps pairs such as '1:60,0:60' to compose sub-task policies (default: the closed-loop macro-policy)"""
+    seed: int = 10_000
+    """seed of the first episode (the evaluation seeds by default)"""
+    max_steps: int | None = None
+    """cut each episode after this many steps (default: play it to its end)"""
+    name: str | None = None
+    """file name without extension (default: closed_loop, or composed for a schedule)"""
+
+
+def video_command(args: VideoArgs) -> tuple[Path, Path]:
+    """Write RUN/videos/<name>.mp4 and .gif; returns their paths."""
+    from digail.checkpoint import load_model
+    from digail.commands.common import run_env_id
+    from digail.errors import UserError
+    from digail.eval.composition import parse_schedule
+    from digail.viz.video import record_video
+
+    run = Path(args.run)
+    if args.episodes < 1:
+        raise UserError(f"--episodes must be at least 1, got {args.episodes}.")
+    model, meta = load_model(run / "model.pt")
+    env_id = run_env_id(run, meta)
+    schedule = parse_schedule(args.schedule, model.codes) if args.schedule else None
+    name = args.name or ("composed" if schedule is not None else "closed_loop")
+    mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=args.seed, episodes=args.episodes,
+                            schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
+                            max_steps=args.max_steps)
+    print(f"wrote {mp4} and {gif}")
+    return mp4, gif
+

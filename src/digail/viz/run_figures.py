@@ -1,0 +1,93 @@
+"""Every figure a run folder gets, chosen by its environment (written into RUN/figures/).
+
+`write_run_figures` takes the trained model, the demonstrations with their codes and, optionally, a composition
+schedule and a second segmentation to compare with; it rolls out a few closed-loop episodes itself
+(`viz.video.play_episodes`, no rendering) and draws:
+
+- all envs: `learning_curves.png` (from metrics.csv), `codes_time.png` (code strips, demonstrations and rollouts),
+  `pca_codes.png` (states, first two principal components, coloured by code);
+- Four Rooms: `four_rooms_codes.png` (paper Figure 3, one arrow map per code) and `four_rooms_paths.png`;
+- 2-D worlds (Circle-World): `generated.png` (by code and by time), `compose.png` under the schedule, and
+  `segmentation_pair.png` when a second segmentation is given;
+- Pendulum: `pendulum_code_map.png` (demonstrations and rollouts).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from digail.viz import figures as F
+from digail.viz.video import play_episodes
+
+FOUR_ROOMS = "digail/FourRooms-v0"
+
+
+def _obs_dim(obs: np.ndarray) -> int:
+    return int(np.prod(np.shape(obs)[1:]))
+
+
+def composition_figure(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, schedule_text: str = "") -> Path:
+    """Episodes run under a code schedule: paths coloured by code and by time for 2-D observations (the
+    reversed-order Circle-World), else code strips. Written by `digail compose` and by `digail run`."""
+    title = f"composition under the schedule {schedule_text}".strip()
+    shown = [(o, c) for o, c in episodes if len(o)]
+    if shown and _obs_dim(shown[0][0]) == 2:
+        return F.planar_trajectories(shown, path, title=title)
+    return F.code_strips({title: [c for _, c in episodes]}, path)
+
+
+def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence[np.ndarray],
+                      demo_codes: Sequence[np.ndarray], *, schedule: Sequence[int] | None = None,
+                      schedule_text: str = "", pair: tuple[Sequence[np.ndarray], tuple[str, str]] | None = None,
+                      episodes: int = 6, seed: int = 10_000) -> list[Path]:
+    """Draw the run's figures into RUN/figures; returns the paths written.
+
+    Args:
+        run_dir: the run folder.
+        model: its `HierarchicalPolicy`.
+        env_id: the environment it was trained on.
+        demo_obs: observations of each demonstration ((T_i + 1, ...) or (T_i, ...)).
+        demo_codes: the macro-policy's codes for each demonstration ((T_i,), e.g. from RUN/codes.npz).
+        schedule: code per step for the composition figure (None: no composition figure).
+        schedule_text: the schedule as the user wrote it, for titles.
+        pair: a second segmentation of the same demonstrations and the titles of (demo_codes, it), for the
+            side-by-side figure (e.g. the VAE trained without the smoothing term).
+        episodes: closed-loop rollouts drawn.
+        seed: seed of the first rollout (evaluation seeds by default).
+    """
+    out = Path(run_dir) / "figures"
+    paths: list[Path] = []
+    rollouts = play_episodes(model, env_id, episodes, seed, render=False)
+    gen = [(np.asarray(e.obs), np.asarray(e.codes)) for e in rollouts]
+    demos = [(np.asarray(o), np.asarray(c)) for o, c in zip(demo_obs, demo_codes, strict=True)]
+    curve = F.learning_curves(run_dir, out / "learning_curves.png")
+    if curve is not None:
+        paths.append(curve)
+    paths.append(F.code_strips({"demonstrations (codes from q)": [c for _, c in demos],
+                                "closed-loop rollouts": [c for _, c in gen]}, out / "codes_time.png"))
+    paths.append(F.state_pca([o for o, _ in demos + gen], [c for _, c in demos + gen], out / "pca_codes.png",
+                             title="demonstration and rollout states (PCA) coloured by code"))
+    dim = _obs_dim(demos[0][0]) if demos else 0
+    if env_id == FOUR_ROOMS:
+        apple = F._rooms_apple(demos[0][0][0]) if demos else (12, 8)
+        paths.append(F.four_rooms_code_maps(model, out / "four_rooms_codes.png", apple=apple))
+        paths.append(F.four_rooms_trajectories({"expert demonstrations": demos[:4], "closed-loop rollouts": gen[:4]},
+                                               out / "four_rooms_paths.png"))
+    elif dim == 2:
+        paths.append(F.planar_trajectories(gen, out / "generated.png", title="closed-loop rollouts"))
+        if schedule is not None:
+            composed = play_episodes(model, env_id, episodes, seed + 10_000, schedule=schedule, render=False)
+            paths.append(composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in composed],
+                                            out / "compose.png", schedule_text))
+    if env_id.startswith("Pendulum") and dim == 3:
+        paths.append(F.pendulum_code_map([o for o, _ in demos + gen], [c for _, c in demos + gen],
+                                         out / "pendulum_code_map.png"))
+    if pair is not None and demos:
+        codes_b, titles = pair
+        paths.append(F.segmentation_pair([o for o, _ in demos], [c for _, c in demos], list(codes_b),
+                                         out / "segmentation_pair.png", titles=titles))
+    return paths

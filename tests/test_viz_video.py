@@ -1,0 +1,37 @@
+"""Videos: frames, codes and observations line up; the schedule and the step cut are obeyed; MP4 and GIF are
+written with the caption strip on every frame."""
+
+from __future__ import annotations
+
+import imageio.v2 as imageio
+import numpy as np
+import torch
+
+from digail.nets.policy import ActionSpec
+from digail.nets.vae import HierarchicalPolicy
+from digail.viz.video import BANNER_PIXELS, annotate, play_episodes, record_video
+
+
+def _circle_model() -> HierarchicalPolicy:
+    torch.manual_seed(0)
+    return HierarchicalPolicy(2, 2, ActionSpec(False, 2))
+
+
+def test_play_episodes_schedule_and_cut():
+    eps = play_episodes(_circle_model(), "digail/CircleWorld-v0", 2, 0, schedule=[1] * 4 + [0], max_steps=9)
+    for ep in eps:
+        assert ep.codes == [1, 1, 1, 1, 0, 0, 0, 0, 0]
+        assert len(ep.obs) == len(ep.frames) == 10  # the state before every step and the final one
+        assert ep.frames[0].shape == (256, 256, 3)
+    full = play_episodes(_circle_model(), "digail/CircleWorld-v0", 1, 0, render=False)[0]
+    assert len(full.codes) == 120 and len(full.obs) == 121 and not full.frames
+
+
+def test_record_video_writes_captioned_mp4_and_gif(tmp_path):
+    mp4, gif = record_video(_circle_model(), "digail/CircleWorld-v0",
+                            tmp_path / "v.mp4", episodes=1, max_steps=12, label="test")
+    assert mp4.stat().st_size > 1000 and gif.stat().st_size > 1000
+    frames = imageio.mimread(gif)
+    assert len(frames) >= 6 and frames[0].shape[0] == 256 + BANNER_PIXELS
+    first = annotate(np.zeros((20, 40, 3), np.uint8), "step 0  code 1", 1)
+    assert first.shape == (20 + BANNER_PIXELS, 40, 3) and first[:BANNER_PIXELS].min() < 255
