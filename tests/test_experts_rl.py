@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -16,10 +17,12 @@ from digail.commands.expert import ExpertArgs, expert_command
 from digail.errors import UserError
 from digail.experts.rl import (
     EXPERT_SPECS,
+    ExpertSpec,
     build_sb3_model,
     evaluate_expert,
     export_expert,
     load_expert,
+    load_expert_actor,
     shipped_expert_path,
 )
 
@@ -35,6 +38,17 @@ SHIPPED_DATASETS = {
     "digail/walker2d/expert-v0": ("Walker2d-v5", 50),
     "digail/fetchpickandplace/expert-v0": ("digail/FetchPickAndPlace-v4", 500),
 }
+
+
+PPO_GSDE = ExpertSpec(
+    steps=200_000, target=-200.0, n_envs=4, gamma=0.9, use_sde=True, norm_reward=False,
+    ppo={"n_steps": 1024, "batch_size": 64, "n_epochs": 10, "learning_rate": ("linear", 1e-3), "gae_lambda": 0.95,
+         "clip_range": 0.2, "ent_coef": 0.0, "sde_sample_freq": 4},
+    checkpoint_every=20_000, eval_every=10_000, eval_episodes=20)
+"""the PPO + gSDE recipe Pendulum's expert was trained with before SAC (exercises the PPO path on Pendulum)"""
+
+PPO_REFERENCE = Path(__file__).parent / "data" / "ppo_expert_reference.json"
+"""actions of the shipped PPO experts recorded before the SAC export was added"""
 
 
 def _maybe_mujoco(env_id: str) -> list[pytest.MarkDecorator]:
@@ -76,11 +90,12 @@ def test_resume_without_checkpoints_is_refused(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------- export / training
-@pytest.mark.parametrize("recipe", ["Pendulum-v1", "Hopper-v5"])  # gSDE policy / plain Gaussian policy
+@pytest.mark.parametrize("recipe", ["gsde", "Hopper-v5"])  # gSDE policy / plain Gaussian policy
 def test_exported_actor_matches_sb3_deterministic_actions(tmp_path: Path, recipe: str) -> None:
     """The pickle-free export reproduces SB3's own deterministic prediction, normalisation included."""
     torch.manual_seed(0)
-    model, venv = build_sb3_model("Pendulum-v1", EXPERT_SPECS[recipe], seed=0, device="cpu")
+    spec = PPO_GSDE if recipe == "gsde" else EXPERT_SPECS[recipe]
+    model, venv = build_sb3_model("Pendulum-v1", spec, seed=0, device="cpu")
     rng = np.random.default_rng(0)
     venv.obs_rms.mean = rng.normal(size=3)
     venv.obs_rms.var = rng.uniform(0.1, 4.0, size=3)
@@ -98,10 +113,55 @@ def test_exported_actor_matches_sb3_deterministic_actions(tmp_path: Path, recipe
     assert policy(obs[0]).shape == (1,)
 
 
-def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path) -> None:
-    """One PPO rollout, then --resume for a second: steps carry over and eval.json holds 50 episodes."""
+def test_exported_sac_actor_matches_sb3_deterministic_actions(tmp_path: Path) -> None:
+    """SAC's export (tanh-squashed mean rescaled to the box, raw observations) reproduces SB3's prediction."""
+    torch.manual_seed(0)
+    spec = EXPERT_SPECS["Pendulum-v1"]
+    assert spec.algo == "sac"
+    model, venv = build_sb3_model("Pendulum-v1", spec, seed=0, device="cpu")
+    with torch.no_grad():  # large pre-activations: actions near the bounds as well as inside them
+        for p in model.policy.actor.mu.parameters():
+            p.mul_(10.0)
+    export_expert(model, venv, "Pendulum-v1", tmp_path / "e.pt", {"steps": 0})
+    payload = torch.load(tmp_path / "e.pt", weights_only=True)
+    assert payload["algo"] == "sac" and payload["squash"] is True
+    actor, meta = load_expert_actor("Pendulum-v1", tmp_path / "e.pt")
+    assert actor.squash and meta["algo"] == "sac"
+    policy = load_expert("Pendulum-v1", tmp_path / "e.pt")
+    rng = np.random.default_rng(0)
+    obs = np.concatenate([rng.normal(scale=3.0, size=(62, 3)), [[0, 0, 1e4], [0, 0, -1e4]]]).astype(np.float32)
+    expected, _ = model.predict(obs, deterministic=True)
+    actions = policy(obs)
+    np.testing.assert_allclose(actions, expected, atol=1e-5)
+    assert (np.abs(actions) <= 2.0).all() and (np.abs(actions) > 1.9).any() and (np.abs(actions) < 1.0).any()
+
+
+def test_ppo_experts_act_as_before_sac_export() -> None:
+    """The PPO experts shipped before SAC (format digail-expert-v1, no "squash" key) act exactly as they did."""
+    reference = json.loads(PPO_REFERENCE.read_text())["experts"]
+    assert set(reference) == {"InvertedPendulum-v5", "Hopper-v5", "Walker2d-v5"}
+    for env_id, ref in reference.items():
+        payload = torch.load(shipped_expert_path(env_id), weights_only=True)
+        assert payload["algo"] == "ppo" and "squash" not in payload
+        actor, _ = load_expert_actor(env_id)
+        assert not actor.squash
+        actions = load_expert(env_id)(np.asarray(ref["obs"], dtype=np.float32))
+        np.testing.assert_array_equal(actions, np.asarray(ref["actions"], dtype=np.float32))
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                    algo: str) -> None:
+    """A short run, then --resume for as much again: steps carry over and eval.json holds 50 episodes."""
     out = tmp_path / "pendulum"
-    rollout = EXPERT_SPECS["Pendulum-v1"].n_envs * EXPERT_SPECS["Pendulum-v1"].ppo["n_steps"]
+    if algo == "ppo":  # one PPO rollout per run
+        monkeypatch.setitem(EXPERT_SPECS, "Pendulum-v1", PPO_GSDE)
+        rollout = PPO_GSDE.n_envs * PPO_GSDE.ppo["n_steps"]
+    else:  # SAC: past learning_starts, so gradient steps run before the first checkpoint
+        assert EXPERT_SPECS["Pendulum-v1"].algo == "sac"
+        monkeypatch.setitem(EXPERT_SPECS, "Pendulum-v1",
+                            dataclasses.replace(EXPERT_SPECS["Pendulum-v1"], eval_every=150, eval_episodes=2))
+        rollout = 200
     expert_command(ExpertArgs(env="Pendulum-v1", out=out, steps=rollout))
     assert (out / "checkpoints" / f"step_{rollout}.zip").is_file()
     first = json.loads((out / "eval.json").read_text())
@@ -114,6 +174,9 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path) -> None:
     second = json.loads((out / "eval.json").read_text())
     assert second["total_steps"] == 2 * rollout
     assert (out / "checkpoints" / f"step_{2 * rollout}.zip").is_file()
+    if algo == "sac":
+        assert (out / "checkpoints" / f"step_{2 * rollout}.replay.pkl").is_file()
+        assert json.loads((out / "progress.json").read_text())["evals"][0]["steps"] == 150
     # the evaluation is reproducible: the same expert and seeds give the same returns
     again = evaluate_expert("Pendulum-v1", load_expert("Pendulum-v1", out / "best_expert.pt"), 50, 10_000)
     np.testing.assert_allclose(again["returns"], second["returns"])
@@ -132,6 +195,20 @@ def test_shipped_expert_loads_and_runs(env_id: str) -> None:
     assert env.action_space.contains(batch[0].astype(env.action_space.dtype))
     result = evaluate_expert(env_id, policy, episodes=3, seed=10_000)
     assert result["mean"] >= SANITY_RETURN[env_id], result
+
+
+def test_shipped_pendulum_expert_is_a_bounded_sac_actor() -> None:
+    payload = torch.load(shipped_expert_path("Pendulum-v1"), weights_only=True)
+    assert payload["algo"] == "sac" and payload["squash"] is True
+    actor, meta = load_expert_actor("Pendulum-v1")
+    assert actor.squash and meta["algo"] == "sac"
+    policy = load_expert("Pendulum-v1")
+    rng = np.random.default_rng(0)
+    obs = np.concatenate([rng.normal(scale=[1.0, 1.0, 8.0], size=(256, 3)),
+                          [[1, 0, 1e6], [-1, 0, -1e6]]]).astype(np.float32)
+    actions = policy(obs)
+    assert actions.shape == (258, 1) and np.isfinite(actions).all()
+    assert (np.abs(actions) <= 2.0).all()
 
 
 @pytest.mark.parametrize("dataset_id", [pytest.param(d, marks=_maybe_mujoco(env)) for d, (env, _)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,12 @@ ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
 
 
 class ExpertActor(nn.Module):
-    """Deterministic actor of an exported expert: normalise obs, MLP, clip to the action bounds.
+    """Deterministic actor of an exported expert: normalise obs, MLP, squash (SAC) or clip to the action bounds.
 
     Matches SB3's deterministic PPO prediction: VecNormalize's `clip((obs - mean) / sqrt(var + eps), +-clip)`,
-    the policy MLP and the Gaussian mean head, then the action clipped to the env's box.
+    the policy MLP and the Gaussian mean head, then the action clipped to the env's box. With `squash` it
+    matches SAC's instead: `tanh` of the mean head, rescaled from [-1, 1] to the box (SAC exports keep the
+    identity statistics, no clip and no eps, so the observations pass unchanged).
     """
 
     obs_mean: torch.Tensor
@@ -30,7 +33,7 @@ class ExpertActor(nn.Module):
     act_high: torch.Tensor
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: tuple[int, ...], activation: str,
-                 obs_clip: float = 10.0, obs_eps: float = 1e-8) -> None:
+                 obs_clip: float = 10.0, obs_eps: float = 1e-8, squash: bool = False) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         last = obs_dim
@@ -41,6 +44,7 @@ class ExpertActor(nn.Module):
         self.net = nn.Sequential(*layers)
         self.obs_clip = obs_clip
         self.obs_eps = obs_eps
+        self.squash = squash
         self.register_buffer("obs_mean", torch.zeros(obs_dim))
         self.register_buffer("obs_var", torch.ones(obs_dim))
         self.register_buffer("act_low", -torch.ones(act_dim))
@@ -49,39 +53,56 @@ class ExpertActor(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         z = (obs - self.obs_mean) / torch.sqrt(self.obs_var + self.obs_eps)
         z = z.clamp(-self.obs_clip, self.obs_clip)
-        return torch.maximum(torch.minimum(self.net(z), self.act_high), self.act_low)
+        act = self.net(z)
+        if self.squash:
+            act = self.act_low + 0.5 * (torch.tanh(act) + 1.0) * (self.act_high - self.act_low)
+        return torch.maximum(torch.minimum(act, self.act_high), self.act_low)
 
 
 def export_expert(model: Any, vec_normalize: Any, env_id: str, path: Path, meta: dict[str, Any]) -> None:
-    """Write the deterministic actor of an SB3 PPO `model` and its obs statistics as a pickle-free .pt."""
-    policy = model.policy
-    hidden = tuple(m.out_features for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear))
-    activation = "relu" if any(isinstance(m, nn.ReLU) for m in policy.mlp_extractor.policy_net) else "tanh"
+    """Write the deterministic actor of an SB3 PPO or SAC `model` (and PPO's obs statistics, from the
+    `VecNormalize` wrapper `vec_normalize`; SAC's env is not one) as a pickle-free .pt.
+
+    Reads the SB3 objects by their attributes, so this module needs no SB3 import: a SAC policy has an
+    `actor` (`latent_pi` MLP, `mu` head; no gSDE), a PPO one an `mlp_extractor` and an `action_net`; only a
+    `VecNormalize` has `obs_rms`.
+    """
+    algo = "sac" if hasattr(model.policy, "actor") else "ppo"
+    if algo == "sac":
+        hidden_net, head = model.policy.actor.latent_pi, model.policy.actor.mu
+    else:
+        hidden_net, head = model.policy.mlp_extractor.policy_net, model.policy.action_net
+    normalizer = vec_normalize if hasattr(vec_normalize, "obs_rms") else None
+    obs_clip = float(normalizer.clip_obs) if normalizer is not None else math.inf
+    obs_eps = float(normalizer.epsilon) if normalizer is not None else 0.0
+    hidden = tuple(m.out_features for m in hidden_net if isinstance(m, nn.Linear))
+    activation = "relu" if any(isinstance(m, nn.ReLU) for m in hidden_net) else "tanh"
     obs_dim = int(np.prod(model.observation_space.shape))
     act_dim = int(np.prod(model.action_space.shape))
-    actor = ExpertActor(obs_dim, act_dim, hidden, activation, float(vec_normalize.clip_obs),
-                        float(vec_normalize.epsilon))
-    linears = [m for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)] + [policy.action_net]
+    actor = ExpertActor(obs_dim, act_dim, hidden, activation, obs_clip, obs_eps, squash=algo == "sac")
+    linears = [m for m in hidden_net if isinstance(m, nn.Linear)] + [head]
     ours = [m for m in actor.net if isinstance(m, nn.Linear)]
     with torch.no_grad():
         for dst, src in zip(ours, linears, strict=True):
             dst.weight.copy_(src.weight.cpu())
             dst.bias.copy_(src.bias.cpu())
-        if vec_normalize.norm_obs:
-            actor.obs_mean.copy_(torch.as_tensor(vec_normalize.obs_rms.mean, dtype=torch.float32))
-            actor.obs_var.copy_(torch.as_tensor(vec_normalize.obs_rms.var, dtype=torch.float32))
+        if normalizer is not None and normalizer.norm_obs:
+            rms: Any = normalizer.obs_rms  # one RunningMeanStd for a Box observation space
+            actor.obs_mean.copy_(torch.as_tensor(rms.mean, dtype=torch.float32))
+            actor.obs_var.copy_(torch.as_tensor(rms.var, dtype=torch.float32))
         actor.act_low.copy_(torch.as_tensor(model.action_space.low, dtype=torch.float32))
         actor.act_high.copy_(torch.as_tensor(model.action_space.high, dtype=torch.float32))
     payload = {
         "format": EXPERT_FORMAT,
         "env_id": env_id,
-        "algo": "ppo",
+        "algo": algo,
         "obs_dim": obs_dim,
         "act_dim": act_dim,
         "hidden": list(hidden),
         "activation": activation,
-        "obs_clip": float(vec_normalize.clip_obs),
-        "obs_eps": float(vec_normalize.epsilon),
+        "obs_clip": obs_clip,
+        "obs_eps": obs_eps,
+        "squash": algo == "sac",
         "state_dict": {k: v.detach().clone() for k, v in actor.state_dict().items()},
         "meta": json.dumps(meta),
     }
@@ -112,10 +133,12 @@ def load_expert_actor(env_id: str, path: str | Path | None = None) -> tuple[Expe
         raise UserError(f"expert {path} was trained for {payload['env_id']!r}, not {env_id!r}; pass an "
                         f"expert made for {env_id}.")
     actor = ExpertActor(payload["obs_dim"], payload["act_dim"], tuple(payload["hidden"]),
-                        payload["activation"], payload["obs_clip"], payload["obs_eps"])
+                        payload["activation"], payload["obs_clip"], payload["obs_eps"],
+                        squash=bool(payload.get("squash", False)))  # PPO exports before SAC carry no "squash"
     actor.load_state_dict(payload["state_dict"])
     actor.eval()
     meta = json.loads(payload.get("meta", "{}"))
+    meta.setdefault("algo", payload.get("algo", "ppo"))
     return actor, meta
 
 

@@ -1,19 +1,21 @@
 """Reinforcement-learning experts for the continuous-control experiments (paper section 5.3, Table 1).
 
 The paper trained its MuJoCo experts with PPO; so do we, with Stable-Baselines3 (SB3) and observation (and
-training-time reward) normalisation by `VecNormalize`. Training is resumable and checkpoints often, because it
-is the slowest step of the whole project on a CPU.
+training-time reward) normalisation by `VecNormalize`. Pendulum's expert is SB3's SAC instead (`algo="sac"`,
+raw observations, no `VecNormalize`). Training is resumable and checkpoints often, because it is the slowest
+step of the whole project on a CPU.
 
 Two formats live side by side:
 
-* **Training checkpoints** (`OUT/checkpoints/step_<N>.zip` + `step_<N>.vecnormalize.pkl`): SB3's own format,
-  with the value net, the optimiser state and the running statistics, used only by `--resume`.
+* **Training checkpoints** (`OUT/checkpoints/step_<N>.zip` + `step_<N>.vecnormalize.pkl` for PPO,
+  `step_<N>.replay.pkl` (the replay buffer) for SAC): SB3's own format, with the value or Q nets, the
+  optimiser state and the running statistics, used only by `--resume`.
 * **Shipped experts** (`*.pt`): the deterministic actor alone, exported as a plain state_dict together with
-  the observation statistics, the env id and the action bounds, loaded with
-  `torch.load(..., weights_only=True)`. They are tiny, pickle-free and need neither SB3 nor the training
-  folder: `load_expert` rebuilds the actor from them. Every expert folder holds `expert.pt` (the latest
-  export) and `best_expert.pt` (the best periodic evaluation); the shipped ones are copies of
-  `best_expert.pt` in `digail/experts/weights/`.
+  the observation statistics, the env id, the action bounds and the algorithm (`algo`; SAC's adds `squash`,
+  a tanh-squashed mean), loaded with `torch.load(..., weights_only=True)`. They are tiny, pickle-free and
+  need neither SB3 nor the training folder: `load_expert` rebuilds the actor from them. Every expert folder
+  holds `expert.pt` (the latest export) and `best_expert.pt` (the best periodic evaluation); the shipped
+  ones are copies of `best_expert.pt` in `digail/experts/weights/`.
 
 Split by concept: `recipes` (`EXPERT_SPECS`), `actor` (the SB3-free exported actor), `sb3` (training),
 `shipping`; this module keeps every public name importable from one place. Why each recipe:

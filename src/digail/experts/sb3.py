@@ -50,9 +50,16 @@ def _make_vec_env(env_id: str, spec: ExpertSpec, seed: int) -> Any:
 
 
 def build_sb3_model(env_id: str, spec: ExpertSpec, seed: int, device: str) -> tuple[Any, Any]:
-    from stable_baselines3 import PPO
+    """A fresh SB3 model for `spec` and its env: PPO on a `VecNormalize`, or SAC on the raw vec env."""
+    from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecNormalize
 
+    if spec.algo == "sac":
+        venv = _make_vec_env(env_id, spec, seed)
+        sac_kwargs = {"net_arch": list(spec.net_arch), "activation_fn": ACTIVATIONS[spec.activation]}
+        sac = SAC("MlpPolicy", venv, gamma=spec.gamma, policy_kwargs=sac_kwargs, seed=seed, device=device,
+                  verbose=0, **spec.sac)
+        return sac, venv
     venv = VecNormalize(_make_vec_env(env_id, spec, seed), norm_obs=True, norm_reward=spec.norm_reward,
                         gamma=spec.gamma)
     kwargs = dict(spec.ppo)
@@ -68,9 +75,16 @@ def build_sb3_model(env_id: str, spec: ExpertSpec, seed: int, device: str) -> tu
 
 
 def _load_model(env_id: str, spec: ExpertSpec, zip_path: Path, seed: int, device: str) -> tuple[Any, Any]:
-    from stable_baselines3 import PPO
+    from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecNormalize
 
+    if spec.algo == "sac":
+        venv = _make_vec_env(env_id, spec, seed)
+        sac = SAC.load(str(zip_path), env=venv, device=device)
+        replay = zip_path.with_suffix(".replay.pkl")
+        if replay.is_file():  # without it, training resumes with an empty buffer
+            sac.load_replay_buffer(str(replay))
+        return sac, venv
     stats = str(zip_path.with_suffix(".vecnormalize.pkl"))
     venv = VecNormalize.load(stats, _make_vec_env(env_id, spec, seed))
     venv.training = True
@@ -148,13 +162,18 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
             ckpt_dir = out / "checkpoints"
             ckpt_dir.mkdir(parents=True, exist_ok=True)
             stem = ckpt_dir / f"step_{self.num_timesteps}"
-            self.model.save(str(stem) + ".zip")
-            vec_normalize: Any = self.training_env  # a VecNormalize, which adds save()
-            vec_normalize.save(str(stem) + ".vecnormalize.pkl")
+            model: Any = self.model
+            model.save(str(stem) + ".zip")
+            if spec.algo == "sac":
+                model.save_replay_buffer(str(stem) + ".replay.pkl")
+            else:
+                vec_normalize: Any = self.training_env  # a VecNormalize, which adds save()
+                vec_normalize.save(str(stem) + ".vecnormalize.pkl")
             self._save_progress()
             for _, old in _checkpoints(ckpt_dir)[:-2]:  # keep the last two
                 old.unlink(missing_ok=True)
                 old.with_suffix(".vecnormalize.pkl").unlink(missing_ok=True)
+                old.with_suffix(".replay.pkl").unlink(missing_ok=True)
 
         def _on_training_end(self) -> None:
             self._checkpoint()
@@ -191,7 +210,7 @@ class ExpertRun:
 
 
 def train_expert(args: ExpertRun) -> Path:
-    """Train (or resume) a PPO expert, then evaluate it on 50 fresh episodes.
+    """Train (or resume) a PPO or SAC expert, then evaluate it on 50 fresh episodes.
 
     Writes into OUT: `checkpoints/` (resumable SB3 checkpoints), `expert.pt` / `best_expert.pt` (exported
     actors), `progress.json` (periodic evaluations) and `eval.json` (final 50-episode evaluation of

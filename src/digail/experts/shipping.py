@@ -9,7 +9,7 @@ from typing import Any
 
 from digail.errors import UserError
 from digail.experts.actor import load_expert_actor
-from digail.experts.recipes import WEIGHTS_DIR, safe_name, shipped_expert_path
+from digail.experts.recipes import WEIGHTS_DIR, shipped_expert_path
 from digail.utils import write_json
 
 RECORD_FILE = WEIGHTS_DIR / "EXPERTS.json"
@@ -34,6 +34,14 @@ def shipped_expert_eval(env_id: str) -> dict[str, Any] | None:
     return None if entry is None else entry.get("eval")
 
 
+def _command_path(folder: Path) -> str:
+    """`folder` as written in a recorded command: relative to the working directory when it lies below it."""
+    try:
+        return folder.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return folder.as_posix()
+
+
 def ship_expert(env_id: str, folder: str | Path) -> Path:
     """Copy a finished run's `best_expert.pt` into the package and record its `eval.json` in EXPERTS.json.
 
@@ -54,8 +62,8 @@ def ship_expert(env_id: str, folder: str | Path) -> Path:
     record_expert(env_id, {
         "file": dest.name,
         "kind": "rl",
-        "algo": "ppo (stable-baselines3)",
-        "command": f"digail expert {env_id} --out experts_work/{safe_name(env_id)} --seed {seed}",
+        "algo": f"{meta.get('algo', 'ppo')} (stable-baselines3)",
+        "command": f"digail expert {env_id} --out {_command_path(folder)} --seed {seed}",
         "eval": {k: result[k] for k in ("episodes", "seed", "mean", "std", "min", "max", "mean_length")}
         | {"deterministic": True},
         "expert_steps": meta.get("steps"),
