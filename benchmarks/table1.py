@@ -7,6 +7,8 @@ The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --sp
     python benchmarks/table1.py queue hopper:digail:0 walker2d:gail:1 ...   trials in turn (one per core)
     python benchmarks/table1.py summarize                -> benchmarks/results/table1.json
     python benchmarks/table1.py plan                     every trial of the table, as queue arguments
+    python benchmarks/table1.py progress                 -> benchmarks/results/table1_progress.json: the
+                                                         eval/* learning curve of every started trial so far
 
 Every stage is exactly what a user would type (printed as it runs):
     digail pretrain --demos D --seed S --out R/vae_sS                                  (shared by a seed's methods)
@@ -211,6 +213,34 @@ def summarize() -> dict[str, Any]:
     return table
 
 
+def progress() -> dict[str, Any]:
+    """The learning curves (deterministic evaluations during training, 5 episodes each) of every trial that has
+    started, finished or not: what a half-done table can honestly show."""
+    out: dict[str, Any] = {}
+    for env in ENVS:
+        for method in METHODS:
+            for seed in SEEDS:
+                run = ROOT / env / f"{method}_s{seed}"
+                rows = _metrics(run)
+                if not rows:
+                    continue
+                spec = ENVS[env]
+                curve = [[int(r["step"]), round(r["eval/normalized_return"], 4), round(r["eval/mean_return"], 2)]
+                         for r in rows if "eval/normalized_return" in r]
+                log = ROOT / env / f"{method}_s{seed}.log"
+                out[f"{env}:{method}:{seed}"] = {
+                    "iterations_done": int(rows[-1].get("iteration", 0)),
+                    "iterations_budget": spec["budget"] // spec["batch"],
+                    "env_steps": int(rows[-1].get("perf/global_step", 0)),
+                    "curve_step_normalized_mean": curve,
+                    "commands": [ln[2:].strip() for ln in log.read_text().splitlines() if ln.startswith("$ ")]
+                    if log.exists() else [],
+                }
+    path = OUT.with_name("table1_progress.json")
+    path.write_text(json.dumps(out, indent=1) + "\n")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -222,6 +252,7 @@ def main() -> None:
     q.add_argument("trials", nargs="+", help="env:method:seed")
     sub.add_parser("summarize")
     sub.add_parser("plan")
+    sub.add_parser("progress")
     args = ap.parse_args()
     if args.cmd == "run":
         run_trial(args.env, args.method, args.seed)
@@ -234,6 +265,9 @@ def main() -> None:
                 print(f"{trial} failed ({exc}); see its log; next trial", flush=True)
     elif args.cmd == "plan":
         print(" ".join(plan()))
+    elif args.cmd == "progress":
+        for name, rec in progress().items():
+            print(name, rec["env_steps"], rec["curve_step_normalized_mean"][-3:])
     else:
         print(json.dumps(summarize(), indent=1)[:4000])
 
