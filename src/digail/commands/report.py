@@ -93,7 +93,7 @@ def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed:
     from digail.checkpoint import load_model
     from digail.commands.common import run_env_id
     from digail.data.minari_io import load_dataset
-    from digail.eval.composition import parse_schedule
+    from digail.eval.composition import CodeSchedule, parse_schedule
     from digail.eval.segmentation import segment_many, viterbi
     from digail.viz.run_figures import write_run_figures
 
@@ -112,7 +112,7 @@ def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed:
         codes = segment_many(model, trajs)
     comp = json.loads((run / "compose.json").read_text()) if (run / "compose.json").exists() else {}
     schedule_text = str(comp.get("schedule") or "")
-    schedule = parse_schedule(schedule_text, model.codes) if schedule_text else None
+    schedule = CodeSchedule(parse_schedule(schedule_text, model.codes)) if schedule_text else None
     pair = None
     shown = trajs[:6]
     if unsmoothed is not None:

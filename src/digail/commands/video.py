@@ -32,7 +32,7 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     from digail.checkpoint import load_model
     from digail.commands.common import run_env_id
     from digail.errors import UserError
-    from digail.eval.composition import parse_schedule
+    from digail.eval.composition import CodeSchedule, parse_schedule
     from digail.viz.video import record_video
 
     run = Path(args.run)
@@ -40,7 +40,7 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
         raise UserError(f"--episodes must be at least 1, got {args.episodes}.")
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
-    schedule = parse_schedule(args.schedule, model.codes) if args.schedule else None
+    schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
     name = args.name or ("composed" if schedule is not None else "closed_loop")
     mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=args.seed, episodes=args.episodes,
                             schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
