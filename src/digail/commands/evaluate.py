@@ -17,8 +17,8 @@ class EvaluateArgs:
 
     run: Annotated[Path, tyro.conf.Positional]
     """run folder"""
-    episodes: int = 300
-    """evaluation episodes (paper: 300)"""
+    episodes: int | None = None
+    """evaluation episodes (default: the env's preset's, paper: 300, Fetch 100 as its Table 2)"""
     seed: int = 10_000
     """seed of the first evaluation episode"""
     stochastic: bool = False
@@ -28,20 +28,22 @@ class EvaluateArgs:
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
-        check_seed(self.seed, count=self.episodes)
+        check_seed(self.seed, count=self.episodes if self.episodes is not None else 300)  # the largest default
 
 
 def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
     """Write RUN/eval.json (and a video when asked); returns its content."""
     from digail.checkpoint import load_model
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
+    from digail.envs.registry import preset_for
     from digail.eval.returns import evaluate
     from digail.utils import write_json
 
     run = check_output_folder(args.run)
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
-    result = evaluate(model, env_id, args.episodes, args.seed, not args.stochastic)
+    episodes = args.episodes if args.episodes is not None else preset_for(env_id).eval_episodes
+    result = evaluate(model, env_id, episodes, args.seed, not args.stochastic)
     result["kind"] = meta.get("kind")
     write_json(run / "eval.json", result)
     print_eval_summary(result)

@@ -14,6 +14,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from digail.envs.registry import tracked_info_keys
+
 Act = Callable[[gym.Env, Any], Any]
 """A policy as the loop calls it: (env, current observation) -> action."""
 
@@ -45,11 +47,22 @@ class Episode:
     """rewards (kept on request)"""
     infos: list[dict[str, Any]] = field(default_factory=list)
     """infos of the reset and of every step, T + 1 (kept on request)"""
+    info_values: dict[str, list[float]] = field(default_factory=dict)
+    """per tracked info key (the env's step metrics, `registry.tracked_info_keys`), its value at every step"""
+
+    def add_step(self, reward: float, info: dict[str, Any], track: tuple[str, ...] = ()) -> None:
+        """Count one step: its reward into the return, the values of the `track`ed info keys it has."""
+        self.ret += float(reward)
+        self.length += 1
+        for key in track:
+            if key in info:
+                self.info_values.setdefault(key, []).append(float(info[key]))
 
 
 def play_episode(env: gym.Env, act: Act, seed: int | None, *, keep: bool = False,
                  on_step: OnStep | None = None) -> Episode:
     """Run one episode from `env.reset(seed=seed)` until it terminates or is truncated."""
+    track = tracked_info_keys(env)
     obs, info = env.reset(seed=seed)
     ep = Episode(0.0, 0, info)
     if keep:
@@ -58,8 +71,7 @@ def play_episode(env: gym.Env, act: Act, seed: int | None, *, keep: bool = False
     while True:
         action = act(env, obs)
         obs, reward, terminated, truncated, info = env.step(action)
-        ep.ret += float(reward)
-        ep.length += 1
+        ep.add_step(reward, info, track)
         if keep:
             ep.obs.append(obs)
             ep.acts.append(action)

@@ -21,6 +21,19 @@ goal-conditioned), so this env wraps it and observes `concat(observation, desire
 object is within 5 cm of the goal, then 0), `info["is_success"]` and the 50-step time limit are the
 original's.
 
+**Task measures** in every step's info, for evaluation only (the learner never sees an env reward):
+
+- `dense_reward`: minus the object-to-goal distance after the step, the reward of the original's `dense`
+  variant; summed over the 50 steps it is the paper's Table 2 return;
+- `grasped`: both fingers touch the object (MuJoCo contacts), i.e. it is held between them; "grasped at
+  some step" is the grasp rate. (Not "lifted off the table": for a goal on the table the scripted expert
+  slides the held cube there without raising it more than a millimetre.)
+- `lifted`: the object is more than `LIFTED` above the height it rests at on the table (a pushed or tipped
+  cube stays below); "lifted at some step" is the lift rate.
+
+`is_success` of the last step's info (object within 5 cm of the goal at the end) is the success rate.
+The registry entry (`digail.envs.registry.ENV_SPECS`) declares how evaluation aggregates them.
+
 **Oracle phase** in `info["subtask"]` (at reset and after every step): the stage of the pick-and-place
 task the current state is in, 0 reach, 1 grasp, 2 carry, 3 place. It is tracked from the state alone, moving
 at most one stage forward per step and never back within an episode, so every episode's labels run
@@ -75,6 +88,9 @@ FINGERS_CLOSED = 0.053
 """grasp -> carry: summed finger opening below this (fully open ~0.10, holding the 5 cm cube ~0.048)"""
 AT_GOAL = 0.02
 """carry -> place: object-goal distance below this (m); success needs < 0.05"""
+LIFTED = 0.02
+"""`info["lifted"]`: object centre this far above its resting height (m); tipping the 5 cm cube onto an edge
+raises it ~1 cm"""
 
 
 def next_phase(phase: int, obs: np.ndarray) -> int:
@@ -90,6 +106,13 @@ def next_phase(phase: int, obs: np.ndarray) -> int:
     if phase == Phase.CARRY:
         return int(Phase.PLACE) if np.linalg.norm(obj - goal) < AT_GOAL else phase
     return phase
+
+
+def task_info(obs: np.ndarray, rest_height: float, grasped: bool) -> dict[str, Any]:
+    """The task measures of a flat observation (module doc): `dense_reward`, `grasped` (given) and `lifted`."""
+    obj = obs[OBJECT_POS]
+    return {"dense_reward": -float(np.linalg.norm(obj - obs[GOAL])), "grasped": bool(grasped),
+            "lifted": bool(obj[2] - rest_height > LIFTED)}
 
 
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -124,6 +147,7 @@ class FlatFetchPickAndPlace(gym.Env):
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float64)
         self.phase = int(Phase.REACH)
         self.last_obs = np.zeros(OBS_DIM)
+        self._geoms: tuple[int, ...] | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -137,8 +161,25 @@ class FlatFetchPickAndPlace(gym.Env):
         obs, reward, terminated, truncated, info = self.fetch.step(action)
         self.last_obs = flatten_fetch_obs(obs)
         self.phase = next_phase(self.phase, self.last_obs)
-        info = {**info, "subtask": self.phase}
+        info = {**info, "subtask": self.phase,
+                **task_info(self.last_obs, self.fetch.height_offset, self._fingers_touch_object())}
         return self.last_obs.copy(), float(reward), bool(terminated), bool(truncated), info
+
+    def _fingers_touch_object(self) -> bool:
+        """Whether both finger geoms are in contact with the object in the current MuJoCo state."""
+        import mujoco
+
+        model, data = self.fetch.model, self.fetch.data
+        if self._geoms is None:
+            self._geoms = tuple(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) for name in
+                                ("object0", "robot0:l_gripper_finger_link", "robot0:r_gripper_finger_link"))
+        obj, *fingers = self._geoms
+        touching = set()
+        for contact in data.contact[:data.ncon]:
+            pair = {int(contact.geom1), int(contact.geom2)}
+            if obj in pair:
+                touching |= pair
+        return all(f in touching for f in fingers)
 
     def render(self) -> Any:
         return self.fetch.render()

@@ -6,13 +6,25 @@ import contextlib
 import difflib
 import io
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 
 from digail.config import Preset, TrainConfig, VAEConfig, get_preset
 from digail.errors import UserError
 from digail.utils import one_line
+
+
+@dataclass(frozen=True)
+class StepMetric:
+    """A task measure an env reports in every step's info, and how evaluation scores an episode by it."""
+
+    info_key: str
+    """key of the step info"""
+    name: str
+    """its name in eval.json (the mean over episodes of the per-episode value)"""
+    reduce: Literal["sum", "any"] = "sum"
+    """per episode: `sum` of the step values (a return), or `any` (1 if it was true at some step: a rate)"""
 
 
 @dataclass(frozen=True)
@@ -32,6 +44,18 @@ class EnvSpec:
     compose_schedule: tuple[tuple[int, int], ...] | None = None
     """what `digail run` composes at the end: (oracle label, steps) pairs of a behaviour never demonstrated; the
     run translates labels into its own code ids through the segmentation's matching"""
+    step_metrics: tuple[StepMetric, ...] = ()
+    """task measures evaluation aggregates from the step infos (final-info rates such as `is_success` need no
+    entry: `digail.eval.returns.RATE_KEYS`)"""
+    eval_return: str | None = None
+    """name of the `sum` step metric evaluation reports as its return (`mean_return`, `std_return`, the
+    normalised return); None: the env reward's return"""
+    reward_name: str = "env_return"
+    """eval.json name of the env reward's mean return when `eval_return` takes `mean_return`"""
+
+    def tracked_info_keys(self) -> tuple[str, ...]:
+        """Info keys an episode loop records per step for the step metrics."""
+        return tuple(m.info_key for m in self.step_metrics)
 
 
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
@@ -40,7 +64,11 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60))),
     # gymnasium-robotics is imported only when this one is made (digail.envs.fetch)
-    EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50),
+    # The paper's Table 2 measure is the dense return; the sparse one, success and grasp rates stand beside it
+    EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50,
+            step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
+                          StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
+            eval_return="dense_return", reward_name="sparse_return"),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
     EnvSpec("Pendulum-v1", "pendulum", 25),
     EnvSpec("InvertedPendulum-v5", "pendulum", 25),
@@ -53,6 +81,13 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
 def env_spec(env_id: str) -> EnvSpec | None:
     """The registry entry of `env_id`, or None for an environment digail has no entry for."""
     return ENV_SPECS.get(env_id)
+
+
+def tracked_info_keys(env: gym.Env | str | None) -> tuple[str, ...]:
+    """The per-step info keys of an env's step metrics (empty for an env without an entry or metrics)."""
+    env_id = env if isinstance(env, str) or env is None else getattr(env.spec, "id", None)
+    spec = ENV_SPECS.get(env_id or "")
+    return spec.tracked_info_keys() if spec is not None else ()
 
 
 def preset_for(env_id: str | None, name: str | None = None) -> Preset:

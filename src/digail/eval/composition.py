@@ -101,7 +101,7 @@ def compose(model: Any, env_id: str, schedule: Sequence[tuple[int, int]], episod
     `keep_obs` keep observations)."""
     codes = CodeSchedule(schedule)
     eps = run_episodes(model, env_id, episodes, seed, deterministic=True, schedule=codes, keep_obs=keep_obs)
-    out = summarize(eps)
+    out = summarize(eps, env_id)
     out.update(env_id=env_id, seed=seed, schedule_length=len(codes))
     return out, eps
 

@@ -20,6 +20,7 @@ import torch
 from digail.envs import make_env
 from digail.envs.actions import env_action_fn
 from digail.envs.episodes import Episode, play_episodes
+from digail.envs.registry import env_spec, tracked_info_keys
 from digail.errors import UserError
 from digail.experts import expert_for
 from digail.nets.mlp import one_hot
@@ -46,6 +47,7 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
     device = next(model.parameters()).device
     envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(min(num_envs, episodes))]
     to_env = env_action_fn(envs[0])
+    track = tracked_info_keys(env_id)
     K = model.codes
     eye = torch.eye(K, device=device)
     results: list[Episode | None] = [None] * episodes
@@ -74,8 +76,7 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
         for s, a, c in zip(slots, acts_np, codes.tolist(), strict=True):
             obs, r, term, trunc, info = s["env"].step(a)
             rec: Episode = s["rec"]
-            rec.ret += float(r)
-            rec.length += 1
+            rec.add_step(r, info, track)
             rec.codes.append(int(c))
             if s["ep"] < keep_obs:
                 rec.obs.append(obs)
@@ -98,9 +99,18 @@ def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: in
     return [r for r in results if r is not None]
 
 
-def task_metrics(episodes: list[Episode]) -> dict[str, float]:
-    """Env-specific scores from the episodes' infos (success, path-length ratio, circle drawing)."""
+def task_metrics(episodes: list[Episode], env_id: str | None = None) -> dict[str, float]:
+    """Env-specific scores from the episodes' infos (success, path-length ratio, circle drawing) and the step
+    metrics `env_id`'s registry entry declares (e.g. Fetch's dense return and grasp rate)."""
     out: dict[str, float] = {}
+    spec = env_spec(env_id or "")
+    for metric in spec.step_metrics if spec is not None else ():
+        per_episode = [e.info_values.get(metric.info_key, []) for e in episodes]
+        if not any(per_episode):
+            continue
+        scores = [float(np.sum(v)) if metric.reduce == "sum" else float(np.any(np.asarray(v) > 0))
+                  for v in per_episode]
+        out[metric.name] = float(np.mean(scores))
     finals = [e.final_info for e in episodes]
     for key, name in RATE_KEYS.items():
         vals = [bool(f[key]) for f in finals if key in f]
@@ -119,11 +129,25 @@ def task_metrics(episodes: list[Episode]) -> dict[str, float]:
     return out
 
 
-def summarize(episodes: list[Episode]) -> dict[str, Any]:
-    """Mean and std of returns, mean length and the task metrics."""
-    rets = np.array([e.ret for e in episodes])
-    return {"episodes": len(episodes), "mean_return": float(rets.mean()), "std_return": float(rets.std()),
-            "mean_length": float(np.mean([e.length for e in episodes])), **task_metrics(episodes)}
+def episode_returns(episodes: list[Episode], env_id: str | None = None) -> np.ndarray:
+    """Per-episode returns as evaluation reports them: the env reward's, or the step metric the registry entry
+    names in `eval_return` (Fetch: the dense return of the paper's Table 2)."""
+    spec = env_spec(env_id or "")
+    if spec is None or spec.eval_return is None:
+        return np.array([e.ret for e in episodes])
+    metric = next(m for m in spec.step_metrics if m.name == spec.eval_return)
+    return np.array([float(np.sum(e.info_values.get(metric.info_key, []))) for e in episodes])
+
+
+def summarize(episodes: list[Episode], env_id: str | None = None) -> dict[str, Any]:
+    """Mean and std of returns (see `episode_returns`), mean length and the task metrics of `env_id`."""
+    rets = episode_returns(episodes, env_id)
+    out = {"episodes": len(episodes), "mean_return": float(rets.mean()), "std_return": float(rets.std()),
+           "mean_length": float(np.mean([e.length for e in episodes]))}
+    spec = env_spec(env_id or "")
+    if spec is not None and spec.eval_return is not None:
+        out[spec.reward_name] = float(np.mean([e.ret for e in episodes]))
+    return {**out, **task_metrics(episodes, env_id)}
 
 
 def expert_cache_file() -> Path:
@@ -143,7 +167,10 @@ def _expert_key(env_id: str, kind: str, episodes: int, seed: int) -> str:
 
         path = shipped_expert_path(env_id)
         weights = hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.is_file() else "missing"
-    return f"{env_id}|episodes={episodes}|seed={seed}|{kind}{':' + weights if weights else ''}|{__version__}"
+    spec = env_spec(env_id)
+    measure = f"|return={spec.eval_return}" if spec is not None and spec.eval_return else ""
+    return (f"{env_id}|episodes={episodes}|seed={seed}|{kind}{':' + weights if weights else ''}|{__version__}"
+            f"{measure}")
 
 
 def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | None:
@@ -167,7 +194,7 @@ def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | No
     env = make_env(env_id)
     eps = play_episodes(env, policy, episodes, seed)
     env.close()
-    result = summarize(eps)
+    result = summarize(eps, env_id)
     try:
         fresh = json.loads(cache.read_text()) if cache.is_file() else {}
         fresh = fresh if isinstance(fresh, dict) else {}
@@ -183,7 +210,7 @@ def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: 
              deterministic: bool = True, with_expert: bool = True) -> dict[str, Any]:
     """Closed-loop evaluation; adds `normalized_return` (agent / expert mean return) when an expert exists."""
     eps = run_episodes(model, env_id, episodes, seed, deterministic=deterministic)
-    out = summarize(eps)
+    out = summarize(eps, env_id)
     out.update(env_id=env_id, seed=seed, deterministic=deterministic, macro_policy="closed-loop argmax q")
     if with_expert:
         expert = expert_summary(env_id, episodes, seed)
