@@ -19,6 +19,9 @@ class SegmentArgs:
     """run folder holding a VAE or trained policy"""
     demos: str | None = None
     """dataset to segment (default: the run's training demonstrations)"""
+    label_map: tuple[int, ...] | None = None
+    """score against merged oracle labels: label l counts as the l-th number (Fetch pick / place from the four
+    phases: `--label-map 0 0 1 1`)"""
 
 
 def segment_command(args: SegmentArgs) -> dict[str, Any]:
@@ -43,7 +46,14 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
         raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
                         "demonstrations; pass demonstrations of the model's environment.")
-    metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos))
+    if args.label_map is not None:
+        labels = {int(v) for t in dataset.trajs if t.subtasks is not None for v in set(t.subtasks.tolist())}
+        if not labels:
+            raise UserError(f"{demos} has no oracle labels to merge; drop --label-map.")
+        if min(labels) < 0 or max(labels) >= len(args.label_map):
+            raise UserError(f"--label-map gives {len(args.label_map)} labels but {demos} has labels "
+                            f"{min(labels)} to {max(labels)}; give one number per oracle label.")
+    metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos), label_map=args.label_map)
     print(summary_line(metrics))
     print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
     return metrics

@@ -15,6 +15,10 @@ Metrics (`segmentation_metrics`), computed over all steps of all episodes:
   optimal one-to-one matching in time order). With no true and no predicted switches all three are 1; with no
   predicted switches precision is 1 (nothing false was claimed); with no true switches recall is 1.
 - `switches_per_episode` (predicted) and `true_switches_per_episode`.
+
+A `label_map` scores against merged labels: oracle label l counts as `label_map[l]` (e.g. Fetch's four phases
+reach, grasp, carry, place as pick / place with `(0, 0, 1, 1)`); it is applied before everything above, so
+switches between merged labels are no longer true switches.
 """
 
 from __future__ import annotations
@@ -170,10 +174,21 @@ def segmentation_metrics(codes: Sequence[np.ndarray], labels: Sequence[np.ndarra
     }
 
 
+def merge_labels(labels: np.ndarray, label_map: Sequence[int]) -> np.ndarray:
+    """Oracle labels relabelled through `label_map` (label l becomes `label_map[l]`)."""
+    labels = np.asarray(labels, np.int64)
+    if labels.size and (labels.min() < 0 or labels.max() >= len(label_map)):
+        raise ValueError(f"the label map {','.join(map(str, label_map))} covers labels 0 to {len(label_map) - 1} "
+                         f"but the demonstrations have labels {labels.min()} to {labels.max()}")
+    return np.asarray(label_map, np.int64)[labels]
+
+
 # -------------------------------------------------------------------------------------------- run folder
 def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Trajectory],
-                       demos: str | None = None) -> dict[str, Any]:
+                       demos: str | None = None, label_map: Sequence[int] | None = None) -> dict[str, Any]:
     """Segment `trajs`; write `codes.npz`, `segmentation.json` and `figures/segmentation.png` into `run`.
+
+    With `label_map`, scores (and the figure) use the merged labels (`merge_labels`); the map is recorded.
 
     Returns:
         The contents of `segmentation.json`: metrics of causal decoding (and, under `viterbi`, of the offline
@@ -190,6 +205,9 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
                               "codes": model.codes, "labels": labeled}
     if labeled:
         labels = [np.asarray(t.subtasks) for t in trajs]
+        if label_map is not None:
+            labels = [merge_labels(lab, label_map) for lab in labels]
+            result["label_map"] = list(label_map)
         result.update(segmentation_metrics(codes, labels))
         smoothed = [viterbi(model, t) for t in trajs]
         viterbi_metrics = segmentation_metrics(smoothed, labels)
@@ -199,16 +217,18 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
         result["episodes"] = len(codes)
         result["switches_per_episode"] = float(np.mean([len(switch_points(c)) for c in codes]))
     write_json(run / "segmentation.json", result)
-    plot_segmentation(run / "figures" / "segmentation.png", trajs, codes, result.get("mapping"))
+    plot_segmentation(run / "figures" / "segmentation.png", trajs, codes, result.get("mapping"),
+                      labels=labels if labeled else None)
     return result
 
 
 def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[np.ndarray],
-                      mapping: dict[int, int] | None = None, episodes: int = FIGURE_EPISODES) -> None:
+                      mapping: dict[int, int] | None = None, episodes: int = FIGURE_EPISODES,
+                      labels: Sequence[np.ndarray] | None = None) -> None:
     """Per episode, a strip of codes above a strip of oracle labels (when present).
 
     With a one-to-one code -> label mapping, codes take the colour of their label, so agreement reads as equal
-    colours; otherwise codes keep their own colours. For 2-D observations (Circle-World) a second panel shows the
+    colours; otherwise codes keep their own colours. `labels` replaces the trajectories' own (merged labels). For 2-D observations (Circle-World) a second panel shows the
     positions coloured the same way; later codes are drawn smaller on top, so retraced paths show both.
     """
     import matplotlib
@@ -238,7 +258,8 @@ def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[n
         top = i * (rows + 0.6)
         strips = [("code", colours(codes[i]))]
         if labeled:
-            strips.append(("oracle", np.asarray(trajs[i].subtasks)[:len(codes[i])] % 10))
+            oracle = labels[i] if labels is not None else np.asarray(trajs[i].subtasks)
+            strips.append(("oracle", np.asarray(oracle)[:len(codes[i])] % 10))
         for r, (name, values) in enumerate(strips):
             y0 = top + r
             ax.imshow(values[None], aspect="auto", cmap=cmap, norm=norm, interpolation="nearest",
