@@ -228,8 +228,9 @@ def plot_segmentation(path: Path, trajs: Sequence[Trajectory], codes: Sequence[n
     """Per episode, a strip of codes above a strip of oracle labels (when present).
 
     With a one-to-one code -> label mapping, codes take the colour of their label, so agreement reads as equal
-    colours; otherwise codes keep their own colours. `labels` replaces the trajectories' own (merged labels). For 2-D observations (Circle-World) a second panel shows the
+    colours; otherwise codes keep their own colours. For 2-D observations (Circle-World) a second panel shows the
     positions coloured the same way; later codes are drawn smaller on top, so retraced paths show both.
+    `labels`, when given, replaces the trajectories' own oracle labels (merged labels).
     """
     import matplotlib
 
