@@ -93,3 +93,58 @@ def test_fetch_expert_refuses_other_envs() -> None:
 
     with pytest.raises(TypeError, match="FlatFetchPickAndPlace"):
         fetch_expert(gym.make("Pendulum-v1"))
+
+
+# ------------------------------------------------------------------------------- task measures (eval.json)
+def _summary(policy, episodes: int, seed: int = 10_000):
+    from digail.envs.episodes import play_episodes
+    from digail.eval.returns import summarize
+
+    env = _make()
+    eps = play_episodes(env, policy, episodes, seed, keep=True)
+    env.close()
+    return summarize(eps, FETCH_ENV_ID), eps
+
+
+def test_scripted_expert_scores_success_and_grasp_rates_of_one() -> None:
+    from digail.experts.fetch import fetch_expert
+
+    result, eps = _summary(lambda env, obs: fetch_expert(env), 10)
+    assert result["success_rate"] == 1.0 and result["grasp_rate"] == 1.0
+    # mean_return is the paper's dense return (minus the object-goal distance per step), sparse beside it
+    dense = [sum(-np.linalg.norm(o[3:6] - o[25:28]) for o in ep.obs[1:]) for ep in eps]
+    assert result["mean_return"] == pytest.approx(np.mean(dense)) == pytest.approx(result["dense_return"])
+    assert result["sparse_return"] == pytest.approx(np.mean([ep.ret for ep in eps]))
+    assert -10 < result["mean_return"] < 0 and result["sparse_return"] <= -10
+
+
+def test_do_nothing_policy_never_grasps_and_succeeds_only_where_the_goal_starts_at_the_object() -> None:
+    result, eps = _summary(lambda env, obs: np.zeros(4, np.float32), 10)
+    assert result["grasp_rate"] == 0.0 and result["lift_rate"] == 0.0
+    start_distance = np.array([np.linalg.norm(ep.obs[0][3:6] - ep.obs[0][25:28]) for ep in eps])
+    # gymnasium-robotics samples some goals within 5 cm of the object (3 of 100 from seed 10000); none of these
+    assert result["success_rate"] == float(np.mean(start_distance < 0.05)) == 0.0
+    # the object never moves, so the dense return is 50 times its start distance to the goal
+    assert result["mean_return"] == pytest.approx(-50 * start_distance.mean(), rel=1e-3)
+
+
+def test_fetch_smoke_pipeline_pretrain_digail_l2_evaluate(tmp_path) -> None:
+    """demos -> VAE (K = 4) -> Directed-Info GAIL + L2 for two iterations -> evaluate with the task measures."""
+    import json
+
+    pytest.importorskip("gymnasium_robotics")
+    from digail.cli import main
+
+    demos, vae, run = tmp_path / "demos", tmp_path / "vae", tmp_path / "digail"
+    assert main(["demos", FETCH_ENV_ID, "--episodes", "4", "--out", str(demos)]) == 0
+    assert main(["pretrain", "--demos", str(demos), "--preset", "smoke", "--codes", "4", "--out", str(vae)]) == 0
+    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--bc-weight", "1",
+                 "--out", str(run)]) == 0
+    config = json.loads((run / "config.json").read_text())
+    assert config["train"]["bc_weight"] == 1.0 and config["train"]["iterations"] == 2
+    assert main(["evaluate", str(run), "--episodes", "3"]) == 0
+    ev = json.loads((run / "eval.json").read_text())
+    for key in ("mean_return", "sparse_return", "success_rate", "grasp_rate"):
+        assert np.isfinite(ev[key]), key
+    assert ev["mean_return"] == ev["dense_return"] and ev["episodes"] == 3
+    assert ev["expert"]["success_rate"] == 1.0 and ev["expert"]["grasp_rate"] == 1.0

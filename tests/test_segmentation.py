@@ -223,3 +223,17 @@ def test_composed_schedules_follow_the_segmentations_code_matching() -> None:
     assert schedule_in_codes(reversed_circles, {"0": 0, "1": 1}) == "1:60,0:60"
     assert schedule_in_codes(reversed_circles, {"0": 1, "1": 0}) == "0:60,1:60"
     assert schedule_in_codes(reversed_circles, {"0": 0, "1": 0}) is None  # collapsed: no counter-clockwise code
+
+
+def test_label_map_merges_oracle_labels_before_scoring() -> None:
+    from digail.eval.segmentation import merge_labels
+
+    phases = np.array([0, 0, 1, 1, 2, 2, 3, 3])
+    merged = merge_labels(phases, (0, 0, 1, 1))
+    np.testing.assert_array_equal(merged, [0, 0, 0, 0, 1, 1, 1, 1])
+    codes = [np.array([1, 1, 1, 1, 0, 0, 0, 0])]
+    scores = segmentation_metrics(codes, [merged])
+    assert scores["accuracy"] == 1.0 and scores["true_switches_per_episode"] == 1.0
+    assert scores["boundary_f1"] == 1.0
+    with pytest.raises(ValueError, match="label map"):
+        merge_labels(phases, (0, 1))
