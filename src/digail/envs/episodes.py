@@ -71,7 +71,7 @@ def play_episode(env: gym.Env, act: Act, seed: int | None, *, keep: bool = False
     while True:
         action = act(env, obs)
         obs, reward, terminated, truncated, info = env.step(action)
-        ep.add_step(reward, info, track)
+        ep.add_step(float(reward), info, track)
         if keep:
             ep.obs.append(obs)
             ep.acts.append(action)

@@ -140,7 +140,7 @@ class FlatFetchPickAndPlace(gym.Env):
                             "`pip install 'digail[robotics]'`.") from exc
         gym.register_envs(gymnasium_robotics)
         # The original's own wrappers (time limit, checker) are dropped; this env is registered with the limit
-        self.fetch = gym.make(INNER_ENV_ID, render_mode=render_mode, **kwargs).unwrapped
+        self.fetch: Any = gym.make(INNER_ENV_ID, render_mode=render_mode, **kwargs).unwrapped  # MuJoCo env, untyped
         self.render_mode = render_mode
         self.metadata = {**self.metadata, **getattr(self.fetch, "metadata", {})}
         self.action_space = self.fetch.action_space
