@@ -6,7 +6,7 @@ import contextlib
 import difflib
 import io
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 
@@ -32,20 +32,26 @@ class EnvSpec:
     compose_schedule: tuple[tuple[int, int], ...] | None = None
     """what `digail run` composes at the end: (oracle label, steps) pairs of a behaviour never demonstrated; the
     run translates labels into its own code ids through the segmentation's matching"""
+    auto_backend: Literal["sync", "subproc"] = "subproc"
+    """the vector env `--train.backend auto` trains on when envpool does not cover the env: sync where a step
+    costs less than a trip to a worker process (the grid and circle worlds, Pendulum), else subproc"""
+    envpool: bool = False
+    """envpool has this env with Gymnasium's dynamics (`digail.envs.vector.EnvpoolVecEnv`, tested against it)"""
 
 
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
-    EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64),
+    EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
+            auto_backend="sync"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
-            compose_schedule=((1, 60), (0, 60))),
+            compose_schedule=((1, 60), (0, 60)), auto_backend="sync"),
     # gymnasium-robotics is imported only when this one is made (digail.envs.fetch)
     EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
-    EnvSpec("Pendulum-v1", "pendulum", 25),
-    EnvSpec("InvertedPendulum-v5", "pendulum", 25),
-    EnvSpec("Hopper-v5", "hopper", 50),
-    EnvSpec("Walker2d-v5", "walker2d", 50),
+    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync"),
+    EnvSpec("InvertedPendulum-v5", "pendulum", 25, envpool=True),
+    EnvSpec("Hopper-v5", "hopper", 50, envpool=True),
+    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""
 
