@@ -342,7 +342,8 @@ class EnvpoolVecEnv:
     (envpool's own autoreset is one step late, and never fires here because every ended env is reset at once).
     """
 
-    def __init__(self, env_id: str, num_envs: int, *, threads: int | None = None, infos: bool = True) -> None:
+    def __init__(self, env_id: str, num_envs: int, *, threads: int | None = None, infos: bool = True,
+                 **kwargs: Any) -> None:
         if not envpool_available():
             raise UserError("the envpool backend needs the envpool package; `pip install envpool` or pick "
                             "`--train.backend subproc`.")
@@ -352,7 +353,8 @@ class EnvpoolVecEnv:
                             f"{', '.join(s.env_id for s in _envpool_specs())}. Pick `--train.backend subproc`.")
         self.env_id, self.num_envs = env_id, num_envs
         self._threads = max(1, min(threads or cpu_count(), num_envs))
-        self._probe = make_env(env_id)
+        self._kwargs = kwargs  # envpool's names for Gymnasium's options (e.g. reset_noise_scale, max_episode_steps)
+        self._probe = make_env(env_id, **kwargs)
         self.single_action_space = self._probe.action_space
         self._send_infos = infos
         self._pool: Any = None
@@ -366,7 +368,7 @@ class EnvpoolVecEnv:
         rng = np.random.default_rng()
         env_seed = [int(s) if s is not None else int(rng.integers(2**31 - 1)) for s in seeds]
         self._pool = envpool.make_gymnasium(self.env_id, num_envs=self.num_envs, batch_size=self.num_envs,
-                                            num_threads=self._threads, env_seed=env_seed)
+                                            num_threads=self._threads, env_seed=env_seed, **self._kwargs)
         self._all = np.arange(self.num_envs, dtype=np.int32)
 
     @property
