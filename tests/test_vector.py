@@ -74,11 +74,11 @@ def test_subproc_matches_sync_exactly(env_id, kwargs, steps):
 
 @pytest.mark.mujoco
 @needs_envpool
-@pytest.mark.parametrize("env_id", ["Hopper-v5", "Walker2d-v5", "InvertedPendulum-v5"])
-def test_envpool_follows_gymnasium_dynamics(env_id):
+@pytest.mark.parametrize("env_id, limit", [("Hopper-v5", 20), ("Walker2d-v5", 20), ("InvertedPendulum-v5", 4)])
+def test_envpool_follows_gymnasium_dynamics(env_id, limit):
     """Reset noise off (envpool's reset RNG is its own): same start, same actions -> the same observations to
     1e-5, rewards in float32, identical terminated / truncated flags and final observations."""
-    kwargs = {"reset_noise_scale": 0.0, "max_episode_steps": 20}
+    kwargs = {"reset_noise_scale": 0.0, "max_episode_steps": limit}
     sync = VecEnv.of(env_id, 3, **kwargs)
     pool = EnvpoolVecEnv(env_id, 3, **kwargs)
     try:
@@ -87,7 +87,7 @@ def test_envpool_follows_gymnasium_dynamics(env_id):
         obs_b, b = _run(pool, acts)
         np.testing.assert_allclose(obs_a, obs_b, atol=1e-5)
         assert _assert_same(a, b, atol=1e-5, rtol=1e-5) > 0
-        assert any(r[3].any() for r in a)
+        assert any(r[3].any() for r in a)  # a time limit was compared (random actions also fail, below it)
     finally:
         sync.close()
         pool.close()
