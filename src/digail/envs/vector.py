@@ -233,7 +233,7 @@ class SubprocVecEnv:
         n_workers = max(1, min(workers or cpu_count(), num_envs))
         bounds = np.linspace(0, num_envs, n_workers + 1).round().astype(int)
         self._slices = [(int(bounds[w]), int(bounds[w + 1])) for w in range(n_workers)]
-        ctx = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+        ctx: Any = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
         if ctx.get_start_method() == "forkserver":
             # the server imports digail once (the first time it starts); each worker is then a cheap fork
             ctx.set_forkserver_preload(["digail.envs.vector"])
@@ -386,7 +386,7 @@ class EnvpoolVecEnv:
     def probe(self) -> gym.Env:
         return self._probe
 
-    def _infos(self, info: dict[str, Any], idx: Sequence[int]) -> Infos:
+    def _infos(self, info: dict[str, Any], idx: Sequence[int] | np.ndarray) -> Infos:
         keys = [k for k in info if k not in ("env_id", "players", "elapsed_step")]
         return [{k: info[k][j].item() for k in keys} for j in range(len(idx))]
 
