@@ -196,8 +196,8 @@ def main() -> None:
     results["targets_met"] = {"train_over_sb3>=2.5": results["train_over_sb3"] >= 2.5,  # type: ignore[operator]
                               "train_over_rollout>=1.5": results["train_over_rollout"] >= 1.5}  # type: ignore[operator]
     results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, "
-                       "bonus) that SB3 PPO does not do; "
-                       "quote ratios from one run, absolute numbers drift +-25% on a shared machine.")
+                       "bonus) that SB3 PPO does not do; quote ratios from one run, absolute numbers drift +-25% on "
+                       "a shared machine (loadavg: the machine's load when the run started, other jobs included).")
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in results.items()}, indent=2))
 
