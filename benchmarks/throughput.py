@@ -144,9 +144,9 @@ def main() -> None:
 
     # Stable-Baselines3 PPO at matched settings
     from stable_baselines3 import PPO
-    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
 
-    sb3_env = make_vec_env(args.env, n_envs=args.num_envs, seed=0)
+    sb3_env = sb3_make_vec_env(args.env, n_envs=args.num_envs, seed=0)
     model_sb3 = PPO("MlpPolicy", sb3_env, n_steps=args.batch // args.num_envs, batch_size=args.minibatch,
                     n_epochs=args.epochs, policy_kwargs=dict(net_arch=[64, 64]), device="cpu", seed=0, verbose=0)
     model_sb3.learn(total_timesteps=args.batch)  # warm-up iteration
