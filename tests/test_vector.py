@@ -149,7 +149,7 @@ def test_backend_choice_and_validation():
         resolve_backend("digail/CircleWorld-v0", "envpool")
     with pytest.raises(UserError, match="backend"):
         TrainConfig(backend="threads")  # type: ignore[arg-type]
-    with pytest.raises(UserError, match="env_workers"):
+    with pytest.raises(UserError, match="env-workers"):
         TrainConfig(env_workers=-1)
 
 
