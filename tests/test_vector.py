@@ -238,3 +238,17 @@ def test_cli_train_smoke_on_backend(backend, tmp_path):
                  "--train.backend", backend, "--out", str(run)]) == 0
     assert json.loads((run / "config.json").read_text())["train"]["backend"] == backend
     assert (run / "model.pt").exists()
+
+
+def test_ctrl_c_leaves_the_workers_to_the_trainer():
+    """SIGINT to the process group must not kill the workers: the trainer unwinds, then closes them."""
+    sub = SubprocVecEnv("digail/CircleWorld-v0", 2, workers=2)
+    try:
+        sub.reset([0, 1])
+        for p in sub._procs:
+            os.kill(p.pid, signal.SIGINT)
+        time.sleep(0.5)
+        obs, *_ = sub.step(np.zeros((2, 2), np.float32))
+        assert obs.shape == (2, 2)
+    finally:
+        sub.close()

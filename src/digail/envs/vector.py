@@ -21,6 +21,7 @@ import contextlib
 import importlib.util
 import multiprocessing as mp
 import os
+import signal
 import traceback
 import weakref
 from collections.abc import Callable, Sequence
@@ -152,6 +153,9 @@ class _Shared:
 def _worker(conn: Connection, shared: _Shared, env_id: str, kwargs: dict[str, Any], lo: int, hi: int,
             send_infos: bool) -> None:
     """Steps envs lo..hi-1; commands come on `conn`, arrays go through `shared`. Exits when the parent goes."""
+    # Ctrl-C reaches the whole process group: the trainer handles it (checkpoint, cleanup) and then closes the
+    # workers; a worker that died of it first would turn the interrupt into a "worker died" error
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     envs: list[gym.Env] = []
     try:
         envs = [make_env(env_id, **kwargs) for _ in range(lo, hi)]
@@ -182,7 +186,7 @@ def _worker(conn: Connection, shared: _Shared, env_id: str, kwargs: dict[str, An
                 conn.send(("ok", infos))
             elif cmd == "close":
                 break
-    except (EOFError, KeyboardInterrupt, BrokenPipeError):  # the parent is gone or interrupted
+    except (EOFError, BrokenPipeError):  # the parent is gone
         pass
     except Exception as exc:  # noqa: BLE001 - reported to the parent, which raises it
         with contextlib.suppress(BrokenPipeError, OSError):
