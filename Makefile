@@ -31,7 +31,9 @@ test-all: venv
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q
 
 bench: venv
-	$(BIN)/python benchmarks/throughput.py
+	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py
+	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --env digail/FetchPickAndPlace-v4 --rounds 3 \
+		--out benchmarks/throughput_fetch.json
 
 lint: venv
 	$(BIN)/ruff check src tests benchmarks

@@ -148,7 +148,7 @@ class PPOConfig:
     """Proximal policy optimisation (clip objective) with GAE."""
 
     num_envs: int = 8
-    """parallel environments (synchronous vector env)"""
+    """parallel environments (stepped by `TrainConfig.backend`)"""
     batch_size: int = 512
     """environment steps per iteration, across all envs (paper Table 3 'batch size')"""
     epochs: int = 10
@@ -255,19 +255,29 @@ class TrainConfig:
     Gymnasium env, logged as `eval/*` scalars: the learning curve against env steps); 0 disables them"""
     eval_episodes: int = 5
     """episodes of each evaluation during training"""
+    backend: Literal["auto", "sync", "subproc", "envpool"] = "auto"
+    """vector env of the training rollouts (`digail.envs.vector`): sync steps the envs in this process, subproc in
+    worker processes (same numbers as sync), envpool in envpool's C++ threads (Hopper, Walker2d and
+    InvertedPendulum v5; same dynamics, its own reset noise); auto picks the fastest available for the env (the
+    registry's choice: envpool, else subproc for MuJoCo, sync for the grid and circle worlds). Evaluation,
+    demonstrations and experts always step Gymnasium's env"""
+    env_workers: int = 0
+    """worker processes (subproc) or threads (envpool) stepping the envs; 0: one per core"""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     """PPO settings"""
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
                                               bc_batch_size=1, disc_updates=0, disc_minibatch_size=1,
-                                              value_warmup=0),
+                                              value_warmup=0, env_workers=0),
                        ("disc_lr", "bc_weight", "anchor_weight"), ("replay_fraction",))
         _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
         _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
                  self.min_init_log_std)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--train.hidden", "sizes of at least 1",
                  self.hidden)
+        _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
+                 "one of auto, sync, subproc, envpool", self.backend)
 
 
 @dataclass(frozen=True)

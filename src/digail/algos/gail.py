@@ -23,11 +23,12 @@ from digail.algos.decode import segment_many
 from digail.algos.discriminator import discriminator_update
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
-from digail.algos.rollout import CodeState, RolloutState, VecEnv, collect_rollout
+from digail.algos.rollout import CodeState, RolloutState, collect_rollout
 from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
 from digail.envs.actions import env_action_fn
+from digail.envs.vector import make_vec_env
 from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
@@ -84,8 +85,9 @@ class GAIL:
         self.eye = torch.eye(self.K, device=self.device)
         obs_dim = model.obs_dim
 
-        self.envs = VecEnv.of(env_id, cfg.ppo.num_envs)
-        probe = self.envs.envs[0]
+        # the rollouts ignore the per-step infos, so the parallel backends skip shipping them
+        self.envs = make_vec_env(env_id, cfg.ppo.num_envs, cfg.backend, workers=cfg.env_workers, infos=False)
+        probe = self.envs.probe
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
         self.n_actions = int(getattr(probe.action_space, "n", 0))
         # what the envs execute for a sampled action, which is also what D sees (identity for discrete actions)
@@ -403,6 +405,10 @@ class GAIL:
         save_training_state(Path(path), self.state_dict())
         save_model(Path(path).parent / "model.pt", self.model, kind=self.method, config=self.model_config,
                    env_id=self.env_id)
+
+    def close(self) -> None:
+        """Stop the training envs (worker processes or envpool threads); the trainer cannot collect after it."""
+        self.envs.close()
 
     def load_checkpoint(self, path: Path) -> None:
         """Restore the training state `save_checkpoint` wrote; a broken or foreign file is one `UserError`."""

@@ -155,17 +155,20 @@ def run_command(args: RunArgs) -> Path:
                             device=device)
     trainer.model_config = config
     ckpt = run_dir / "checkpoint.pt"
-    if resuming and ckpt.is_file():
-        trainer.load_checkpoint(ckpt)
-        if trainer.iteration < cfg.iterations:
-            print(f"      training resumes at iteration {trainer.iteration}/{cfg.iterations}")
-    if trainer.iteration < cfg.iterations or not (run_dir / "model.pt").is_file():
-        trainer.train()
-        trainer.save_checkpoint(ckpt)
-        timings["train_s"] = time.perf_counter() - t0
-        print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
-    else:
-        print("[3/5] Directed-Info GAIL trained (kept from the interrupted run)")
+    try:
+        if resuming and ckpt.is_file():
+            trainer.load_checkpoint(ckpt)
+            if trainer.iteration < cfg.iterations:
+                print(f"      training resumes at iteration {trainer.iteration}/{cfg.iterations}")
+        if trainer.iteration < cfg.iterations or not (run_dir / "model.pt").is_file():
+            trainer.train()
+            trainer.save_checkpoint(ckpt)
+            timings["train_s"] = time.perf_counter() - t0
+            print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
+        else:
+            print("[3/5] Directed-Info GAIL trained (kept from the interrupted run)")
+    finally:
+        trainer.close()
     model = trainer.model
 
     t0 = time.perf_counter()

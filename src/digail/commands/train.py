@@ -108,8 +108,11 @@ def train_command(args: TrainArgs) -> Path:
         write_run_config(run_dir, config)
     trainer.model_config = config
     trainer.run_dir = run_dir
-    trainer.train(evaluate=periodic_evaluation(env_id, cfg))
-    trainer.save_checkpoint(ckpt)
+    try:
+        trainer.train(evaluate=periodic_evaluation(env_id, cfg))
+        trainer.save_checkpoint(ckpt)
+    finally:
+        trainer.close()
     print(f"run folder: {run_dir}")
     return run_dir
 
