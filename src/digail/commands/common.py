@@ -89,6 +89,18 @@ def resolve_ref(run: Path, ref: str | Path | None) -> str | None:
     return str((Path(run) / path).resolve())
 
 
+def saved_args(cls: type, saved: dict[str, Any], run_dir: Path, what: str) -> Any:
+    """`cls` rebuilt from the arguments a run folder's config.json recorded (what `--resume` continues with);
+    one sentence naming `what` (e.g. "run", "training") when they no longer fit `cls`."""
+    from digail.config import from_dict
+
+    try:
+        return from_dict(cls, saved)
+    except (TypeError, AttributeError) as exc:
+        raise UserError(f"the {what} arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
+                        f"restore the file or start the {what} again.") from None
+
+
 def check_output_folder(run: Path) -> Path:
     """A run folder an analysis command (evaluate, compose, segment) writes into: it must exist and be writable,
     checked before the rollouts start."""

@@ -212,7 +212,7 @@ def run_command(args: RunArgs) -> Path:
 def _resume_args(run_dir: Path) -> RunArgs:
     """The arguments an interrupted `digail run` folder was started with; one sentence when it is not one."""
     from digail.checkpoint import read_config
-    from digail.config import from_dict
+    from digail.commands.common import saved_args
     from digail.errors import UserError
 
     if not run_dir.is_dir():
@@ -223,11 +223,7 @@ def _resume_args(run_dir: Path) -> RunArgs:
         other = " (continue a `digail train` folder with `digail train --resume`)" if config.get("args") else ""
         raise UserError(f"{run_dir} is not a folder made by `digail run`{other}; pass the folder of an interrupted "
                         "`digail run`.")
-    try:
-        args = from_dict(RunArgs, saved)
-    except (TypeError, AttributeError) as exc:
-        raise UserError(f"the run arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
-                        "restore the file or start the run again.") from None
+    args = saved_args(RunArgs, saved, run_dir, "run")
     return replace(args, out=run_dir, resume=run_dir, force=False)
 
 

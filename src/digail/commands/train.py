@@ -9,7 +9,7 @@ from typing import Literal
 
 import numpy as np
 
-from digail.config import TrainConfig, check_seed, from_dict
+from digail.config import TrainConfig, check_seed
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.vae import HierarchicalPolicy
@@ -121,7 +121,7 @@ def resume_args(run_dir: Path) -> TrainArgs:
     """The arguments a training run folder was started with (RUN/config.json), with its dataset and VAE paths
     found from any working directory; one sentence when the folder holds no training to continue."""
     from digail.checkpoint import read_config
-    from digail.commands.common import resolve_ref
+    from digail.commands.common import resolve_ref, saved_args
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -135,11 +135,7 @@ def resume_args(run_dir: Path) -> TrainArgs:
         what = "no config.json" if not config else "its config.json records no training arguments"
         raise UserError(f"{run_dir} is not a training run folder ({what}); pass a folder made by `digail train` "
                         "or `digail run`.")
-    try:
-        args = from_dict(TrainArgs, saved)
-    except (TypeError, AttributeError) as exc:
-        raise UserError(f"the training arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
-                        "restore the file or start the training again.") from None
+    args = saved_args(TrainArgs, saved, run_dir, "training")
     vae = resolve_ref(run_dir, args.vae)
     return replace(args, demos=resolve_ref(run_dir, args.demos) or "", vae=None if vae is None else Path(vae),
                    out=run_dir, resume=run_dir, force=False)
