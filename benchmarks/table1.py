@@ -9,6 +9,10 @@ The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --sp
     python benchmarks/table1.py plan                     every trial of the table, as queue arguments
     python benchmarks/table1.py progress                 -> benchmarks/results/table1_progress.json: the
                                                          eval/* learning curve of every started trial so far
+    python benchmarks/table1.py run hopper vae-k8 0      the appendix's K = 8 VAE on Hopper (for its PCA figure)
+    python benchmarks/table1.py figures                  -> benchmarks/results/figures/table1/ (learning curves,
+                                                         code strips, Pendulum code map, K = 8 PCA) and
+                                                         benchmarks/results/table1_codes.json (code-gait agreement)
 
 Every stage is exactly what a user would type (printed as it runs):
     digail pretrain --demos D --seed S --out R/vae_sS                                  (shared by a seed's methods)
@@ -125,6 +129,13 @@ def ensure_vae(env: str, seed: int, log: Path) -> Path:
 def run_trial(env: str, method: str, seed: int) -> None:
     (ROOT / env).mkdir(parents=True, exist_ok=True)
     log = ROOT / env / f"{method}_s{seed}.log"
+    if method == "vae-k8":  # not a table column: the appendix's larger context, drawn by `figures`
+        run = ROOT / env / f"vae_k8_s{seed}"
+        with lock(ROOT / env / f".vae_k8_s{seed}.lock") as mine:
+            if mine and not (run / "model.pt").exists():
+                sh(["pretrain", "--demos", ENVS[env]["demos"], "--codes", "8", "--seed", str(seed), "--out", str(run),
+                    "--force"], log)
+        return
     with lock(ROOT / env / f".{method}_s{seed}.lock") as mine:
         if not mine:
             print(f"{env}:{method}:{seed} is running in another queue; skipped", flush=True)
@@ -241,18 +252,97 @@ def progress() -> dict[str, Any]:
     return out
 
 
+# --------------------------------------------------------------------------------------------- figures
+FIGURES = HERE / "results" / "figures" / "table1"
+ROLLOUTS = 5  # closed-loop episodes drawn and scored per run (evaluation seeds 10000 + i)
+
+
+def _median_seed_run(env: str, method: str) -> Path | None:
+    """The run folder of the median seed by normalised return (of those evaluated), else any trained one."""
+    recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
+    if recs:
+        recs.sort(key=lambda r: r["mean_return"])
+        return ROOT.parent.parent / recs[(len(recs) - 1) // 2]["run"]
+    runs = sorted(p for p in (ROOT / env).glob(f"{method}_s*") if (p / "model.pt").exists())
+    return runs[0] if runs else None
+
+
+def figures() -> dict[str, Any]:
+    """The paper's figures for Table 1 from the runs so far, and the agreement of codes with the gait.
+
+    Learning curves per env (eval/* against env steps, mean and min-max over seeds per method); for Hopper and
+    Walker2d, code strips of demonstrations and of Directed-Info GAIL rollouts (median seed) and the mutual
+    information of their codes with the hip's gait phase (`digail.eval.gait`); for Pendulum the code map (angle
+    against angular velocity); for Hopper the K = 8 VAE's PCA of expert states coloured by code.
+    """
+    from digail.algos.decode import segment_many
+    from digail.checkpoint import load_model
+    from digail.data.minari_io import load_dataset
+    from digail.eval.gait import code_phase_scores, gait_phase, phase_stats
+    from digail.viz import figures as F
+    from digail.viz.video import play_episodes
+
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    out: dict[str, Any] = {}
+    for env, spec in ENVS.items():
+        runs = {m: [ROOT / env / f"{m}_s{s}" for s in SEEDS if (ROOT / env / f"{m}_s{s}" / "metrics.csv").exists()]
+                for m in METHODS if m != "vae"}
+        runs = {m: rs for m, rs in runs.items() if rs}
+        rec: dict[str, Any] = {"figures": []}
+        if runs and (p := F.learning_curves_multi(runs, FIGURES / f"{env}_learning_curves.png")) is not None:
+            rec["figures"].append(str(p.relative_to(HERE.parent)))
+        run = _median_seed_run(env, "digail")
+        if run is None:
+            out[env] = rec
+            continue
+        model, _ = load_model(run / "model.pt")
+        demos = load_dataset(spec["demos"]).trajs
+        demo_codes = segment_many(model, demos)
+        demo_obs = [np.asarray(t.obs[:len(t)]) for t in demos]
+        gen = play_episodes(model, spec["env"], ROLLOUTS, 10_000, render=False)
+        gen_obs, gen_codes = [np.asarray(e.obs)[:len(e.codes)] for e in gen], [np.asarray(e.codes) for e in gen]
+        rec["run"] = str(run.relative_to(HERE.parent))
+        if env in ("hopper", "walker2d"):
+            rec["figures"].append(str(F.code_strips(
+                {f"demonstrations (codes from q), {spec['env']}": demo_codes,
+                 "Directed-Info GAIL closed-loop rollouts": gen_codes},
+                FIGURES / f"{env}_codes_time.png").relative_to(HERE.parent)))
+            stats = phase_stats(demo_obs, spec["env"])
+            rec["code_gait"] = {
+                "demonstrations": code_phase_scores(demo_codes, [gait_phase(o, spec["env"], stats) for o in demo_obs]),
+                "rollouts": code_phase_scores(gen_codes, [gait_phase(o, spec["env"], stats) for o in gen_obs]),
+            }
+        if env == "pendulum":
+            rec["figures"].append(str(F.pendulum_code_map(
+                demo_obs + gen_obs, demo_codes + gen_codes, FIGURES / "pendulum_code_map.png",
+                title="Pendulum-v1: demonstrations and Directed-Info GAIL rollouts").relative_to(HERE.parent)))
+        if env == "hopper" and (ROOT / env / "vae_k8_s0" / "model.pt").exists():
+            k8, _ = load_model(ROOT / env / "vae_k8_s0" / "model.pt")
+            k8_codes = segment_many(k8, demos)
+            rec["figures"].append(str(F.state_pca(
+                demo_obs, k8_codes, FIGURES / "hopper_k8_pca.png",
+                title="Hopper-v5 expert states (PCA), coloured by the K = 8 VAE's code").relative_to(HERE.parent)))
+            stats = phase_stats(demo_obs, spec["env"])
+            rec["code_gait_k8_demonstrations"] = code_phase_scores(
+                k8_codes, [gait_phase(o, spec["env"], stats) for o in demo_obs])
+        out[env] = rec
+    (HERE / "results" / "table1_codes.json").write_text(json.dumps(out, indent=1) + "\n")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("run")
     r.add_argument("env", choices=list(ENVS))
-    r.add_argument("method", choices=list(METHODS))
+    r.add_argument("method", choices=[*METHODS, "vae-k8"])
     r.add_argument("seed", type=int)
     q = sub.add_parser("queue")
     q.add_argument("trials", nargs="+", help="env:method:seed")
     sub.add_parser("summarize")
     sub.add_parser("plan")
     sub.add_parser("progress")
+    sub.add_parser("figures")
     args = ap.parse_args()
     if args.cmd == "run":
         run_trial(args.env, args.method, args.seed)
@@ -265,6 +355,8 @@ def main() -> None:
                 print(f"{trial} failed ({exc}); see its log; next trial", flush=True)
     elif args.cmd == "plan":
         print(" ".join(plan()))
+    elif args.cmd == "figures":
+        print(json.dumps(figures(), indent=1))
     elif args.cmd == "progress":
         for name, rec in progress().items():
             print(name, rec["env_steps"], rec["curve_step_normalized_mean"][-3:])
