@@ -118,9 +118,10 @@ def train_flags(env: str, method: str, seed: int, vae: Path) -> list[str]:
 
 def ensure_vae(env: str, seed: int, log: Path) -> Path:
     vae = ROOT / env / f"vae_s{seed}"
-    with lock(ROOT / env / f".vae_s{seed}.lock") as mine:
+    # not `.vae_s{seed}.lock`: that is the lock of the VAE column's own trial, which calls this function
+    with lock(ROOT / env / f".pretrain_s{seed}.lock") as mine:
         if not mine:  # another queue is pre-training it: wait
-            while not (vae / "model.pt").exists() or (ROOT / env / f".vae_s{seed}.lock").exists():
+            while not (vae / "model.pt").exists() or (ROOT / env / f".pretrain_s{seed}.lock").exists():
                 time.sleep(30)
         elif not (vae / "model.pt").exists():
             sh(["pretrain", "--demos", ENVS[env]["demos"], "--seed", str(seed), "--out", str(vae), "--force"], log)
