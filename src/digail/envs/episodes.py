@@ -1,14 +1,15 @@
-"""The single-environment episode loop every expert rollout, demonstration recording and video uses.
+"""The one episode loop: every expert rollout, demonstration recording, evaluation and video plays through it.
 
-`play_episode` runs one episode of `act(env, obs) -> action` from `env.reset(seed=seed)` and returns an `Episode`;
-what else a caller needs it records itself in the `on_step` hook (labels, frames, ...), or asks `keep=True` for
-the observations, actions, rewards and infos. (Evaluating a learned policy steps several envs at once so that one
-batched network call serves all of them: `digail.eval.returns.run_episodes`.)
+`play_batch` runs episodes on one or several envs at once, each env reset with the next episode's seed as soon as
+its episode ends, so that one batched network call serves all of them; `play_episode` / `play_episodes` are its
+single-env form for `act(env, obs) -> action` policies (the experts). What else a caller needs it records in the
+hooks (`on_step`, `on_episode`; codes, frames, ...), or asks `keep` for the observations, actions, rewards and
+infos.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +19,10 @@ from digail.envs.registry import tracked_info_keys
 
 Act = Callable[[gym.Env, Any], Any]
 """A policy as the loop calls it: (env, current observation) -> action."""
+
+BatchAct = Callable[[list[gym.Env], list[Any], list["Episode"]], Sequence[Any]]
+"""A policy acting in several envs at once: (the envs, their current observations, their episodes so far) -> one
+action per env. A hierarchical policy notes the code it picks in each `Episode.codes`."""
 
 OnStep = Callable[[gym.Env, Any, Any, float, dict[str, Any]], None]
 """Called after every step with (env, action, next observation, reward, info)."""
@@ -59,39 +64,81 @@ class Episode:
                 self.info_values.setdefault(key, []).append(float(info[key]))
 
 
+def play_batch(envs: Sequence[gym.Env], act: BatchAct, episodes: int, seed: int | None, *, keep: int = 0,
+               on_step: OnStep | None = None, on_episode: Callable[[Episode], None] | None = None
+               ) -> list[Episode]:
+    """Play `episodes` episodes (episode i reset with `seed + i`, or unseeded) on `envs`, in episode order.
+
+    The envs start episodes 0 .. len(envs) - 1; each step calls `act` once for every env with an unfinished
+    episode and steps those envs in order; an env whose episode ends takes the next unplayed one. With one env this
+    is the plain episode-after-episode loop. The first `keep` episodes keep their observations, actions, rewards and
+    infos; `on_step` sees every step, `on_episode` each episode as it ends (before its env is reset again).
+    """
+    envs = list(envs)[:max(episodes, 0)]
+    track = tracked_info_keys(envs[0]) if envs else ()
+    results: list[Episode | None] = [None] * max(episodes, 0)
+    index = list(range(len(envs)))  # the episode each env plays
+    current: list[Episode] = []
+    obs: list[Any] = []
+
+    def start(ep: int, env: gym.Env) -> tuple[Any, Episode]:
+        first, info = env.reset(seed=None if seed is None else seed + ep)
+        rec = Episode(0.0, 0, info)
+        if ep < keep:
+            rec.obs.append(first)
+            rec.infos.append(info)
+        return first, rec
+
+    for ep, env in enumerate(envs):
+        o, rec = start(ep, env)
+        obs.append(o)
+        current.append(rec)
+    next_ep = len(envs)
+    while envs:
+        actions = act(envs, obs, current)
+        running = []
+        for k, (env, action) in enumerate(zip(envs, actions, strict=True)):
+            ep, rec = index[k], current[k]
+            o, reward, terminated, truncated, info = env.step(action)
+            rec.add_step(float(reward), info, track)
+            if ep < keep:
+                rec.obs.append(o)
+                rec.acts.append(action)
+                rec.rews.append(float(reward))
+                rec.infos.append(info)
+            if on_step is not None:
+                on_step(env, action, o, float(reward), info)
+            if terminated or truncated:
+                rec.final_info, rec.terminated = info, bool(terminated)
+                results[ep] = rec
+                if on_episode is not None:
+                    on_episode(rec)
+                if next_ep >= episodes:
+                    continue  # this env has no episode left to play
+                ep, next_ep = next_ep, next_ep + 1
+                o, rec = start(ep, env)
+            running.append((env, ep, o, rec))
+        envs = [r[0] for r in running]
+        index = [r[1] for r in running]
+        obs = [r[2] for r in running]
+        current = [r[3] for r in running]
+    return [r for r in results if r is not None]
+
+
+def _single(act: Act) -> BatchAct:
+    """A one-env policy `act(env, obs)` as the batched loop calls it."""
+    return lambda envs, obs, eps: [act(envs[0], obs[0])]
+
+
 def play_episode(env: gym.Env, act: Act, seed: int | None, *, keep: bool = False,
                  on_step: OnStep | None = None) -> Episode:
     """Run one episode from `env.reset(seed=seed)` until it terminates or is truncated."""
-    track = tracked_info_keys(env)
-    obs, info = env.reset(seed=seed)
-    ep = Episode(0.0, 0, info)
-    if keep:
-        ep.obs.append(obs)
-        ep.infos.append(info)
-    while True:
-        action = act(env, obs)
-        obs, reward, terminated, truncated, info = env.step(action)
-        ep.add_step(float(reward), info, track)
-        if keep:
-            ep.obs.append(obs)
-            ep.acts.append(action)
-            ep.rews.append(float(reward))
-            ep.infos.append(info)
-        if on_step is not None:
-            on_step(env, action, obs, float(reward), info)
-        if terminated or truncated:
-            ep.final_info, ep.terminated = info, bool(terminated)
-            return ep
+    return play_batch([env], _single(act), 1, seed, keep=int(keep), on_step=on_step)[0]
 
 
 def play_episodes(env: gym.Env, act: Act, episodes: int, seed: int, *, keep: bool = False,
                   on_step: OnStep | None = None, on_episode: Callable[[Episode], None] | None = None
                   ) -> list[Episode]:
     """`episodes` episodes, episode i reset with seed `seed + i`; `on_episode` sees each as it ends."""
-    out = []
-    for i in range(episodes):
-        ep = play_episode(env, act, seed + i, keep=keep, on_step=on_step)
-        if on_episode is not None:
-            on_episode(ep)
-        out.append(ep)
-    return out
+    return play_batch([env], _single(act), episodes, seed, keep=episodes if keep else 0, on_step=on_step,
+                      on_episode=on_episode)

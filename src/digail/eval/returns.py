@@ -15,15 +15,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
+from digail.algos.decode import hierarchical_act
 from digail.envs import make_env
 from digail.envs.actions import env_action_fn
-from digail.envs.episodes import Episode, play_episodes
-from digail.envs.registry import env_spec, tracked_info_keys
+from digail.envs.episodes import Episode, play_batch, play_episodes
+from digail.envs.registry import env_spec
 from digail.errors import UserError
 from digail.experts import expert_for
-from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
 from digail.utils import write_json
 from digail.version import __version__
@@ -34,69 +33,22 @@ RATE_KEYS = {"is_success": "success_rate", "order_correct": "order_correct_rate"
 MEAN_KEYS = ("radius_error", "closure_error")
 
 
-@torch.no_grad()
 def run_episodes(model: HierarchicalPolicy, env_id: str, episodes: int, seed: int, *, deterministic: bool = False,
                  schedule: Sequence[int] | None = None, num_envs: int = 8, keep_obs: int = 0,
                  env_kwargs: dict[str, Any] | None = None) -> list[Episode]:
-    """Run `episodes` episodes (episode e reset with seed + e) with the model's sub-task policies.
+    """Run `episodes` episodes (episode e reset with seed + e) with the model's sub-task policies, on up to
+    `num_envs` envs at once (`play_batch`).
 
     Codes come from the closed-loop macro-policy (argmax of q), or from `schedule` (code per step; the last code
     repeats once it runs out). The first `keep_obs` episodes keep their observations for plots.
     """
-    model.eval()
-    device = next(model.parameters()).device
-    envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(min(num_envs, episodes))]
-    to_env = env_action_fn(envs[0])
-    track = tracked_info_keys(env_id)
-    K = model.codes
-    eye = torch.eye(K, device=device)
-    results: list[Episode | None] = [None] * episodes
-    next_ep = 0
-    slots: list[dict[str, Any]] = []
-    for env in envs:
-        ep = next_ep
-        next_ep += 1
-        obs, info = env.reset(seed=seed + ep)
-        slots.append(dict(env=env, ep=ep, obs=obs, prev=-1, t=0,
-                          rec=Episode(0.0, 0, info, obs=[obs] if ep < keep_obs else [])))
-    while slots:
-        obs_t = torch.as_tensor(np.stack([np.asarray(s["obs"], np.float32) for s in slots]), device=device)
-        obs_n = model.normalizer(obs_t)
-        if schedule is not None:
-            codes = torch.as_tensor([schedule[min(s["t"], len(schedule) - 1)] for s in slots], device=device)
-        else:
-            prev = torch.as_tensor([s["prev"] for s in slots], device=device)
-            codes = model.q(obs_n, one_hot(prev, K)).argmax(-1)
-        code_1h = eye[codes]
-        acts = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
-        acts_np = acts.cpu().numpy()
-        if to_env is not None:
-            acts_np = to_env(acts_np)
-        keep: list[dict[str, Any]] = []
-        for s, a, c in zip(slots, acts_np, codes.tolist(), strict=True):
-            obs, r, term, trunc, info = s["env"].step(a)
-            rec: Episode = s["rec"]
-            rec.add_step(r, info, track)
-            rec.codes.append(int(c))
-            if s["ep"] < keep_obs:
-                rec.obs.append(obs)
-            s["obs"], s["prev"], s["t"] = obs, int(c), s["t"] + 1
-            if term or trunc:
-                rec.final_info = info
-                results[s["ep"]] = rec
-                if next_ep < episodes:
-                    ep = next_ep
-                    next_ep += 1
-                    obs, info = s["env"].reset(seed=seed + ep)
-                    s.update(ep=ep, obs=obs, prev=-1, t=0,
-                             rec=Episode(0.0, 0, info, obs=[obs] if ep < keep_obs else []))
-                    keep.append(s)
-            else:
-                keep.append(s)
-        slots = keep
-    for env in envs:
-        env.close()
-    return [r for r in results if r is not None]
+    envs = [make_env(env_id, **(env_kwargs or {})) for _ in range(max(min(num_envs, episodes), 1))]
+    try:
+        act = hierarchical_act(model, env_action_fn(envs[0]), deterministic=deterministic, schedule=schedule)
+        return play_batch(envs, act, episodes, seed, keep=keep_obs)
+    finally:
+        for env in envs:
+            env.close()
 
 
 def task_metrics(episodes: list[Episode], env_id: str | None = None) -> dict[str, float]:

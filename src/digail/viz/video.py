@@ -19,10 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from digail.errors import UserError
-from digail.nets.mlp import one_hot
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
@@ -54,7 +52,6 @@ class RenderedEpisode:
     ret: float = 0.0
 
 
-@torch.no_grad()
 def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, schedule: Sequence[int] | None = None,
                   render: bool = True, deterministic: bool = True,
                   max_steps: int | None = None) -> list[RenderedEpisode]:
@@ -71,47 +68,35 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     """
     import gymnasium as gym
 
+    from digail.algos.decode import hierarchical_act
     from digail.envs import make_env
     from digail.envs.actions import env_action_fn
-    from digail.envs.episodes import play_episode
+    from digail.envs.episodes import Episode, play_batch
 
     if render:
         ensure_offscreen_gl()
-    model.eval()
-    device = next(model.parameters()).device
     env = make_env(env_id, render_mode="rgb_array") if render else make_env(env_id)
     if max_steps is not None:
         env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)  # the cut reads as a truncation
-    to_env = env_action_fn(env)
-    eye = torch.eye(model.codes, device=device)
+    policy = hierarchical_act(model, env_action_fn(env), deterministic=deterministic, schedule=schedule)
+    frames: list[np.ndarray] = []  # of the episode being played
     out: list[RenderedEpisode] = []
-    rec = RenderedEpisode()
 
-    def act(env: Any, obs: Any) -> Any:
-        """Frame, code (schedule, or argmax q given the previous code), then pi's action."""
+    def act(envs: list[Any], obs: list[Any], eps: list[Episode]) -> Any:
+        """The frame of the state the code and action are chosen in, then the policy's action."""
         if render:
-            rec.frames.append(np.asarray(env.render()))
-        t = len(rec.codes)
-        obs_n = model.normalizer(torch.as_tensor(np.asarray(obs, np.float32), device=device)[None])
-        if schedule is not None:
-            code = int(schedule[min(t, len(schedule) - 1)])
-        else:
-            prev = rec.codes[-1] if rec.codes else -1
-            code = int(model.q(obs_n, one_hot(torch.tensor([prev], device=device), model.codes)).argmax(-1))
-        rec.codes.append(code)
-        code_1h = eye[[code]]
-        action = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
-        action_np = action.cpu().numpy()
-        return (to_env(action_np) if to_env is not None else action_np)[0]
+            frames.append(np.asarray(env.render()))
+        return policy(envs, obs, eps)
+
+    def done(ep: Episode) -> None:
+        if render:
+            frames.append(np.asarray(env.render()))
+        out.append(RenderedEpisode(frames=list(frames), codes=ep.codes, obs=[np.asarray(o) for o in ep.obs],
+                                   ret=ep.ret))
+        frames.clear()
 
     try:
-        for e in range(episodes):
-            rec = RenderedEpisode()
-            ep = play_episode(env, act, seed + e, keep=True)
-            if render:
-                rec.frames.append(np.asarray(env.render()))
-            rec.obs, rec.ret = [np.asarray(o) for o in ep.obs], ep.ret
-            out.append(rec)
+        play_batch([env], act, episodes, seed, keep=episodes, on_episode=done)
     except gym.error.DependencyNotInstalled as exc:  # e.g. Pendulum-v1 draws with pygame
         raise UserError(f"{env_id} cannot draw its frames here ({exc}); install that package to record a video."
                         ) from None
