@@ -14,16 +14,18 @@ import torch
 import digail  # noqa: F401  (registers the envs)
 from digail.cli import main
 from digail.commands.expert import ExpertArgs, expert_command
+from digail.envs.registry import ENV_SPECS
 from digail.errors import UserError
 from digail.experts.rl import (
-    EXPERT_SPECS,
     ExpertSpec,
     build_sb3_model,
     evaluate_expert,
     export_expert,
     load_expert,
     load_expert_actor,
+    rl_expert_envs,
     shipped_expert_path,
+    spec_for,
 )
 
 MUJOCO_ENVS = {"InvertedPendulum-v5", "Hopper-v5", "Walker2d-v5"}
@@ -66,7 +68,7 @@ def test_unsupported_env_is_one_sentence_and_exit_status_2(capsys: pytest.Captur
 
 def test_expert_file_for_another_env_or_not_an_expert_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "pendulum.pt"
-    model, venv = build_sb3_model("Pendulum-v1", EXPERT_SPECS["Pendulum-v1"], seed=0, device="cpu")
+    model, venv = build_sb3_model("Pendulum-v1", spec_for("Pendulum-v1"), seed=0, device="cpu")
     export_expert(model, venv, "Pendulum-v1", path, {"steps": 0})
     with pytest.raises(UserError, match="trained for 'Pendulum-v1', not 'Hopper-v5'"):
         load_expert("Hopper-v5", path)
@@ -94,7 +96,7 @@ def test_resume_without_checkpoints_is_refused(tmp_path: Path) -> None:
 def test_exported_actor_matches_sb3_deterministic_actions(tmp_path: Path, recipe: str) -> None:
     """The pickle-free export reproduces SB3's own deterministic prediction, normalisation included."""
     torch.manual_seed(0)
-    spec = PPO_GSDE if recipe == "gsde" else EXPERT_SPECS[recipe]
+    spec = PPO_GSDE if recipe == "gsde" else spec_for(recipe)
     model, venv = build_sb3_model("Pendulum-v1", spec, seed=0, device="cpu")
     rng = np.random.default_rng(0)
     venv.obs_rms.mean = rng.normal(size=3)
@@ -116,7 +118,7 @@ def test_exported_actor_matches_sb3_deterministic_actions(tmp_path: Path, recipe
 def test_exported_sac_actor_matches_sb3_deterministic_actions(tmp_path: Path) -> None:
     """SAC's export (tanh-squashed mean rescaled to the box, raw observations) reproduces SB3's prediction."""
     torch.manual_seed(0)
-    spec = EXPERT_SPECS["Pendulum-v1"]
+    spec = spec_for("Pendulum-v1")
     assert spec.algo == "sac"
     model, venv = build_sb3_model("Pendulum-v1", spec, seed=0, device="cpu")
     with torch.no_grad():  # large pre-activations: actions near the bounds as well as inside them
@@ -154,14 +156,15 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
                                                     algo: str) -> None:
     """A short run, then --resume for as much again: steps carry over and eval.json holds 50 episodes."""
     out = tmp_path / "pendulum"
+    pendulum = ENV_SPECS["Pendulum-v1"]
+    assert pendulum.rl_expert is not None and pendulum.rl_expert.algo == "sac"
     if algo == "ppo":  # one PPO rollout per run
-        monkeypatch.setitem(EXPERT_SPECS, "Pendulum-v1", PPO_GSDE)
+        recipe = PPO_GSDE
         rollout = PPO_GSDE.n_envs * PPO_GSDE.ppo["n_steps"]
     else:  # SAC: past learning_starts, so gradient steps run before the first checkpoint
-        assert EXPERT_SPECS["Pendulum-v1"].algo == "sac"
-        monkeypatch.setitem(EXPERT_SPECS, "Pendulum-v1",
-                            dataclasses.replace(EXPERT_SPECS["Pendulum-v1"], eval_every=150, eval_episodes=2))
+        recipe = dataclasses.replace(pendulum.rl_expert, eval_every=150, eval_episodes=2)
         rollout = 200
+    monkeypatch.setitem(ENV_SPECS, "Pendulum-v1", dataclasses.replace(pendulum, rl_expert=recipe))
     expert_command(ExpertArgs(env="Pendulum-v1", out=out, steps=rollout))
     assert (out / "checkpoints" / f"step_{rollout}.zip").is_file()
     first = json.loads((out / "eval.json").read_text())
@@ -183,7 +186,7 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
 
 
 # ------------------------------------------------------------------------------------------ shipped files
-@pytest.mark.parametrize("env_id", [pytest.param(e, marks=_maybe_mujoco(e)) for e in EXPERT_SPECS])
+@pytest.mark.parametrize("env_id", [pytest.param(e, marks=_maybe_mujoco(e)) for e in rl_expert_envs()])
 def test_shipped_expert_loads_and_runs(env_id: str) -> None:
     if not shipped_expert_path(env_id).is_file():
         pytest.skip(f"no expert shipped for {env_id} yet")

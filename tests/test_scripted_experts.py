@@ -8,6 +8,8 @@ import pytest
 
 import digail  # noqa: F401  (registers the envs)
 from digail.envs.four_rooms import APPLE_LABEL, CORRIDORS, FREE_CELLS, ROOMS, FourRoomsEnv, move
+from digail.envs.registry import ENV_SPECS
+from digail.experts.fetch import fetch_expert
 from digail.experts.scripted import circle_expert, four_rooms_expert, get_scripted_expert
 
 # Two apples in every room: a corner cell and an inner cell.
@@ -96,7 +98,12 @@ def test_circle_expert_draws_the_circle_both_ways() -> None:
 def test_get_scripted_expert_mapping() -> None:
     assert get_scripted_expert("digail/FourRooms-v0") is four_rooms_expert
     assert get_scripted_expert("digail/CircleWorld-v0") is circle_expert
+    assert get_scripted_expert("digail/FetchPickAndPlace-v4") is fetch_expert
     assert get_scripted_expert("Hopper-v5") is None
+    assert get_scripted_expert("CartPole-v1") is None  # an env without a registry entry
+    # every registry entry that names a scripted expert names a function that exists
+    named = [spec.env_id for spec in ENV_SPECS.values() if spec.scripted_expert is not None]
+    assert named and all(callable(get_scripted_expert(env_id)) for env_id in named)
 
 
 def test_expert_refuses_the_wrong_env() -> None:

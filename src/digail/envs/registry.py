@@ -1,11 +1,12 @@
-"""The registry of environments (one `EnvSpec` per env), their Gymnasium registration, and `make_env`."""
+"""The registry of environments (one `EnvSpec` per env: settings, data size, experts, metrics), their Gymnasium
+registration, and `make_env`."""
 
 from __future__ import annotations
 
 import contextlib
 import difflib
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -25,6 +26,45 @@ class StepMetric:
     """its name in eval.json (the mean over episodes of the per-episode value)"""
     reduce: Literal["sum", "any"] = "sum"
     """per episode: `sum` of the step values (a return), or `any` (1 if it was true at some step: a rate)"""
+
+
+@dataclass(frozen=True)
+class ExpertSpec:
+    """How `digail expert` trains the Stable-Baselines3 expert of one environment (why each recipe is as it is:
+    docs/experiments.md#rl-experts)."""
+
+    steps: int
+    """default budget of environment steps"""
+    target: float
+    """mean return over 50 episodes the expert should reach (the project's acceptance bar)"""
+    algo: str = "ppo"
+    """SB3 algorithm: "ppo" (with VecNormalize) or "sac" (raw observations, replay buffer)"""
+    n_envs: int = 8
+    """parallel copies of the env in one process (DummyVecEnv)"""
+    ppo: dict[str, Any] = field(default_factory=dict)
+    """keyword arguments of `stable_baselines3.PPO` (learning_rate may be ('linear', lr0))"""
+    sac: dict[str, Any] = field(default_factory=dict)
+    """keyword arguments of `stable_baselines3.SAC` (algo "sac")"""
+    net_arch: tuple[int, ...] = (64, 64)
+    """hidden sizes of the policy and of the (separate) value / Q nets"""
+    activation: str = "tanh"
+    """hidden activation: tanh or relu"""
+    log_std_init: float = 0.0
+    """initial log standard deviation of the Gaussian policy"""
+    use_sde: bool = False
+    """generalised state-dependent exploration"""
+    norm_reward: bool = True
+    """normalise rewards during training, PPO only (evaluation always reports raw returns)"""
+    gamma: float = 0.99
+    """discount, shared by the algorithm and the reward normaliser"""
+    checkpoint_every: int = 50_000
+    """environment steps between resumable checkpoints"""
+    eval_every: int = 50_000
+    """environment steps between periodic evaluations (which also pick best_expert.pt)"""
+    eval_episodes: int = 10
+    """episodes of each periodic evaluation"""
+    stop_at: float | None = None
+    """stop early once a periodic evaluation reaches this mean return (None: run the whole budget)"""
 
 
 @dataclass(frozen=True)
@@ -58,29 +98,62 @@ class EnvSpec:
     subproc on 2 cores), else subproc"""
     envpool: bool = False
     """envpool has this env with Gymnasium's dynamics (`digail.envs.vector.EnvpoolVecEnv`, tested against it)"""
+    scripted_expert: str | None = None
+    """`module:function` of its scripted expert, `function(env) -> action` (a name, not the function, because the
+    experts sit above the envs; `digail.experts.scripted` resolves it); None: no scripted expert"""
+    rl_expert: ExpertSpec | None = None
+    """how `digail expert` trains its RL expert (None: no recipe)"""
 
     def tracked_info_keys(self) -> tuple[str, ...]:
         """Info keys an episode loop records per step for the step metrics."""
         return tuple(m.info_key for m in self.step_metrics)
 
 
+_LOCOMOTION_PPO: dict[str, Any] = {
+    "n_steps": 512,  # x 8 envs = 4096 transitions per update
+    "batch_size": 256,
+    "n_epochs": 10,
+    "learning_rate": ("linear", 3e-4),
+    "gae_lambda": 0.95,
+    "clip_range": 0.2,
+    "ent_coef": 0.0,
+    "vf_coef": 0.5,
+    "max_grad_norm": 0.5,
+}
+
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
-            auto_backend="sync"),
+            auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
-            compose_schedule=((1, 60), (0, 60)), auto_backend="sync"),
-    # gymnasium-robotics is imported only when this one is made (digail.envs.fetch)
+            compose_schedule=((1, 60), (0, 60)), auto_backend="sync",
+            scripted_expert="digail.experts.scripted:circle_expert"),
+    # gymnasium-robotics is imported only when this one is made (digail.envs.fetch), and so is the expert's module
     # The paper's Table 2 measure is the dense return; the sparse one, success and grasp rates stand beside it
     EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50,
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
-            eval_return="dense_return", reward_name="sparse_return", auto_backend="sync"),
+            eval_return="dense_return", reward_name="sparse_return", auto_backend="sync",
+            scripted_expert="digail.experts.fetch:fetch_expert"),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
-    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync"),
-    EnvSpec("InvertedPendulum-v5", "pendulum", 25, envpool=True),
-    EnvSpec("Hopper-v5", "hopper", 50, envpool=True),
-    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True),
+    # SAC as in the RL-Zoo's entry (learning rate 1e-3, SB3's other defaults); the replay buffer holds the
+    # whole budget; 64x64 nets keep one gradient step per env step affordable on a CPU
+    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync", rl_expert=ExpertSpec(
+        algo="sac", steps=20_000, target=-150.0, n_envs=1, net_arch=(64, 64), activation="relu",
+        sac={"learning_rate": 1e-3, "buffer_size": 200_000},
+        checkpoint_every=5_000, eval_every=2_500, eval_episodes=50, stop_at=None)),
+    # balancing is easy: plain PPO with small nets
+    EnvSpec("InvertedPendulum-v5", "pendulum", 25, envpool=True, rl_expert=ExpertSpec(
+        steps=300_000, target=1000.0, n_envs=8,
+        ppo={"n_steps": 256, "batch_size": 64, "n_epochs": 10, "learning_rate": 3e-4, "gae_lambda": 0.95,
+             "clip_range": 0.2, "ent_coef": 0.0},
+        checkpoint_every=20_000, eval_every=20_000, eval_episodes=20, stop_at=1000.0)),
+    EnvSpec("Hopper-v5", "hopper", 50, envpool=True, rl_expert=ExpertSpec(
+        steps=3_000_000, target=3000.0, ppo=_LOCOMOTION_PPO, net_arch=(256, 256), log_std_init=-0.5,
+        checkpoint_every=100_000, eval_every=100_000, stop_at=3300.0)),
+    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True, rl_expert=ExpertSpec(
+        steps=5_000_000, target=4000.0, ppo=_LOCOMOTION_PPO, net_arch=(256, 256), log_std_init=-0.5,
+        checkpoint_every=100_000, eval_every=100_000, stop_at=4400.0)),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""
 
@@ -88,6 +161,11 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
 def env_spec(env_id: str) -> EnvSpec | None:
     """The registry entry of `env_id`, or None for an environment digail has no entry for."""
     return ENV_SPECS.get(env_id)
+
+
+def rl_expert_envs() -> list[str]:
+    """The envs with an RL expert recipe, in registry order."""
+    return [spec.env_id for spec in ENV_SPECS.values() if spec.rl_expert is not None]
 
 
 def tracked_info_keys(env: gym.Env | str | None) -> tuple[str, ...]:

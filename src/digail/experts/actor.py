@@ -12,8 +12,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from digail.envs.registry import rl_expert_envs
 from digail.errors import UserError
-from digail.experts.recipes import EXPERT_FORMAT, EXPERT_SPECS, shipped_expert_path
+from digail.experts.recipes import EXPERT_FORMAT, shipped_expert_path
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
 
@@ -170,7 +171,7 @@ def load_expert(env_id: str, path: str | Path | None = None) -> Callable[[np.nda
 
 def shipped_envs() -> list[str]:
     """Env ids whose expert ships with the package."""
-    return [env_id for env_id in EXPERT_SPECS if shipped_expert_path(env_id).is_file()]
+    return [env_id for env_id in rl_expert_envs() if shipped_expert_path(env_id).is_file()]
 
 
 def evaluate_expert(env_id: str, policy: Callable[[np.ndarray], np.ndarray], episodes: int,

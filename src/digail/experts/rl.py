@@ -17,11 +17,12 @@ Two formats live side by side:
   holds `expert.pt` (the latest export) and `best_expert.pt` (the best periodic evaluation); the shipped
   ones are copies of `best_expert.pt` in `digail/experts/weights/`.
 
-Split by concept: `recipes` (`EXPERT_SPECS`), `actor` (the SB3-free exported actor), `sb3` (training),
-`shipping`; this module keeps every public name importable from one place. Why each recipe:
-docs/experiments.md#rl-experts.
+Split by concept: `recipes` (an env's recipe, `EnvSpec.rl_expert` in the env registry), `actor` (the SB3-free
+exported actor), `sb3` (training), `shipping`; this module keeps every public name importable from one place.
+Why each recipe: docs/experiments.md#rl-experts.
 """
 
+from digail.envs.registry import ExpertSpec, rl_expert_envs
 from digail.experts.actor import (
     ExpertActor,
     evaluate_expert,
@@ -32,12 +33,10 @@ from digail.experts.actor import (
 )
 from digail.experts.recipes import (
     EXPERT_FORMAT,
-    EXPERT_SPECS,
     FINAL_EVAL_EPISODES,
     FINAL_EVAL_SEED,
     PERIODIC_EVAL_SEED,
     WEIGHTS_DIR,
-    ExpertSpec,
     safe_name,
     shipped_expert_path,
     spec_for,
@@ -46,8 +45,8 @@ from digail.experts.sb3 import ExpertRun, build_sb3_model, expert_command, train
 from digail.experts.shipping import RECORD_FILE, record_expert, ship_expert, shipped_expert_eval
 
 __all__ = [
-    "EXPERT_FORMAT", "EXPERT_SPECS", "FINAL_EVAL_EPISODES", "FINAL_EVAL_SEED", "PERIODIC_EVAL_SEED", "RECORD_FILE",
+    "EXPERT_FORMAT", "FINAL_EVAL_EPISODES", "FINAL_EVAL_SEED", "PERIODIC_EVAL_SEED", "RECORD_FILE",
     "WEIGHTS_DIR", "ExpertActor", "ExpertRun", "ExpertSpec", "build_sb3_model", "evaluate_expert", "expert_command",
-    "export_expert", "load_expert", "load_expert_actor", "record_expert", "safe_name", "ship_expert",
+    "export_expert", "load_expert", "load_expert_actor", "record_expert", "rl_expert_envs", "safe_name", "ship_expert",
     "shipped_envs", "shipped_expert_eval", "shipped_expert_path", "spec_for", "train_expert",
 ]

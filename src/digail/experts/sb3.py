@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from digail.envs.registry import ExpertSpec
 from digail.errors import UserError
 from digail.experts.actor import ACTIVATIONS, evaluate_expert, export_expert, load_expert, load_expert_actor
 from digail.experts.recipes import (
     FINAL_EVAL_EPISODES,
     FINAL_EVAL_SEED,
     PERIODIC_EVAL_SEED,
-    ExpertSpec,
     safe_name,
     spec_for,
 )
@@ -196,7 +196,7 @@ class ExpertRun:
     """One expert training run (what `digail expert` asks for)."""
 
     env: str
-    """environment id with a recipe in `EXPERT_SPECS`"""
+    """environment id whose registry entry has an RL expert recipe (`EnvSpec.rl_expert`)"""
     out: Path | None = None
     """expert folder (default: experts_work/<env>)"""
     steps: int | None = None

@@ -1,11 +1,13 @@
 """Scripted experts: closed-form controllers that read the env's true state (through `env.unwrapped`).
 
-Each expert is a function `expert(env) -> action` for the env's current state; `get_scripted_expert` maps an
-env id to one. They are deterministic, so demonstrations recorded from a seeded env are reproducible.
+Each expert is a function `expert(env) -> action` for the env's current state; an env's registry entry names its
+expert (`digail.envs.registry.EnvSpec.scripted_expert`) and `get_scripted_expert` finds it. They are
+deterministic, so demonstrations recorded from a seeded env are reproducible.
 """
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -14,7 +16,7 @@ import numpy as np
 
 from digail.envs.circle_world import CircleWorldEnv, reference_point
 from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
-from digail.experts.fetch import fetch_expert
+from digail.envs.registry import env_spec
 
 
 def _unwrapped(env: gym.Env, cls: type) -> Any:
@@ -51,14 +53,12 @@ def circle_expert(env: gym.Env) -> np.ndarray:
     return (offset / norm).astype(np.float32)
 
 
-_SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
-    "digail/FourRooms-v0": four_rooms_expert,
-    "digail/CircleWorld-v0": circle_expert,
-    # The Fetch pick-and-place controller lives in its own module (running it needs gymnasium-robotics).
-    "digail/FetchPickAndPlace-v4": fetch_expert,
-}
-
-
 def get_scripted_expert(env_id: str) -> Callable[[gym.Env], Any] | None:
-    """The scripted expert for `env_id`, or None when the env has none (use an RL expert instead)."""
-    return _SCRIPTED_EXPERTS.get(env_id)
+    """The scripted expert `env_id`'s registry entry names (`EnvSpec.scripted_expert`), or None when the env has
+    none (use an RL expert instead)."""
+    spec = env_spec(env_id)
+    if spec is None or spec.scripted_expert is None:
+        return None
+    module, name = spec.scripted_expert.split(":")
+    expert: Callable[[gym.Env], Any] = getattr(importlib.import_module(module), name)
+    return expert
