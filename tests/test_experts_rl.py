@@ -12,6 +12,7 @@ import pytest
 import torch
 
 import digail  # noqa: F401  (registers the envs)
+from digail.checkpoint import run_config
 from digail.cli import main
 from digail.commands.expert import ExpertArgs, expert_command
 from digail.envs.registry import ENV_SPECS
@@ -176,6 +177,10 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
     expert_command(ExpertArgs(env="Pendulum-v1", out=out, steps=2 * rollout, resume=True))
     second = json.loads((out / "eval.json").read_text())
     assert second["total_steps"] == 2 * rollout
+    config = json.loads((out / "config.json").read_text())  # the schema of every run folder
+    assert set(run_config(kind="expert", env_id=None, demos=None, seed=0)) <= set(config)
+    assert (config["kind"], config["env_id"], config["steps"]) == ("expert", "Pendulum-v1", 2 * rollout)
+    assert config["expert"]["algo"] == recipe.algo and config["args"]["resume"] is True
     assert (out / "checkpoints" / f"step_{2 * rollout}.zip").is_file()
     if algo == "sac":
         assert (out / "checkpoints" / f"step_{2 * rollout}.replay.pkl").is_file()

@@ -4,7 +4,8 @@ A checkpoint is one `torch.save` file holding only tensors and plain Python data
 `torch.load(..., weights_only=True)`: the state_dict (normaliser statistics included, they are buffers), what is
 needed to rebuild the model (observation size, number of codes, action spec, hidden sizes), the environment id,
 what produced it (`kind`: "vae", "digail", "gail", ...), the digail version and the resolved config as a JSON
-string. Run folders keep it as `model.pt` beside `config.json`.
+string. Run folders keep it as `model.pt` beside `config.json`, whose one schema (`run_config`) lives here too,
+below every layer that writes a run folder (the commands and the expert trainer).
 """
 
 from __future__ import annotations
@@ -105,6 +106,61 @@ def read_config(run: str | Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise UserError(f"{path} does not hold a JSON object; restore it or re-create the run.")
     return data
+
+
+CONFIG_SCHEMA = 1
+"""version of the `config.json` layout below; bumped when a key changes meaning"""
+
+
+def path_ref(value: str | Path | None) -> str | None:
+    """A dataset or run reference as `config.json` stores it: an existing path made absolute (so a later command
+    run from another directory finds it), anything else (a dataset id) as given."""
+    if value is None or str(value) == "":
+        return None
+    path = Path(value)
+    return str(path.resolve()) if path.exists() else str(value)
+
+
+def run_config(*, kind: str, env_id: str | None, demos: str | Path | None, seed: int, preset: str | None = None,
+               device: str | None = None, vae: Any = None, train: Any = None, vae_run: str | Path | None = None,
+               args: Any = None, **extra: Any) -> dict[str, Any]:
+    """The one schema of every run folder's `config.json` (and of the config inside its `model.pt`).
+
+    Keys: `schema`, `kind` ("vae", "digail", "gail", "expert"), `method` (the same for trained policies),
+    `env_id`, `demos` and `vae_run` (absolute paths or dataset ids, see `path_ref`), `seed`, `preset`, `device`,
+    `digail_version`, `vae` and `train` (the resolved `VAEConfig` / `TrainConfig`, or None), `args` (the
+    command's own arguments, what `--resume` rebuilds them from) and any command-specific extras (an expert's
+    `steps` budget and `expert` recipe).
+    """
+    from digail.config import to_dict
+    from digail.version import __version__
+
+    config: dict[str, Any] = {
+        "schema": CONFIG_SCHEMA,
+        "kind": kind,
+        "method": kind if kind in ("digail", "gail") else None,
+        "env_id": env_id,
+        "demos": path_ref(demos),
+        "vae_run": path_ref(vae_run),
+        "seed": seed,
+        "preset": preset,
+        "device": device,
+        "digail_version": __version__,
+        "vae": to_dict(vae) if vae is not None else None,
+        "train": to_dict(train) if train is not None else None,
+        "args": to_dict(args) if args is not None else None,
+    }
+    config.update(extra)
+    return config
+
+
+def write_run_config(run_dir: Path, config: dict[str, Any]) -> Path:
+    """Write `config` (from `run_config`) as RUN/config.json; returns the file."""
+    from digail.utils import write_json
+
+    path = Path(run_dir) / CONFIG_FILE
+    write_json(path, config)
+    return path
 
 
 def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[HierarchicalPolicy, dict[str, Any]]:

@@ -11,59 +11,6 @@ from digail.config import Preset
 from digail.errors import UserError
 from digail.utils import check_new_dir, default_run_dir
 
-CONFIG_SCHEMA = 1
-"""version of the `config.json` layout below; bumped when a key changes meaning"""
-
-
-def path_ref(value: str | Path | None) -> str | None:
-    """A dataset or run reference as `config.json` stores it: an existing path made absolute (so a later command
-    run from another directory finds it), anything else (a dataset id) as given."""
-    if value is None or str(value) == "":
-        return None
-    path = Path(value)
-    return str(path.resolve()) if path.exists() else str(value)
-
-
-def run_config(*, kind: str, env_id: str | None, demos: str | Path | None, seed: int, preset: str | None = None,
-               device: str | None = None, vae: Any = None, train: Any = None, vae_run: str | Path | None = None,
-               args: Any = None, **extra: Any) -> dict[str, Any]:
-    """The one schema of every run folder's `config.json` (and of the config inside its `model.pt`).
-
-    Keys: `schema`, `kind` ("vae", "digail", "gail"), `method` (the same for trained policies), `env_id`, `demos`
-    and `vae_run` (absolute paths or dataset ids, see `path_ref`), `seed`, `preset`, `device`, `digail_version`,
-    `vae` and `train` (the resolved `VAEConfig` / `TrainConfig`, or None), `args` (the command's own arguments,
-    what `--resume` rebuilds them from) and any command-specific extras.
-    """
-    from digail.config import to_dict
-    from digail.version import __version__
-
-    config: dict[str, Any] = {
-        "schema": CONFIG_SCHEMA,
-        "kind": kind,
-        "method": kind if kind in ("digail", "gail") else None,
-        "env_id": env_id,
-        "demos": path_ref(demos),
-        "vae_run": path_ref(vae_run),
-        "seed": seed,
-        "preset": preset,
-        "device": device,
-        "digail_version": __version__,
-        "vae": to_dict(vae) if vae is not None else None,
-        "train": to_dict(train) if train is not None else None,
-        "args": to_dict(args) if args is not None else None,
-    }
-    config.update(extra)
-    return config
-
-
-def write_run_config(run_dir: Path, config: dict[str, Any]) -> Path:
-    """Write `config` (from `run_config`) as RUN/config.json; returns the file."""
-    from digail.utils import write_json
-
-    path = Path(run_dir) / "config.json"
-    write_json(path, config)
-    return path
-
 
 def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool,
                 resume_command: str | None = None) -> Path:

@@ -54,8 +54,8 @@ def pretrain_command(args: PretrainArgs) -> Path:
     (`codes.npz`, `segmentation.json`, `figures/segmentation.png`).
     """
     from digail.algos.vae_pretrain import pretrain
-    from digail.checkpoint import save_model
-    from digail.commands.common import new_run_dir, run_config, write_run_config
+    from digail.checkpoint import run_config, save_model, write_run_config
+    from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec

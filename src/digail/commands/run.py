@@ -81,8 +81,8 @@ def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import pretrain
-    from digail.checkpoint import load_model, save_model
-    from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
+    from digail.checkpoint import load_model, path_ref, run_config, save_model, write_run_config
+    from digail.commands.common import new_run_dir
     from digail.commands.report import make_figures
     from digail.commands.train import TrainArgs
     from digail.config import to_dict

@@ -61,7 +61,8 @@ def defaults(argv: Sequence[str]) -> TrainArgs:
 def train_command(args: TrainArgs) -> Path:
     """Validate everything, then train (or resume) in a run folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
-    from digail.commands.common import new_run_dir, path_ref, run_config, write_run_config
+    from digail.checkpoint import path_ref, run_config, write_run_config
+    from digail.commands.common import new_run_dir
     from digail.utils import check_writable, fresh_dir, resolve_device, set_torch_threads
 
     set_torch_threads(1)

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from digail.checkpoint import run_config, write_run_config
+from digail.config import to_dict
 from digail.envs.registry import ExpertSpec
 from digail.errors import UserError
 from digail.experts.actor import ACTIVATIONS, evaluate_expert, export_expert, load_expert, load_expert_actor
@@ -242,9 +244,9 @@ def train_expert(args: ExpertRun) -> Path:
         out.mkdir(parents=True, exist_ok=True)
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
         model, _ = build_sb3_model(args.env, spec, args.seed, device)
-    ppo_kwargs = {k: str(v) if isinstance(v, tuple) else v for k, v in spec.ppo.items()}
-    write_json(out / "config.json", {"env_id": args.env, "steps": total, "seed": args.seed,
-                                     "spec": {**spec.__dict__, "ppo": ppo_kwargs}})
+    # the one run-folder schema (`kind` "expert"), with the budget and the recipe it trained with
+    write_run_config(out, run_config(kind="expert", env_id=args.env, demos=None, seed=args.seed, device=device,
+                                     args=args, steps=total, expert=to_dict(spec)))
     t_start = time.time()
     remaining = total - int(model.num_timesteps)
     if remaining > 0:
