@@ -66,7 +66,7 @@ def discriminator_direction_sensitivity(vae: Path, cfg: TrainConfig) -> None:
     trainer = trainer_for(vae, cfg, seed=0)
     for _ in range(cfg.value_warmup):
         trainer.iterate()
-    obs, acts = trainer.exp_obs_n, trainer.exp_acts
+    obs, acts = trainer.expert.obs_n, trainer.expert.acts
     print(f"3. D's mean reward on expert states after {cfg.value_warmup} warm-up iterations, actions rotated by:")
     with torch.no_grad():
         for deg in (-10, -2, 0, 2, 10):

@@ -155,7 +155,7 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, 
     def expected_code(i: int, episode: int, t_ep: int, s_n: torch.Tensor, prev: int) -> tuple[int, float]:
         logq = torch.log_softmax(q(s_n[None], one_hot(torch.tensor([prev]), 3)), -1)[0]
         code = int(logq.argmax())
-        seq = trainer.replay_codes[demo_of[i][episode]]
+        seq = trainer.expert.replay_codes[demo_of[i][episode]]
         if i < trainer.n_replay and t_ep < len(seq) and seq[t_ep] >= 0:
             code = int(seq[t_ep])
         return code, float(logq[code])

@@ -40,13 +40,13 @@ class DirectedInfoGAIL(GAIL):
         self.n_replay = int(round(self.cfg.replay_fraction * self.envs.num_envs))
         # q's segmentations with a column of -1 (past a demonstration's end) and a row of -1 (the replay index of
         # closed-loop envs): a code is replayed where the table holds one, with no further checks per step
-        length = self.replay_codes.shape[1]
-        self._replay_table = np.full((len(self.replay_codes) + 1, length + 1), -1, dtype=np.int64)
-        self._replay_table[:-1, :length] = self.replay_codes
+        length = self.expert.replay_codes.shape[1]
+        self._replay_table = np.full((len(self.expert.replay_codes) + 1, length + 1), -1, dtype=np.int64)
+        self._replay_table[:-1, :length] = self.expert.replay_codes
 
     def start_episodes(self, idx: np.ndarray) -> None:
         super().start_episodes(idx)
-        demo = self.np_rng.integers(len(self.replay_codes), size=len(idx))
+        demo = self.np_rng.integers(len(self.expert.replay_codes), size=len(idx))
         self.codes_state.replay_idx[idx] = np.where(idx < self.n_replay, demo, -1)
 
     def _is_closed_loop(self, i: int) -> bool:

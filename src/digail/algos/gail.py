@@ -19,8 +19,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from digail.algos.decode import segment_many
+from digail.algos.aux_losses import anchor_loss, bc_loss
 from digail.algos.discriminator import discriminator_update
+from digail.algos.expert_data import expert_data
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
 from digail.algos.rollout import CodeState, RolloutState, collect_rollout
@@ -101,7 +102,8 @@ class GAIL:
         self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
 
-        self._load_expert(demos)
+        self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
+        """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
         # a frozen copy of the initial policy for the anchor term (saved in checkpoints: resuming keeps the anchor)
         self._anchor_pi = copy.deepcopy(self.model.pi).requires_grad_(False) if cfg.anchor_weight > 0 else None
         self.iteration = 0
@@ -116,26 +118,7 @@ class GAIL:
                                              "seed": seed, "train": to_dict(cfg)}
         """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
 
-    # ------------------------------------------------------------------------------------------ expert data
-    def _load_expert(self, demos: list[Trajectory]) -> None:
-        """Expert (s, a) pairs for D and the BC term, and q's code sequence for every demonstration."""
-        obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]),
-                              device=self.device)
-        acts_np = np.concatenate([np.asarray(t.acts) for t in demos])
-        self.exp_obs_n = self.model.normalizer(obs)
-        if self.discrete:
-            self.exp_acts = torch.as_tensor(acts_np, dtype=torch.long, device=self.device)
-        else:
-            self.exp_acts = torch.as_tensor(acts_np, dtype=torch.float32, device=self.device)
-        self.exp_act_in = self.act_input(self.exp_acts)
-        self.exp_disc_in = torch.cat([self.exp_obs_n, self.exp_act_in], -1)  # D's input, built once
-        seqs = segment_many(self.model, demos)
-        self.exp_codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=self.device)
-        longest = max(len(s) for s in seqs)
-        self.replay_codes = np.full((len(seqs), longest), -1, dtype=np.int64)
-        for i, s in enumerate(seqs):
-            self.replay_codes[i, : len(s)] = s
-
+    # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
         """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
         if self.discrete:
@@ -194,17 +177,9 @@ class GAIL:
         self._q_snap = CodeMLP([self.model.q.net], obs_dim) if self.K > 1 else None
         if self.rollout_state is None:
             self.rollout_state = self._reset_envs()
-        norm = self.model.normalizer
-        mean, std, clip = norm.mean.cpu().numpy(), norm.std.cpu().numpy(), float(norm.clip)
-
-        def normalize(obs: np.ndarray) -> np.ndarray:  # ObsNormalizer.forward, op for op
-            x = obs - mean
-            x /= std
-            np.maximum(x, -clip, out=x)
-            return np.minimum(x, clip, out=x)
-
         T = self.cfg.ppo.steps_per_env
-        batch = collect_rollout(self.envs, ac, self.rollout_state, T, self.np_rng, normalize=normalize,
+        batch = collect_rollout(self.envs, ac, self.rollout_state, T, self.np_rng,
+                                normalize=self.model.normalizer.numpy_fn(),
                                 choose_codes=self.choose_codes, start_episodes=self.start_episodes,
                                 episode_done=self._episode_done, env_actions=self._env_actions)
         self._q_snap = None
@@ -225,35 +200,11 @@ class GAIL:
     # ------------------------------------------------------------------------------------- discriminator
     def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> dict[str, float]:
         """`discriminator_update` on this rollout's (normalised obs, D-action) pairs against the expert's."""
-        return discriminator_update(self.disc, self.disc_optimizer, torch.cat([obs_n, act_in], -1), self.exp_disc_in,
+        return discriminator_update(self.disc, self.disc_optimizer, torch.cat([obs_n, act_in], -1), self.expert.disc_in,
                                     updates=self.cfg.disc_updates, minibatch_size=self.cfg.disc_minibatch_size,
                                     gen=self.gen, compile=self.cfg.ppo.compile)
 
     # ---------------------------------------------------------------------------------------- iteration
-    def _bc_loss(self) -> torch.Tensor:
-        """BC / L2 term on expert (s, c_E) -> a_E: squared error of the mean (continuous) or NLL (discrete)."""
-        idx = torch.randint(len(self.exp_obs_n), (self.cfg.bc_batch_size,), generator=self.gen)
-        code_1h = self.eye[self.exp_codes[idx]]
-        if self.discrete:
-            return -self.model.pi.dist(self.exp_obs_n[idx], code_1h).log_prob(self.exp_acts[idx]).mean()
-        mean = self.model.pi.mode(self.exp_obs_n[idx], code_1h)
-        return (mean - self.exp_acts[idx]).pow(2).sum(-1).mean()
-
-    def _anchor_loss(self, batch: PPOBatch) -> Any:
-        """The anchor term on `batch`'s own states: squared distance between pi's mean action (or logits) and the
-        initial policy's, on a fresh random subset per call (called only when `anchor_weight` > 0)."""
-        anchor = self._anchor_pi
-
-        def loss() -> torch.Tensor:
-            assert anchor is not None  # kept by __init__ whenever anchor_weight > 0
-            idx = torch.randint(len(batch), (self.cfg.bc_batch_size,), generator=self.gen)
-            obs, codes = batch.obs[idx], batch.codes[idx]
-            with torch.no_grad():
-                target = anchor.net(anchor.inputs(obs, codes))
-            return (self.model.pi.net(self.model.pi.inputs(obs, codes)) - target).pow(2).sum(-1).mean()
-
-        return loss
-
     def iterate(self) -> dict[str, float]:
         """One training iteration; returns its scalars."""
         t0 = time.perf_counter()
@@ -279,10 +230,14 @@ class GAIL:
                 group["lr"] = base * frac
         ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
-        losses = ppo_update(self.model.pi, self.value, self.optimizer, ppo_batch, self.cfg.ppo, self.gen,
-                            aux_losses={"bc": (self._bc_loss, self.cfg.bc_weight),
-                                        "anchor": (self._anchor_loss(ppo_batch), self.cfg.anchor_weight)},
-                            train_policy=self.iteration >= self.cfg.value_warmup)
+        pi, cfg = self.model.pi, self.cfg
+        aux = {"bc": (lambda: bc_loss(pi, self.expert, self.eye, cfg.bc_batch_size, self.gen, discrete=self.discrete),
+                      cfg.bc_weight),
+               # kept (weight 0, never called) without an anchor, so that every run logs the same scalars
+               "anchor": ((anchor_loss(pi, self._anchor_pi, ppo_batch, cfg.bc_batch_size, self.gen), cfg.anchor_weight)
+                          if self._anchor_pi is not None else (lambda: torch.zeros(()), 0.0))}
+        losses = ppo_update(pi, self.value, self.optimizer, ppo_batch, cfg.ppo, self.gen, aux_losses=aux,
+                            train_policy=self.iteration >= cfg.value_warmup)
         if not all(math.isfinite(v) for v in (*losses.values(), *stats.values())):
             bad = [k for k, v in {**losses, **stats}.items() if not math.isfinite(v)]
             raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {self.iteration + 1}; the last "

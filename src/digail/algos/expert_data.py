@@ -1,0 +1,45 @@
+"""The expert's side of the trainer: the demonstrations as tensors for D and the BC term, and q's codes of them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from digail.algos.decode import segment_many
+from digail.data.trajectory import Trajectory
+from digail.nets.vae import HierarchicalPolicy
+
+
+@dataclass(frozen=True)
+class ExpertData:
+    """Every demonstration step s_t -> a_t, flattened over the demonstrations (M steps in all)."""
+
+    obs_n: torch.Tensor
+    """(M, obs_dim) normalised observations"""
+    acts: torch.Tensor
+    """(M,) int64 (discrete) or (M, act_dim) float32 actions, as recorded"""
+    disc_in: torch.Tensor
+    """(M, obs_dim + D's action size) D's input: the observations beside the actions as D sees them"""
+    codes: torch.Tensor
+    """(M,) int64 q's causal code of each step (`segment_many`), the c_E of the BC term"""
+    replay_codes: np.ndarray
+    """(demonstrations, longest) q's code sequence of each demonstration, -1 past its end (expert-replay rollouts)"""
+
+
+def expert_data(model: HierarchicalPolicy, demos: Sequence[Trajectory], act_input: Callable[[torch.Tensor],
+                torch.Tensor], *, discrete: bool, device: torch.device) -> ExpertData:
+    """The demonstrations through the model's (fixed) normaliser and q, and `act_input` (actions as D sees them)."""
+    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]), device=device)
+    acts_np = np.concatenate([np.asarray(t.acts) for t in demos])
+    obs_n = model.normalizer(obs)
+    acts = torch.as_tensor(acts_np, dtype=torch.long if discrete else torch.float32, device=device)
+    disc_in = torch.cat([obs_n, act_input(acts)], -1)  # built once: every discriminator update reads it
+    seqs = segment_many(model, demos)
+    codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=device)
+    replay_codes = np.full((len(seqs), max(len(s) for s in seqs)), -1, dtype=np.int64)
+    for i, s in enumerate(seqs):
+        replay_codes[i, : len(s)] = s
+    return ExpertData(obs_n=obs_n, acts=acts, disc_in=disc_in, codes=codes, replay_codes=replay_codes)
