@@ -85,11 +85,14 @@ def _finite(metrics: dict[str, float]) -> dict[str, float]:
     return out
 
 
-def test_same_seed_gives_identical_metrics_and_weights(circle_demos):
+@pytest.mark.parametrize("method", ["digail", "gail"])  # gail's policy starts from fresh weights
+def test_same_seed_gives_identical_metrics_and_weights(circle_demos, method):
     runs, weights = [], []
-    for _ in range(2):
-        trainer = build_trainer("digail/CircleWorld-v0", circle_demos, UPDATING,
-                                vae_model=_vae_model(circle_demos), seed=3, run_dir=None, progress=False)
+    for run in range(2):
+        torch.rand(run + 1)  # what drew from torch's global generator before must not matter
+        vae = _vae_model(circle_demos) if method == "digail" else None
+        trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(UPDATING, method=method),
+                                vae_model=vae, seed=3, run_dir=None, progress=False)
         start = [p.clone() for p in trainer.model.pi.parameters()]
         runs.append(_finite(trainer.train()))
         weights.append([p.detach().clone() for p in trainer.model.pi.parameters()])

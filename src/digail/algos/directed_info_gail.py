@@ -18,6 +18,7 @@ from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.fast import CodeMLP, log_softmax
 from digail.nets.vae import HierarchicalPolicy
+from digail.utils import seed_everything
 
 
 class DirectedInfoGAIL(GAIL):
@@ -84,6 +85,9 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
     """
     from digail.nets.policy import ActionSpec
 
+    # a fresh policy (gail's, or digail's without init_from_vae) draws its initial weights here, before the trainer
+    # seeds itself: seeded now, they follow `seed` instead of whatever drew from torch's generator before
+    seed_everything(seed)
     if cfg.method == "digail":
         if vae_model is None:
             raise UserError("Directed-Info GAIL needs a pre-trained VAE; pass --vae RUN "
