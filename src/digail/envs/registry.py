@@ -103,6 +103,12 @@ class EnvSpec:
     experts sit above the envs; `digail.experts.scripted` resolves it); None: no scripted expert"""
     rl_expert: ExpertSpec | None = None
     """how `digail expert` trains its RL expert (None: no recipe)"""
+    name: str | None = None
+    """what reports call it (None: its id)"""
+    paper_return: tuple[float, float] | None = None
+    """Directed-Info GAIL's mean return and std in the paper (Table 1, 300 episodes; Fetch: Table 2, the dense
+    return over 100 episodes), which reports print beside a run's; the paper used the -v0/-v2 versions of the
+    MuJoCo envs (None: the paper has no number for it)"""
 
     def tracked_info_keys(self) -> tuple[str, ...]:
         """Info keys an episode loop records per step for the step metrics."""
@@ -123,35 +129,36 @@ _LOCOMOTION_PPO: dict[str, Any] = {
 
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
-            auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert"),
+            auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert", name="Four Rooms"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60)), auto_backend="sync",
-            scripted_expert="digail.experts.scripted:circle_expert"),
+            scripted_expert="digail.experts.scripted:circle_expert", name="Circle-World"),
     # gymnasium-robotics is imported only when this one is made (digail.envs.fetch), and so is the expert's module
     # The paper's Table 2 measure is the dense return; the sparse one, success and grasp rates stand beside it
     EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50,
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync",
-            scripted_expert="digail.experts.fetch:fetch_expert"),
+            scripted_expert="digail.experts.fetch:fetch_expert", name="Fetch pick-and-place",
+            paper_return=(-11.74, 5.87)),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
     # SAC as in the RL-Zoo's entry (learning rate 1e-3, SB3's other defaults); the replay buffer holds the
     # whole budget; 64x64 nets keep one gradient step per env step affordable on a CPU
-    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync", rl_expert=ExpertSpec(
+    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync", paper_return=(-125.39, 103.75), rl_expert=ExpertSpec(
         algo="sac", steps=20_000, target=-150.0, n_envs=1, net_arch=(64, 64), activation="relu",
         sac={"learning_rate": 1e-3, "buffer_size": 200_000},
         checkpoint_every=5_000, eval_every=2_500, eval_episodes=50, stop_at=None)),
     # balancing is easy: plain PPO with small nets
-    EnvSpec("InvertedPendulum-v5", "pendulum", 25, envpool=True, rl_expert=ExpertSpec(
+    EnvSpec("InvertedPendulum-v5", "pendulum", 25, envpool=True, paper_return=(1000.0, 14.97), rl_expert=ExpertSpec(
         steps=300_000, target=1000.0, n_envs=8,
         ppo={"n_steps": 256, "batch_size": 64, "n_epochs": 10, "learning_rate": 3e-4, "gae_lambda": 0.95,
              "clip_range": 0.2, "ent_coef": 0.0},
         checkpoint_every=20_000, eval_every=20_000, eval_episodes=20, stop_at=1000.0)),
-    EnvSpec("Hopper-v5", "hopper", 50, envpool=True, rl_expert=ExpertSpec(
+    EnvSpec("Hopper-v5", "hopper", 50, envpool=True, paper_return=(3662.1, 21.7), rl_expert=ExpertSpec(
         steps=3_000_000, target=3000.0, ppo=_LOCOMOTION_PPO, net_arch=(256, 256), log_std_init=-0.5,
         checkpoint_every=100_000, eval_every=100_000, stop_at=3300.0)),
-    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True, rl_expert=ExpertSpec(
+    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True, paper_return=(5083.9, 356.3), rl_expert=ExpertSpec(
         steps=5_000_000, target=4000.0, ppo=_LOCOMOTION_PPO, net_arch=(256, 256), log_std_init=-0.5,
         checkpoint_every=100_000, eval_every=100_000, stop_at=4400.0)),
 )}

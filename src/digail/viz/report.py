@@ -24,20 +24,21 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from digail.envs.registry import env_spec
 from digail.utils import atomic_write_bytes
 
-PAPER_RETURNS: dict[str, tuple[float, float]] = {
-    "Pendulum-v1": (-125.39, 103.75),
-    "InvertedPendulum-v5": (1000.0, 14.97),
-    "Hopper-v5": (3662.1, 21.7),
-    "Walker2d-v5": (5083.9, 356.3),
-    "digail/FetchPickAndPlace-v4": (-11.74, 5.87),
-}
-"""Directed-Info GAIL's mean return ± std in the paper (Table 1, 300 episodes; Fetch: Table 2, dense reward, 100
-episodes). The paper used the -v0/-v2 versions of these envs; the grid and circle worlds have no paper numbers."""
 
-ENV_NAMES = {"digail/CircleWorld-v0": "Circle-World", "digail/FourRooms-v0": "Four Rooms",
-             "digail/FetchPickAndPlace-v4": "Fetch pick-and-place"}
+def env_name(env_id: str) -> str:
+    """What a report calls an environment: its registry entry's name, else its id."""
+    spec = env_spec(env_id)
+    return spec.name if spec is not None and spec.name else env_id
+
+
+def paper_return(env_id: str) -> tuple[float, float] | None:
+    """The paper's Directed-Info GAIL mean return ± std for an environment (its registry entry's), if any."""
+    spec = env_spec(env_id)
+    return spec.paper_return if spec is not None else None
+
 METHOD_NAMES = {"digail": "Directed-Info GAIL", "gail": "GAIL", "vae": "VAE behaviour cloning"}
 
 # key -> (label, kind); kind: "pct" (a rate or share shown in %), "num" (3 significant digits), "int",
@@ -275,14 +276,14 @@ def headline(run_dir: Path) -> str:
     method = METHOD_NAMES.get(str(cfg.get("method") or cfg.get("kind")), str(cfg.get("method") or "a model"))
     train = cfg.get("train") or {}
     steps = _total_steps(run_dir)
-    what = (f"{method} on {ENV_NAMES.get(env, env)} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
+    what = (f"{method} on {env_name(env)} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
             + (f", preset <code>{_esc(cfg['preset'])}</code>" if cfg.get("preset") else "")
             + (f", {fmt(train['iterations'], 'int')} training iterations" if train.get("iterations") else "")
             + (f" ({fmt(steps, 'int')} environment steps)" if steps else "") + ".")
     rows: list[list[str]] = []
     if ev:
         expert = ev.get("expert") or {}
-        paper = PAPER_RETURNS.get(env)
+        paper = paper_return(env)
         rows.append(["mean return ± std (per episode)",
                      f"{fmt(ev.get('mean_return'))} ± {fmt(ev.get('std_return'))}",
                      f"{fmt(expert['mean_return'])} ± {fmt(expert.get('std_return'))}" if expert else "–",
@@ -300,7 +301,7 @@ def headline(run_dir: Path) -> str:
                      fmt(comp["order_reversed_rate"], "pct"), "–", "–"])
     episodes = f" over {fmt(ev['episodes'], 'int')} closed-loop episodes" if ev.get("episodes") else ""
     header = ["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"]
-    if env not in PAPER_RETURNS:
+    if paper_return(env) is None:
         header, rows = header[:3], [r[:3] for r in rows]
     table = _table(header, rows)
     return (f"<section class='headline'><p>{what}</p>"
@@ -416,7 +417,7 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
         cfg = info[r][0]
         env = str(cfg.get("env_id"))
         # runs on different envs never share a row or a curve
-        key = method_of(cfg) + (f" on {ENV_NAMES.get(env, env)}" if len(envs) > 1 else "")
+        key = method_of(cfg) + (f" on {env_name(env)}" if len(envs) > 1 else "")
         groups.setdefault(key, []).append(r)
     out = Path(out)
     fig_path = out.with_name(out.stem + "_learning_curves.png")
@@ -443,7 +444,7 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
                             + [fmt(ev[k], _label(k)[1]) if isinstance(ev.get(k), int | float) else "–" for k in present]
                             + ([fmt(seg["accuracy"], "pct") if "accuracy" in seg else "–"] if has_seg else [])
                             + [r.name])
-    env_names = ", ".join(ENV_NAMES.get(e, e) for e in envs) or "unknown environments"
+    env_names = ", ".join(env_name(e) for e in envs) or "unknown environments"
     parts = [f"<h1>digail: {len(groups)} method(s) × seeds on {_esc(env_names)}</h1>" if len(envs) <= 1
              else f"<h1>digail: {len(groups)} methods and environments × seeds</h1>",
              "<section class='headline'>"
