@@ -20,7 +20,7 @@ from digail.errors import UserError
 from digail.sweep.engine import check_consistent, execute, init_ray, job_done, job_from_dict, job_to_dict
 from digail.sweep.plan import Job, plan
 from digail.sweep.spec import Grid, Range, SearchSpec, SweepSpec, load_spec, parse_set
-from digail.sweep.summary import summarize
+from digail.sweep.summary import write_results
 
 __all__ = ["Grid", "Range", "SearchSpec", "SweepSpec", "load_spec", "parse_set", "plan", "run_sweep",
            "summarize_sweep"]
@@ -86,7 +86,7 @@ def summarize_sweep(out: Path | str) -> dict[str, Any]:
     """(Re)write SWEEP/results.json and results.md from what the trials wrote; returns the JSON's content."""
     out = Path(out).resolve()
     name, jobs = load_plan(out)
-    result = summarize(out, jobs, name)
+    result = write_results(out, jobs, name)
     search_file = out / "search.json"
     if search_file.exists():
         result["search"] = search = json.loads(search_file.read_text())

@@ -61,7 +61,7 @@ def trial_record(sweep: Path, job: Job, vae: Job | None) -> dict[str, Any]:
     return rec
 
 
-def summarize(sweep: Path, jobs: list[Job], name: str = "") -> dict[str, Any]:
+def write_results(sweep: Path, jobs: list[Job], name: str = "") -> dict[str, Any]:
     """Write SWEEP/results.json and SWEEP/results.md; returns the JSON's content."""
     sweep = Path(sweep)
     by_id = {j.id: j for j in jobs}
