@@ -25,6 +25,7 @@ from digail.envs.four_rooms import (
     ROOMS,
     WALLS,
     FourRoomsEnv,
+    decode_observations,
     encode_observation,
     room_of,
     shortest_paths_to,
@@ -105,6 +106,12 @@ def test_four_rooms_observation_encoding() -> None:
     assert np.flatnonzero(obs).tolist() == [2, 15 + 7, 26 + 12, 41 + 1]
     np.testing.assert_array_equal(obs, encode_observation((2, 7), (12, 1)))
     assert info["shortest_path_length"] == shortest_paths_to((12, 1)).distance[7, 2]
+    # decoding undoes the encoding for every agent cell (apples in every room)
+    cells = sorted(FREE_CELLS)
+    apples = [ROOMS[i % len(ROOMS)][0] for i in range(len(cells))]
+    obs = np.stack([encode_observation(c, a) for c, a in zip(cells, apples, strict=True)])
+    agents, found = decode_observations(obs)
+    assert [tuple(a) for a in agents] == cells and [tuple(a) for a in found] == apples
 
 
 def test_four_rooms_dynamics_and_reward() -> None:

@@ -9,7 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-from digail.envs.four_rooms import encode_observation
+from digail.envs.four_rooms import decode_observations, encode_observation
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy
 from digail.viz import figures as F
@@ -65,7 +65,8 @@ def test_four_rooms_trajectories(tmp_path):
     eps = [_rooms_episode(rng) for _ in range(3)]
     path = F.four_rooms_trajectories({"expert": eps, "generated": eps[:1]}, tmp_path / "paths.png")
     assert _size(path) == _px(3.6 * 2, 3.4)
-    assert tuple(F._rooms_cells(eps[0][0])[0]) == (2, 2) and F._rooms_apple(eps[0][0][0]) == (12, 8)
+    agents, apples = decode_observations(eps[0][0])
+    assert tuple(agents[0]) == (2, 2) and tuple(apples[0]) == (12, 8)
 
 
 def test_segmentation_pair_and_planar(tmp_path):

@@ -192,6 +192,16 @@ def encode_observation(agent: tuple[int, int], apple: tuple[int, int]) -> np.nda
     return obs
 
 
+def decode_observations(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`encode_observation` undone for a batch: (T, 52) observations -> (T, 2) agent cells and (T, 2) apple cells,
+    each (x, y) as int64."""
+    w, h = GRID_WIDTH, GRID_HEIGHT
+    o = np.asarray(obs).reshape(-1, 2 * (w + h))
+    agent = np.column_stack([o[:, :w].argmax(1), o[:, w:w + h].argmax(1)])
+    apple = np.column_stack([o[:, w + h:2 * w + h].argmax(1), o[:, 2 * w + h:].argmax(1)])
+    return agent, apple
+
+
 class FourRoomsEnv(gym.Env[np.ndarray, np.int64]):
     """Reach the apple in a four-room grid world (Directed-Info GAIL, Sec. 5.1).
 

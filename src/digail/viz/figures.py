@@ -73,22 +73,6 @@ def _code_legend(ax: Any, codes: Sequence[int], loc: str = "best") -> None:
 
 
 # ------------------------------------------------------------------------------------------- Four Rooms
-def _rooms_cells(obs: np.ndarray) -> np.ndarray:
-    """(T, 52) Four Rooms observations -> (T, 2) agent cells (x, y); see `four_rooms.encode_observation`."""
-    from digail.envs.four_rooms import GRID_HEIGHT, GRID_WIDTH
-
-    obs = np.asarray(obs).reshape(len(obs), -1)
-    return np.column_stack([obs[:, :GRID_WIDTH].argmax(1), obs[:, GRID_WIDTH:GRID_WIDTH + GRID_HEIGHT].argmax(1)])
-
-
-def _rooms_apple(obs: np.ndarray) -> tuple[int, int]:
-    from digail.envs.four_rooms import GRID_HEIGHT, GRID_WIDTH
-
-    o = np.asarray(obs).reshape(-1)
-    off = GRID_WIDTH + GRID_HEIGHT
-    return int(o[off:off + GRID_WIDTH].argmax()), int(o[off + GRID_WIDTH:].argmax())
-
-
 def _draw_rooms(ax: Any) -> None:
     from digail.envs.four_rooms import CORRIDORS, GRID_HEIGHT, GRID_WIDTH, WALLS
 
@@ -156,18 +140,21 @@ def four_rooms_trajectories(groups: Mapping[str, Sequence[tuple[np.ndarray, np.n
             shows its first episodes (each a slightly offset line, start a black star, apple a red disc).
         path: output PNG; size (3.6 * groups) x 3.4 inches.
     """
+    from digail.envs.four_rooms import decode_observations
+
     n = max(len(groups), 1)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.4), squeeze=False)
     for ax, (title, episodes) in zip(axes[0], groups.items(), strict=False):
         _draw_rooms(ax)
         used: list[int] = []
         for i, (obs, codes) in enumerate(episodes[:4]):
-            xy = _rooms_cells(obs).astype(np.float64) + (i - 1.5) * 0.08
+            cells, apples = decode_observations(obs)
+            xy = cells.astype(np.float64) + (i - 1.5) * 0.08
             codes = np.asarray(codes)
             for t in range(min(len(codes), len(xy) - 1)):
                 ax.plot(xy[t:t + 2, 0], xy[t:t + 2, 1], color=code_colour(codes[t]), lw=2.2, solid_capstyle="round")
             ax.plot(xy[0, 0], xy[0, 1], "k*", ms=10)
-            ax.plot(*_rooms_apple(obs[0]), "o", color="#d62020", ms=8)
+            ax.plot(*apples[0], "o", color="#d62020", ms=8)
             used += list(codes)
         ax.set_title(title, fontsize=9)
         _code_legend(ax, used, loc="lower left")

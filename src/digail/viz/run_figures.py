@@ -73,7 +73,12 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
                              title="demonstration and rollout states (PCA) coloured by code"))
     dim = _obs_dim(demos[0][0]) if demos else 0
     if env_id == FOUR_ROOMS:
-        apple = F._rooms_apple(demos[0][0][0]) if demos else (12, 8)
+        from digail.envs.four_rooms import decode_observations
+
+        apple = (12, 8)
+        if demos:  # the apple of the first demonstration
+            x, y = decode_observations(demos[0][0][:1])[1][0]
+            apple = (int(x), int(y))
         paths.append(F.four_rooms_code_maps(model, out / "four_rooms_codes.png", apple=apple))
         paths.append(F.four_rooms_trajectories({"expert demonstrations": demos[:4], "closed-loop rollouts": gen[:4]},
                                                out / "four_rooms_paths.png"))
