@@ -128,14 +128,16 @@ def test_compiled_update_matches_eager_and_falls_back(monkeypatch):
         return call
 
     monkeypatch.setattr(torch, "compile", broken)
-    monkeypatch.setattr(ppo_mod, "_compiled", {})
-    monkeypatch.setattr(ppo_mod, "_compile_failed", False)
+    ppo_mod.reset_compiled()  # compile afresh with the broken compiler
     pi, v = _nets()
     opt = adam([{"params": list(pi.parameters())}, {"params": list(v.parameters())}], lr=3e-4)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        stats = ppo_update(pi, v, opt, _continuous_batch(pi), PPOConfig(epochs=2, minibatch_size=64, compile=True),
-                           torch.Generator().manual_seed(0))
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            stats = ppo_update(pi, v, opt, _continuous_batch(pi),
+                               PPOConfig(epochs=2, minibatch_size=64, compile=True), torch.Generator().manual_seed(0))
+    finally:
+        ppo_mod.reset_compiled()  # later tests compile with the real compiler again
     assert [str(w.message) for w in caught if "torch.compile failed" in str(w.message)]
     assert len([w for w in caught if "torch.compile failed" in str(w.message)]) == 1
     assert stats["value"] == pytest.approx(eager_stats["value"], rel=1e-6)

@@ -285,7 +285,7 @@ def test_search_space_and_sample_runs_named_after_their_values():
     pytest.importorskip("ray")
     from ray import tune
 
-    from digail.sweep.search import _tune_space, check_metric, sample_jobs, search_space
+    from digail.sweep.search import check_metric, sample_jobs, search_space, tune_space
 
     spec = build_spec(envs=(FR,), methods=("digail",), seeds=(0, 1), preset="smoke",
                       sets=("train.bonus_weight=0.001..0.1:log", "train.ppo.epochs=1..4",
@@ -294,7 +294,7 @@ def test_search_space_and_sample_runs_named_after_their_values():
     space = search_space(spec)
     assert str(space["train.bonus_weight"]) == "0.001..0.1:log" and space["train.ppo.epochs"].integer
     assert space["train.reward"] == ("positive", "negative")
-    domains = _tune_space(space)
+    domains = tune_space(space)
     assert isinstance(domains["train.bonus_weight"], tune.search.sample.Float)
     assert isinstance(domains["train.ppo.epochs"], tune.search.sample.Integer)
     jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.reward": "negative"},

@@ -157,18 +157,18 @@ def test_dead_worker_is_a_clear_error():
     sub = SubprocVecEnv("digail/CircleWorld-v0", 4, workers=2)
     try:
         sub.reset([0, 1, 2, 3])
-        os.kill(sub._procs[1].pid, signal.SIGKILL)
-        sub._procs[1].join(timeout=10)
+        os.kill(sub.processes[1].pid, signal.SIGKILL)
+        sub.processes[1].join(timeout=10)
         with pytest.raises(RuntimeError, match=r"worker 1 \(envs 2-3 of digail/CircleWorld-v0\) died"):
             sub.step(np.zeros((4, 2), np.float32))
-        assert not any(p.is_alive() for p in sub._procs)  # the others were stopped
+        assert not any(p.is_alive() for p in sub.processes)  # the others were stopped
     finally:
         sub.close()
 
 
 def test_close_stops_workers():
     sub = make_vec_env("digail/CircleWorld-v0", 3, "subproc", workers=3)
-    procs = list(sub._procs)  # type: ignore[attr-defined]
+    procs = list(sub.processes)  # type: ignore[attr-defined]
     sub.close()
     deadline = time.time() + 10
     while time.time() < deadline and any(p.is_alive() for p in procs):
@@ -245,7 +245,7 @@ def test_ctrl_c_leaves_the_workers_to_the_trainer():
     sub = SubprocVecEnv("digail/CircleWorld-v0", 2, workers=2)
     try:
         sub.reset([0, 1])
-        for p in sub._procs:
+        for p in sub.processes:
             os.kill(p.pid, signal.SIGINT)
         time.sleep(0.5)
         obs, *_ = sub.step(np.zeros((2, 2), np.float32))

@@ -111,6 +111,14 @@ def maybe_compiled(fn: Callable[..., Any], compile_: bool) -> Callable[..., Any]
     return _compiled[fn]
 
 
+def reset_compiled() -> None:
+    """Forget the compiled forms and a past compile failure: the next `maybe_compiled` tries `torch.compile` anew
+    (e.g. after the compiler was installed or replaced within one process)."""
+    global _compile_failed
+    _compiled.clear()
+    _compile_failed = False
+
+
 class LeanStep:
     """Gradient-norm clipping and Adam in a handful of foreach calls per step.
 

@@ -259,6 +259,11 @@ class SubprocVecEnv:
             self._recv(w)  # the envs were made (or the worker's error is raised here)
 
     @property
+    def processes(self) -> tuple[Any, ...]:
+        """The worker processes, one per slice of envs (`multiprocessing` processes: pid, is_alive, ...)."""
+        return tuple(self._procs)
+
+    @property
     def probe(self) -> gym.Env:
         return self._probe
 

@@ -48,7 +48,8 @@ def search_space(spec: SweepSpec) -> dict[str, Range | tuple[Value, ...]]:
     return space
 
 
-def _tune_space(space: dict[str, Range | tuple[Value, ...]]) -> dict[str, Any]:
+def tune_space(space: dict[str, Range | tuple[Value, ...]]) -> dict[str, Any]:
+    """`search_space`'s dimensions as Ray Tune domains: (log-)uniform or (log-)integer ranges, or a choice."""
     from ray import tune
 
     out: dict[str, Any] = {}
@@ -147,7 +148,7 @@ def run_search(spec: SweepSpec, out: Path, *, address: str | None = None, num_cp
             tuner = tune.Tuner.restore(str(storage / "search"), trainable, resume_errored=True)
         else:
             tuner = tune.Tuner(
-                trainable, param_space=_tune_space(space),
+                trainable, param_space=tune_space(space),
                 tune_config=tune.TuneConfig(search_alg=OptunaSearch(metric="objective", mode=spec.search.mode,
                                                                     seed=0),
                                             num_samples=spec.search.trials),
