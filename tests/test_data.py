@@ -19,6 +19,7 @@ from digail.data.minari_write import write_dataset
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_matches_env
 from digail.envs import make_env
+from digail.envs.episodes import play_episodes
 from digail.errors import UserError
 
 
@@ -26,22 +27,12 @@ def random_trajs(env_id: str, n: int, *, labels: bool = False, seed: int = 0) ->
     """`n` seeded random-action episodes; fake labels `t % 3` when `labels`."""
     env = gym.make(env_id)
     env.action_space.seed(seed)
+    episodes = play_episodes(env, lambda env, obs: env.action_space.sample(), n, seed, keep=True)
     trajs = []
-    for i in range(n):
-        obs, _ = env.reset(seed=seed + i)
-        rows, acts, rews = [obs], [], []
-        while True:
-            act = env.action_space.sample()
-            obs, rew, term, trunc, _ = env.step(act)
-            rows.append(obs)
-            acts.append(act)
-            rews.append(rew)
-            if term or trunc:
-                break
-        acts_arr = np.asarray(acts, dtype=np.int64 if np.ndim(acts[0]) == 0 else np.float32)
-        trajs.append(Trajectory(obs=np.asarray(rows, np.float32), acts=acts_arr,
-                                rews=np.asarray(rews, np.float32),
-                                subtasks=np.arange(len(rows)) % 3 if labels else None, terminated=bool(term)))
+    for ep in episodes:
+        acts_arr = np.asarray(ep.acts, dtype=np.int64 if np.ndim(ep.acts[0]) == 0 else np.float32)
+        trajs.append(Trajectory(obs=np.asarray(ep.obs, np.float32), acts=acts_arr, rews=np.asarray(ep.rews, np.float32),
+                                subtasks=np.arange(len(ep.obs)) % 3 if labels else None, terminated=ep.terminated))
     env.close()
     return trajs
 
