@@ -146,7 +146,8 @@ class GAIL:
         n = self.envs.num_envs
         self.codes_state = CodeState.new(n)
         self.start_episodes(np.arange(n))
-        obs_n = self._normalize(obs).cpu().numpy()
+        with torch.no_grad():
+            obs_n = self.model.normalizer(torch.from_numpy(np.asarray(obs, np.float32)).to(self.device)).cpu().numpy()
         codes, _ = self.choose_codes(obs_n, self.codes_state.prev, self.codes_state.t_ep, np.arange(n))
         self.codes_state.prev = codes.copy()
         return RolloutState(obs_n=obs_n, codes=codes, code_state=self.codes_state, ep_returns=np.zeros(n),
@@ -160,12 +161,6 @@ class GAIL:
             raise TrainingError(f"the policy produced non-finite actions at iteration {self.iteration + 1}; the last "
                                 "good checkpoint is kept - lower the learning rate or check the demonstrations.")
         return self._to_env_actions(a)
-
-    def _normalize(self, obs: np.ndarray) -> torch.Tensor:
-        """Raw NumPy observations -> normalised tensor (the normaliser is fixed during training)."""
-        norm = self.model.normalizer
-        x = torch.from_numpy(np.asarray(obs, dtype=np.float32)).to(self.device)
-        return x.sub_(norm.mean).div_(norm.std).clamp_(-norm.clip, norm.clip)
 
     @torch.no_grad()
     def collect(self) -> dict[str, torch.Tensor]:
