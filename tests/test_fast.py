@@ -88,7 +88,7 @@ def test_actor_critic_samples_follow_the_policy():
 
 def test_actor_critic_handles_a_policy_that_sees_part_of_the_observation():
     torch.manual_seed(0)
-    pi, v = SubtaskPolicy(5, 3, ActionSpec(False, 2), pi_obs=(1, 4)), ValueNet(5, 3)
+    pi, v = SubtaskPolicy(5, 3, ActionSpec(False, 2), decoder_obs=(1, 4)), ValueNet(5, 3)
     ac = ActorCritic(pi, v, 5)
     obs, codes = torch.randn(9, 5), torch.randint(3, (9,))
     out = ac(obs.numpy(), codes.numpy())
@@ -96,9 +96,9 @@ def test_actor_critic_handles_a_policy_that_sees_part_of_the_observation():
     assert _close(out[:, 2], v(obs, torch.eye(3)[codes]))
 
 
-@pytest.mark.parametrize("env_id, demos_fixture, pi_obs", [("digail/FourRooms-v0", "rooms_demos", (0, 2)),
+@pytest.mark.parametrize("env_id, demos_fixture, decoder_obs", [("digail/FourRooms-v0", "rooms_demos", (0, 2)),
                                                            ("digail/CircleWorld-v0", "circle_demos", None)])
-def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, request):
+def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, decoder_obs, request):
     """Every number `collect` stores, recomputed from the torch modules and the envs' own final observations.
 
     With argmax codes the macro-policy is deterministic, so the test can say which code each state gets: the
@@ -110,7 +110,7 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, pi_obs, 
     torch.manual_seed(0)
     obs_dim = demos[0].obs.shape[1]
     probe = make_env(env_id)
-    model = HierarchicalPolicy(obs_dim, 3, ActionSpec.from_space(probe.action_space), pi_obs=pi_obs)
+    model = HierarchicalPolicy(obs_dim, 3, ActionSpec.from_space(probe.action_space), decoder_obs=decoder_obs)
     model.normalizer.fit(np.concatenate([t.obs for t in demos]))
     T, N = 150, 4
     cfg = TrainConfig(ppo=PPOConfig(num_envs=N, batch_size=T * N), closed_loop_codes="argmax")

@@ -199,13 +199,13 @@ def test_pretrain_handles_discrete_actions_uneven_lengths_and_a_decoder_view(tmp
     trajs = [Trajectory(rng.normal(size=(n + 1, 3)).astype(np.float32), rng.integers(0, 4, n)) for n in (5, 9, 2)]
     cfg = VAEConfig(codes=3, epochs=2, batch_size=2, decoder_obs=(0, 2), entropy_weight=0.1, smoothing_weight=0.1)
     model, history = pretrain(trajs, cfg, progress=False)
-    assert model.action == ActionSpec(True, 4) and model.pi_obs == (0, 2)
+    assert model.action == ActionSpec(True, 4) and model.decoder_obs == (0, 2)
     assert model.pi.net[0].in_features == 2 + 3  # two observation features and the code
     assert all(np.isfinite(history["losses/total"]))
     assert [len(c) for c in segment_many(model, trajs)] == [5, 9, 2]
     save_model(tmp_path / "model.pt", model, kind="vae", config={}, env_id=None)
     loaded, meta = load_model(tmp_path / "model.pt")
-    assert loaded.pi_obs == (0, 2) and meta["pi_obs"] == (0, 2)
+    assert loaded.decoder_obs == (0, 2) and meta["decoder_obs"] == (0, 2)
     obs_n = loaded.normalizer(torch.as_tensor(trajs[1].obs[:-1]))
     code = torch.eye(3)[[1] * len(obs_n)]
     torch.testing.assert_close(loaded.pi.mode(obs_n, code), model.pi.mode(obs_n, code))

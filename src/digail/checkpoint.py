@@ -62,7 +62,7 @@ def save_model(path: str | Path, model: HierarchicalPolicy, *, kind: str, config
         "action_dim": int(model.action.dim),
         "hidden": [int(h) for h in model.hidden],
         "learn_prior": bool(model.learn_prior),
-        "pi_obs": None if model.pi_obs is None else [int(i) for i in model.pi_obs],
+        "decoder_obs": None if model.decoder_obs is None else [int(i) for i in model.decoder_obs],
         "config_json": json.dumps(config, default=str),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "extra": extra or {},
@@ -172,7 +172,7 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
 
     Returns:
         `(model, meta)` where `meta` has `kind`, `env_id`, `digail_version`, `obs_dim`, `codes`, `action`
-        (an `ActionSpec`), `hidden`, `pi_obs`, `config` (a dict) and `extra`.
+        (an `ActionSpec`), `hidden`, `decoder_obs`, `config` (a dict) and `extra`.
 
     Raises:
         UserError: the file is missing, unreadable, not a digail checkpoint, or does not fit the model it describes.
@@ -191,10 +191,12 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
                         f"version {FORMAT_VERSION}; re-create the run with this version.")
     try:
         action = ActionSpec(bool(payload["action_discrete"]), int(payload["action_dim"]))
-        pi_obs = payload.get("pi_obs")
+        # "pi_obs": the key's name in model files written before it took the config's name
+        decoder_obs = payload.get("decoder_obs", payload.get("pi_obs"))
         model = HierarchicalPolicy(int(payload["obs_dim"]), int(payload["codes"]), action,
                                    hidden=tuple(payload["hidden"]), learn_prior=bool(payload["learn_prior"]),
-                                   pi_obs=None if pi_obs is None else (int(pi_obs[0]), int(pi_obs[1])))
+                                   decoder_obs=None if decoder_obs is None
+                                   else (int(decoder_obs[0]), int(decoder_obs[1])))
         model.load_state_dict(payload["state_dict"])
         config = json.loads(payload["config_json"])
     except (KeyError, TypeError, RuntimeError, json.JSONDecodeError) as exc:
@@ -208,7 +210,7 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[Hi
         "codes": model.codes,
         "action": action,
         "hidden": model.hidden,
-        "pi_obs": model.pi_obs,
+        "decoder_obs": model.decoder_obs,
         "config": config,
         "extra": payload.get("extra", {}),
     }

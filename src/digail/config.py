@@ -94,8 +94,8 @@ class VAEConfig:
     learn_prior: bool = True
     """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
     decoder_obs: tuple[int, int] | None = None
-    """observation features [start, stop) the sub-task policy pi sees, kept in the model as `pi_obs` (None: all; q
-    always sees all); e.g. (0, 26) in Four Rooms, the agent's position: with the goal in view pi needs no code"""
+    """observation features [start, stop) the sub-task policy pi sees, kept in the model under the same name (None:
+    all; q always sees all); e.g. (0, 26) in Four Rooms, the agent's position: with the goal in view pi needs no code"""
     entropy_weight: float = 0.0
     """bonus on the entropy of q(. | s_t, c_{t-1}) per step (keeps q from saturating early)"""
     max_grad_norm: float | None = None

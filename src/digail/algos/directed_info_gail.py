@@ -94,7 +94,8 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
                             "(make one with `digail pretrain --demos D`).")
         model = vae_model
         if not cfg.init_from_vae:
-            fresh = HierarchicalPolicy(model.obs_dim, model.codes, model.action, cfg.hidden, pi_obs=model.pi_obs)
+            fresh = HierarchicalPolicy(model.obs_dim, model.codes, model.action, cfg.hidden,
+                                       decoder_obs=model.decoder_obs)
             model.pi.load_state_dict(fresh.pi.state_dict())
         return DirectedInfoGAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device,
                                 progress=progress, reward_fn=reward_fn)

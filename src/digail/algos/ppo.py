@@ -189,7 +189,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
     n_mb = n // mb  # full minibatches only; an epoch's remainder rows sit that epoch out
     with torch.no_grad():
         x_pi = policy.inputs(batch.obs, batch.codes)
-        x_v = x_pi if policy.pi_obs is None else torch.cat([batch.obs, batch.codes], -1)
+        x_v = x_pi if policy.decoder_obs is None else torch.cat([batch.obs, batch.codes], -1)
     loss_fn, v_loss_fn = maybe_compiled(minibatch_loss, cfg.compile), maybe_compiled(value_loss, cfg.compile)
     step = LeanStep(optimizer, cfg.max_grad_norm)
     aux = {k: fw for k, fw in (aux_losses or {}).items() if fw[1] > 0} if train_policy else {}

@@ -166,7 +166,8 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         raise UserError(f"decoder_obs {cfg.decoder_obs} is not a feature range within the {obs_dim} observation "
                         "features; give (start, stop) with 0 <= start < stop <= obs size.")
     model = HierarchicalPolicy(obs_dim, cfg.codes, action_spec, cfg.hidden, cfg.learn_prior,
-                               pi_obs=None if cfg.decoder_obs is None else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
+                               decoder_obs=None if cfg.decoder_obs is None
+                               else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
     data = pad_demos(trajs, model, dev)

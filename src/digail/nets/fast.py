@@ -81,7 +81,7 @@ class ActorCritic:
     """pi and V together: `sample(obs_n, codes, noise)` -> actions, log-probabilities and values (NumPy)."""
 
     def __init__(self, pi: SubtaskPolicy, value: ValueNet, obs_dim: int) -> None:
-        self.net = CodeMLP([pi.net, value.net], obs_dim, [pi.pi_obs, None])
+        self.net = CodeMLP([pi.net, value.net], obs_dim, [pi.decoder_obs, None])
         self.discrete = pi.action.discrete
         self.act_dim = pi.action.dim
         if not self.discrete:

@@ -48,21 +48,21 @@ class SubtaskPolicy(nn.Module):
     """pi_theta(a_t | s_t, c_t) on normalised observations and one-hot codes (paper section 3.1, decoder)."""
 
     def __init__(self, obs_dim: int, codes: int, action: ActionSpec, hidden: Sequence[int] = (64, 64),
-                 init_log_std: float = -0.5, pi_obs: tuple[int, int] | None = None) -> None:
+                 init_log_std: float = -0.5, decoder_obs: tuple[int, int] | None = None) -> None:
         super().__init__()
         self.codes, self.action = codes, action
-        self.pi_obs = pi_obs
+        self.decoder_obs = decoder_obs
         """the observation features [start, stop) this policy sees (None: all); e.g. Four Rooms' agent position,
         leaving the goal to the macro-policy so that the code has to say where to go"""
-        seen = obs_dim if pi_obs is None else pi_obs[1] - pi_obs[0]
+        seen = obs_dim if decoder_obs is None else decoder_obs[1] - decoder_obs[0]
         self.net = mlp(seen + codes, action.dim, hidden, out_gain=0.01)
         if not action.discrete:
             self.log_std = nn.Parameter(torch.full((action.dim,), init_log_std))
 
     def inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """The net's input for normalised observations and codes (the seen slice, then the code)."""
-        if self.pi_obs is not None:
-            obs_n = obs_n[..., self.pi_obs[0]:self.pi_obs[1]]
+        if self.decoder_obs is not None:
+            obs_n = obs_n[..., self.decoder_obs[0]:self.decoder_obs[1]]
         return torch.cat([obs_n, code_1h], -1)
 
     def dist(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> Distribution:

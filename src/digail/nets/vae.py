@@ -48,15 +48,15 @@ class HierarchicalPolicy(nn.Module):
     """Normaliser + macro-policy q + prior p + sub-task policy pi, all on raw observations from outside."""
 
     def __init__(self, obs_dim: int, codes: int, action: ActionSpec, hidden: Sequence[int] = (64, 64),
-                 learn_prior: bool = True, pi_obs: tuple[int, int] | None = None) -> None:
+                 learn_prior: bool = True, decoder_obs: tuple[int, int] | None = None) -> None:
         super().__init__()
         self.obs_dim, self.codes, self.action = obs_dim, codes, action
         # kept so that checkpoints can rebuild the model
-        self.hidden, self.learn_prior, self.pi_obs = tuple(hidden), learn_prior, pi_obs
+        self.hidden, self.learn_prior, self.decoder_obs = tuple(hidden), learn_prior, decoder_obs
         self.normalizer = ObsNormalizer(obs_dim)
         self.q = MacroPolicy(obs_dim, codes, hidden)
         self.prior = CodePrior(codes, learn_prior)
-        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, pi_obs=pi_obs)
+        self.pi = SubtaskPolicy(obs_dim, codes, action, hidden, decoder_obs=decoder_obs)
 
     @torch.no_grad()
     def next_code(self, obs_n: torch.Tensor, prev: torch.Tensor) -> torch.Tensor:
