@@ -9,14 +9,17 @@ import re
 import shutil
 import subprocess
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from digail import config
 from digail.cli import main
-from digail.viz.report import fmt, write_report
+from digail.commands.report import smoothing_pair
+from digail.viz.report import BEFORE_POLISH, UNSMOOTHED, fmt, write_report
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync"]
@@ -84,8 +87,14 @@ def _check_page_text(text: str) -> None:
 
 @pytest.fixture(scope="module")
 def smoke_run(tmp_path_factory):
+    """`digail run` on Circle-World with SMOKE settings plus the Circle-World preset's smoothing term (SMOKE has
+    none), so that the run also pre-trains the VAE without it for the side-by-side figure."""
     out = tmp_path_factory.mktemp("report") / "cw"
-    assert main(["run", "digail/CircleWorld-v0", "--preset", "smoke", "--episodes", "4", "--out", str(out)]) == 0
+    smoke = config.PRESETS["smoke"]
+    weight = config.PRESETS["circle-world"].vae.smoothing_weight
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setitem(config.PRESETS, "smoke", replace(smoke, vae=replace(smoke.vae, smoothing_weight=weight)))
+        assert main(["run", "digail/CircleWorld-v0", "--preset", "smoke", "--episodes", "4", "--out", str(out)]) == 0
     return out
 
 
@@ -93,6 +102,21 @@ def test_run_writes_figures_video_and_a_report_chromium_renders(smoke_run, chrom
     run = smoke_run
     for name in ("learning_curves", "codes_time", "pca_codes", "generated", "compose", "segmentation_pair"):
         assert (run / "figures" / f"{name}.png").stat().st_size > 1000, name
+    # the segmentation pair compares the run's VAE (before its polish) with one trained without the smoothing term
+    with_term = json.loads((run / "vae" / "config.json").read_text())["vae"]
+    without = json.loads((run / UNSMOOTHED / "config.json").read_text())["vae"]
+    assert with_term["smoothing_weight"] > 0 and without["smoothing_weight"] == 0
+    assert {k: v for k, v in without.items() if k not in ("smoothing_weight", "polish_steps")} == \
+        {k: v for k, v in with_term.items() if k not in ("smoothing_weight", "polish_steps")}
+    with np.load(run / "codes.npz") as z:
+        demos = len(z.files)
+    for folder in (run / BEFORE_POLISH, run / UNSMOOTHED):
+        with np.load(folder / "codes.npz") as z:
+            assert len(z.files) == demos == 100  # every shipped demonstration, segmented
+    pair = smoothing_pair(run)
+    assert pair is not None and "smoothing" in pair[3]
+    assert "0.1" in pair[2][0] and "= 0" in pair[2][1] and "accuracy" in pair[2][0]
+    assert "pretrain_unsmoothed_s" in json.loads((run / "timings.json").read_text())
     for ext in ("mp4", "gif"):
         assert (run / "videos" / f"closed_loop.{ext}").stat().st_size > 1000
     cfg = json.loads((run / "config.json").read_text())
@@ -102,6 +126,7 @@ def test_run_writes_figures_video_and_a_report_chromium_renders(smoke_run, chrom
     assert text.index("class='headline'") < text.index("<img")
     assert "Circle-World" in text and "expert" in text and cfg["command"] in text
     assert "videos/closed_loop.mp4" in text and "data:image/gif;base64," in text
+    assert "With and without the smoothing term" in text
     images = browser_check(run / "report.html", chromium, tmp_path / "laptop.png")
     assert len(images) >= 7
     assert all(i["complete"] and i["width"] > 0 for i in images), images

@@ -27,7 +27,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -138,8 +138,9 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
 
 # -------------------------------------------------------------------------------------------- training
 def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: ActionSpec | None = None, seed: int = 0,
-             device: str | torch.device = "cpu", progress: bool = True,
-             log_dir: str | Path | None = None) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
+             device: str | torch.device = "cpu", progress: bool = True, log_dir: str | Path | None = None,
+             before_polish: Callable[[HierarchicalPolicy], None] | None = None,
+             ) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
     """Fit the hierarchical policy (q, p, pi and the observation normaliser) to demonstrations as a VAE, then
     `polish` it when `cfg.polish_steps` > 0.
 
@@ -151,6 +152,9 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         device: torch device.
         progress: show a tqdm bar with epoch, losses and temperature.
         log_dir: when given, write `losses.csv` (one row per epoch) and TensorBoard events (`tb/`) there.
+        before_polish: called with the model (in eval mode) once the VAE epochs are done and before the polish
+            (also when there is none): the VAE's own segmentation, e.g. to compare smoothing weights, is only
+            visible there, since the polish refits q to it. It must not change the model or draw random numbers.
 
     Returns:
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
@@ -209,6 +213,10 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
                             smooth=f"{sums['losses/smooth']:.3f}", tau=f"{tau:.2f}", refresh=False)
     if bar is not None:
         bar.close()
+    if before_polish is not None:
+        model.eval()
+        before_polish(model)
+        model.train()
     if cfg.polish_steps > 0:
         polish(model, trajs, cfg, seed=seed, progress=progress)
     if log_dir is not None:

@@ -115,11 +115,49 @@ def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed:
     schedule = CodeSchedule(parse_schedule(schedule_text, model.codes)) if schedule_text else None
     pair = None
     shown = trajs[:6]
+    smoothing = smoothing_pair(run)
     if unsmoothed is not None:
         other, _ = load_model(Path(unsmoothed) / "model.pt" if Path(unsmoothed).is_dir() else Path(unsmoothed))
-        pair = (segment_many(other, shown), ("this run (with its smoothing weight)", "VAE without smoothing"))
+        pair = (codes[:6], segment_many(other, shown), ("this run (with its smoothing weight)",
+                                                          "VAE without smoothing"), "")
+    elif smoothing is not None and len(smoothing[0]) == len(trajs):
+        pair = smoothing
     elif np.shape(trajs[0].obs)[1:] == (2,):
-        pair = ([viterbi(model, t) for t in shown], ("causal argmax q (online)", "Viterbi with the prior (offline)"))
+        pair = (codes[:6], [viterbi(model, t) for t in shown],
+                ("causal argmax q (online)", "Viterbi with the prior (offline)"), "")
     paths = write_run_figures(run, model, env_id, [t.obs for t in trajs], codes, schedule=schedule,
                               schedule_text=schedule_text, pair=pair, episodes=episodes)
     return paths
+
+
+def smoothing_pair(run: Path) -> tuple[list[np.ndarray], list[np.ndarray], tuple[str, str], str] | None:
+    """The two segmentations `digail run` keeps when its VAE has a smoothing term: the run's VAE before the polish
+    (`viz.report.BEFORE_POLISH`) and the VAE pre-trained without the term (`UNSMOOTHED`), with panel titles naming
+    each one's smoothing weight and scores, and the figure's title; None when the run has not both."""
+    from digail.viz.report import BEFORE_POLISH, UNSMOOTHED
+
+    folders = (run / BEFORE_POLISH, run / UNSMOOTHED)
+    codes = [_demo_codes(f) for f in folders]
+    if codes[0] is None or codes[1] is None or len(codes[0]) != len(codes[1]):
+        return None
+    weights = [(_load_json(run / "vae" / "config.json").get("vae") or {}).get("smoothing_weight"),
+               (_load_json(folders[1] / "config.json").get("vae") or {}).get("smoothing_weight", 0.0)]
+    titles = []
+    for name, folder, weight in zip(("with the smoothing term", "without it"), folders, weights, strict=True):
+        seg = _load_json(folder / "segmentation.json")
+        scores = [f"{seg['switches_per_episode']:.2f} switches/demo"] if "switches_per_episode" in seg else []
+        if "accuracy" in seg:
+            scores.insert(0, f"accuracy {100 * seg['accuracy']:.1f}%")
+        lam = f" ($\\lambda_s$ = {weight:g})" if isinstance(weight, int | float) else ""
+        titles.append(f"{name}{lam}" + (f"\n{', '.join(scores)} over {len(codes[0])} demos" if scores else ""))
+    title = ("Segmentation of the same demonstrations by two VAEs: the same settings and seed but for the smoothing "
+             "weight\n(both before the polish; causal codes argmax q, positions coloured by code, a star at the start)")
+    return codes[0], codes[1], (titles[0], titles[1]), title
+
+
+def _load_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return {}
+    return data if isinstance(data, dict) else {}

@@ -7,6 +7,7 @@ closed-loop evaluation -> segmentation -> composition (Circle-World: reversed ci
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any
@@ -39,6 +40,10 @@ class RunArgs:
     resume: Path | None = None
     """continue an interrupted run folder at the stage it stopped: finished stages are kept, the training goes on
     from its checkpoint (other flags are ignored)"""
+    smoothing_pair: bool = True
+    """when the preset's VAE has a smoothing term (Circle-World), also pre-train a VAE without it (the same settings
+    and seed, no polish) into RUN/vae_unsmoothed, for the figure of the two segmentations side by side; about as
+    long again as the VAE epochs (--no-smoothing-pair skips it)"""
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
@@ -60,6 +65,8 @@ def run_command_line(args: RunArgs, run_dir: Path) -> str:
         parts += ["--episodes", str(args.episodes)]
     if args.device != "auto":
         parts += ["--device", args.device]
+    if not args.smoothing_pair:
+        parts.append("--no-smoothing-pair")
     return shlex.join(parts)
 
 
@@ -93,7 +100,7 @@ def run_command(args: RunArgs) -> Path:
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
-    from digail.viz.report import write_report
+    from digail.viz.report import BEFORE_POLISH, UNSMOOTHED, write_report
     from digail.viz.video import record_video
 
     set_torch_threads(1)
@@ -135,13 +142,23 @@ def run_command(args: RunArgs) -> Path:
         vae_dir.mkdir()
         action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
         vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
-                                log_dir=vae_dir)
+                                log_dir=vae_dir, before_polish=_segment_into(run_dir / BEFORE_POLISH, trajs,
+                                                                             demos_ref))
         vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                              device=args.device, vae=preset.vae, pipeline=True)
         write_run_config(vae_dir, vae_cfg)
         save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)  # the mark
         timings["pretrain_s"] = time.perf_counter() - t0
         print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
+    if args.smoothing_pair and preset.vae.smoothing_weight > 0:
+        t0 = time.perf_counter()
+        if (run_dir / UNSMOOTHED / "model.pt").is_file():
+            print("      VAE without the smoothing term (kept from the interrupted run)")
+        else:
+            _pretrain_unsmoothed(run_dir / UNSMOOTHED, trajs, dataset, preset.vae, args, demos_ref, device)
+            timings["pretrain_unsmoothed_s"] = time.perf_counter() - t0
+            print(f"      VAE without the smoothing term (for the comparison figure) in "
+                  f"{timings['pretrain_unsmoothed_s']:.0f}s")
 
     t0 = time.perf_counter()
     # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
@@ -207,6 +224,45 @@ def run_command(args: RunArgs) -> Path:
     _print_headline(result, seg, composed)
     print(f"done: {run_dir}")
     return run_dir
+
+
+def _segment_into(folder: Path, trajs: list[Any], demos_ref: str) -> Callable[[Any], None]:
+    """A `pretrain(before_polish=...)` hook writing the VAE's own segmentation (before the polish refits q to it)
+    into `folder`: codes.npz, segmentation.json, figures/segmentation.png."""
+    from digail.eval.segmentation import write_segmentation
+
+    def hook(model: Any) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        write_segmentation(folder, model, trajs, demos=demos_ref)
+
+    return hook
+
+
+def _pretrain_unsmoothed(out: Path, trajs: list[Any], dataset: Any, vae: Any, args: RunArgs, demos_ref: str,
+                         device: Any) -> None:
+    """Pre-train the VAE of `vae` with the smoothing weight at 0 into `out`, for the side-by-side figure.
+
+    Same settings and seed as the run's VAE otherwise, but no polish: the figure compares the two VAEs'
+    segmentations before any polish (the run's is kept in `BEFORE_POLISH`), so the polish is not needed and
+    not paid for. Written atomically; `model.pt` marks it complete.
+    """
+    from digail.algos.vae_pretrain import pretrain
+    from digail.checkpoint import save_model
+    from digail.commands.common import run_config, write_run_config
+    from digail.eval.segmentation import write_segmentation
+    from digail.nets.policy import ActionSpec
+    from digail.utils import atomic_dir
+
+    cfg = replace(vae, smoothing_weight=0.0, polish_steps=0)
+    action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
+    with atomic_dir(out, force=True) as tmp:  # force: a folder cut short by an interruption is replaced
+        model, _ = pretrain(trajs, cfg, action_spec=action, seed=args.seed, device=str(device), log_dir=tmp)
+        config = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
+                            device=args.device, vae=cfg, pipeline=True,
+                            purpose="the run's VAE without the smoothing term, for the segmentation_pair figure")
+        write_run_config(tmp, config)
+        write_segmentation(tmp, model, trajs, demos=demos_ref)
+        save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=args.env)
 
 
 def _resume_args(run_dir: Path) -> RunArgs:

@@ -186,20 +186,24 @@ def _planar(ax: Any, episodes: Sequence[tuple[np.ndarray, np.ndarray]], by: str 
 
 def segmentation_pair(obs: Sequence[np.ndarray], codes_a: Sequence[np.ndarray], codes_b: Sequence[np.ndarray],
                       path: Path, titles: tuple[str, str] = ("with smoothing", "without smoothing"),
-                      episodes: int = 6) -> Path:
-    """Two segmentations of the same demonstrations side by side: positions coloured by code (2-D
-    observations) above a strip of codes against time per episode. Size 10 x 7 inches."""
+                      episodes: int = 6, title: str = "") -> Path:
+    """Two segmentations of the same demonstrations side by side (left `codes_a`, right `codes_b`, each column
+    headed by its title): positions coloured by code (2-D observations) above a strip of codes against time per
+    episode, the first `episodes` demonstrations; `title` above both. Size 10 x 7 inches."""
     n = min(episodes, len(obs))
     fig, axes = plt.subplots(2, 2, figsize=(10, 7), gridspec_kw={"height_ratios": [3, 2]})
-    for col, (codes, title) in enumerate(((codes_a, titles[0]), (codes_b, titles[1]))):
+    for col, (codes, name) in enumerate(((codes_a, titles[0]), (codes_b, titles[1]))):
         eps = [(obs[i], codes[i]) for i in range(n)]
         if np.asarray(obs[0]).reshape(len(obs[0]), -1).shape[1] >= 2:
             _planar(axes[0, col], eps)
         else:
             axes[0, col].axis("off")
-        axes[0, col].set_title(title, fontsize=10)
+        axes[0, col].set_title(name, fontsize=9)
         _code_legend(axes[0, col], [int(c) for i in range(n) for c in np.unique(codes[i])])
         _strips(axes[1, col], [np.asarray(codes[i]) for i in range(n)], [f"demo {i}" for i in range(n)])
+        axes[1, col].set_title(f"codes against time, demonstrations 0 to {n - 1}", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
 

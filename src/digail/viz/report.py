@@ -194,13 +194,20 @@ def _page(title: str, body: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------ run report
+BEFORE_POLISH = "vae/before_polish"
+"""Where `digail run` keeps its VAE's own segmentation before the polish refits q to it."""
+UNSMOOTHED = "vae_unsmoothed"
+"""Where `digail run` keeps the VAE pre-trained without the smoothing term (`RunArgs.smoothing_pair`)."""
+SMOOTHING_KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode")
 FIGURE_CAPTIONS = {
     "four_rooms_codes": "Four Rooms (paper Figure 3): the most likely action of each code's sub-task policy in every "
                         "free cell, the apple (red) fixed.",
     "four_rooms_paths": "Paths on the grid coloured by the active code; a star marks the start, red the apple.",
     "generated": "Closed-loop rollouts of the hierarchical policy, coloured by code (left) and by time (right).",
     "compose": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
-    "segmentation_pair": "Two segmentations of the same demonstrations side by side.",
+    "segmentation_pair": "Two segmentations of the same demonstrations side by side, each column titled with what "
+                         "made it (on Circle-World: the VAE with and without the smoothing term): positions coloured "
+                         "by code above the codes against time.",
     "segmentation": "Segmentation of the demonstrations: codes per step, above the oracle labels where the "
                     "environment has them (codes then take the colour of their matched label).",
     "codes_time": "Codes against time: demonstrations (decoded by q) and closed-loop rollouts.",
@@ -370,6 +377,7 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
         else:
             parts.append(_table(["metric", "value"], metric_rows([seg])))
             parts.append("<p>The demonstrations carry no oracle labels, so only the switch count is reported.</p>")
+    parts.append(_smoothing_table(run_dir))
     if comp:
         parts.append(f"<h2>Composition (schedule <code>{_esc(comp.get('schedule', ''))}</code>)</h2>")
         parts.append(_table(["metric", "value"], metric_rows([comp])))
@@ -387,6 +395,18 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
     out = Path(out) if out is not None else run_dir / "report.html"
     atomic_write_bytes(out, _page(f"digail {run_dir.name}", "".join(parts)).encode())
     return out
+
+
+def _smoothing_table(run_dir: Path) -> str:
+    """The scores of the segmentations with and without the smoothing term, when the run folder has both."""
+    segs = [_load(run_dir / d / "segmentation.json") for d in (BEFORE_POLISH, UNSMOOTHED)]
+    if not all(segs):
+        return ""
+    weight = ((_load(run_dir / "vae" / "config.json").get("vae") or {}).get("smoothing_weight"))
+    with_term = f"with (λs = {fmt(weight)})" if isinstance(weight, int | float) else "with"
+    return ("<h3>With and without the smoothing term</h3><p>Two VAEs with the same settings and seed but for the "
+            "smoothing weight, both before the polish (figure <i>segmentation_pair</i>).</p>"
+            + _table(["metric", with_term, "without (λs = 0)"], metric_rows(segs, SMOOTHING_KEYS)))
 
 
 # -------------------------------------------------------------------------------------- compare report

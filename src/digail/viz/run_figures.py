@@ -8,7 +8,7 @@ schedule and a second segmentation to compare with; it rolls out a few closed-lo
   `pca_codes.png` (states, first two principal components, coloured by code);
 - Four Rooms: `four_rooms_codes.png` (paper Figure 3, one arrow map per code) and `four_rooms_paths.png`;
 - 2-D worlds (Circle-World): `generated.png` (by code and by time), `compose.png` under the schedule, and
-  `segmentation_pair.png` when a second segmentation is given;
+  `segmentation_pair.png` when two segmentations are given;
 - Pendulum: `pendulum_code_map.png` (demonstrations and rollouts).
 """
 
@@ -42,7 +42,8 @@ def composition_figure(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: 
 
 def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence[np.ndarray],
                       demo_codes: Sequence[np.ndarray], *, schedule: Sequence[int] | None = None,
-                      schedule_text: str = "", pair: tuple[Sequence[np.ndarray], tuple[str, str]] | None = None,
+                      schedule_text: str = "",
+                      pair: tuple[Sequence[np.ndarray], Sequence[np.ndarray], tuple[str, str], str] | None = None,
                       episodes: int = 6, seed: int = 10_000) -> list[Path]:
     """Draw the run's figures into RUN/figures; returns the paths written.
 
@@ -54,8 +55,9 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
         demo_codes: the macro-policy's codes for each demonstration ((T_i,), e.g. from RUN/codes.npz).
         schedule: code per step for the composition figure (None: no composition figure).
         schedule_text: the schedule as the user wrote it, for titles.
-        pair: a second segmentation of the same demonstrations and the titles of (demo_codes, it), for the
-            side-by-side figure (e.g. the VAE trained without the smoothing term).
+        pair: two segmentations of the demonstrations (codes per demonstration, first ones first), the titles of
+            their panels and the figure's title, for the side-by-side figure (e.g. the VAE with and without the
+            smoothing term).
         episodes: closed-loop rollouts drawn.
         seed: seed of the first rollout (evaluation seeds by default).
     """
@@ -92,7 +94,7 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
         paths.append(F.pendulum_code_map([o for o, _ in demos + gen], [c for _, c in demos + gen],
                                          out / "pendulum_code_map.png"))
     if pair is not None and demos:
-        codes_b, titles = pair
-        paths.append(F.segmentation_pair([o for o, _ in demos], [c for _, c in demos], list(codes_b),
-                                         out / "segmentation_pair.png", titles=titles))
+        codes_a, codes_b, titles, title = pair
+        paths.append(F.segmentation_pair([o for o, _ in demos], list(codes_a), list(codes_b),
+                                         out / "segmentation_pair.png", titles=titles, title=title))
     return paths
