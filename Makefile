@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 # torch first and pinned: a CPU build of exactly this version is what pip finds locally; a looser spec
 # in a fresh venv can pull a multi-GB CUDA build.
 TORCH := torch==2.13.0
-PINS := "gymnasium[mujoco]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
+PINS := "gymnasium[mujoco,classic-control]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
 
 .PHONY: demo test test-all bench lint venv clean
 

@@ -35,3 +35,14 @@ def test_record_video_writes_captioned_mp4_and_gif(tmp_path):
     assert len(frames) >= 6 and frames[0].shape[0] == 256 + BANNER_PIXELS
     first = annotate(np.zeros((20, 40, 3), np.uint8), "step 0  code 1", 1)
     assert first.shape == (20 + BANNER_PIXELS, 40, 3) and first[:BANNER_PIXELS].min() < 255
+
+
+def test_pendulum_video_draws_with_the_declared_dependencies(tmp_path):
+    """Pendulum-v1 draws its frames with pygame (gymnasium's classic-control extra, a dependency of digail)."""
+    torch.manual_seed(0)
+    model = HierarchicalPolicy(3, 2, ActionSpec(False, 1))
+    mp4, gif = record_video(model, "Pendulum-v1", tmp_path / "pendulum.mp4", episodes=1, max_steps=6)
+    frames = imageio.mimread(gif)
+    assert mp4.stat().st_size > 1000 and frames[0].shape[0] > BANNER_PIXELS
+    body = np.asarray(frames[0])[BANNER_PIXELS:]
+    assert body.std() > 5, "the pendulum frame is blank"
