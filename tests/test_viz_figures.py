@@ -75,6 +75,9 @@ def test_segmentation_pair_and_planar(tmp_path):
     a = [c for _, c in eps]
     b = [np.zeros_like(c) for c in a]
     assert _size(F.segmentation_pair(obs, a, b, tmp_path / "pair.png")) == _px(10, 7)
+    titled = F.segmentation_pair(obs, a, b, tmp_path / "titled.png", titles=("with ($\\lambda_s$ = 0.1)\nscores",
+                                                                             "without"), title="two VAEs\nline two")
+    assert _size(titled) == _px(10, 7)
     assert _size(F.planar_trajectories(eps, tmp_path / "gen.png", title="t")) == _px(10, 4.6)
 
 

@@ -1,14 +1,21 @@
 """Videos: frames, codes and observations line up; the schedule and the step cut are obeyed; MP4 and GIF are
-written with the caption strip on every frame."""
+written with the caption strip on every frame; Pendulum draws with the declared dependencies; the GL backend falls
+back to OSMesa without EGL."""
 
 from __future__ import annotations
 
+import ctypes.util
+import os
+
 import imageio.v2 as imageio
 import numpy as np
+import pytest
 import torch
 
+from digail.cli import main
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy
+from digail.utils import ensure_offscreen_gl
 from digail.viz.video import BANNER_PIXELS, annotate, play_episodes, record_video
 
 
@@ -46,3 +53,15 @@ def test_pendulum_video_draws_with_the_declared_dependencies(tmp_path):
     assert mp4.stat().st_size > 1000 and frames[0].shape[0] > BANNER_PIXELS
     body = np.asarray(frames[0])[BANNER_PIXELS:]
     assert body.std() > 5, "the pendulum frame is blank"
+
+
+@pytest.mark.parametrize(("libs", "want"), [({"EGL", "OSMesa"}, "egl"), ({"OSMesa"}, "osmesa"), (set(), "egl")])
+def test_offscreen_gl_falls_back_to_osmesa_without_egl(monkeypatch, tmp_path, libs, want):
+    """The CLI picks MUJOCO_GL before MuJoCo loads: EGL where its library is installed, else OSMesa; a value the
+    user set is kept."""
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: f"lib{name}.so" if name in libs else None)
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    assert main(["report", str(tmp_path / "missing")]) == 2  # any command: the choice comes first
+    assert os.environ["MUJOCO_GL"] == want
+    monkeypatch.setenv("MUJOCO_GL", "glfw")
+    assert ensure_offscreen_gl() == "glfw"

@@ -66,8 +66,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"digail: unknown command {name!r}; run `digail --help` for the list.", file=sys.stderr)
         return 2
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    from digail.utils import set_torch_threads
+    from digail.utils import ensure_offscreen_gl, set_torch_threads
+
+    ensure_offscreen_gl()  # before anything imports MuJoCo: egl, or osmesa where there is no EGL
 
     set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     cls, handler, defaults = _command(name)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import ctypes.util
 import json
 import os
 import random
@@ -219,3 +220,16 @@ def progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoc
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)
+
+
+def ensure_offscreen_gl() -> str:
+    """Set `MUJOCO_GL` for headless rendering unless the user chose one: `egl`, or `osmesa` where no EGL library
+    is installed but OSMesa is (with neither, `egl`, whose error then names what is missing).
+
+    Only effective before MuJoCo is first imported, so the CLI calls it first thing. Returns the value in force.
+    """
+    if "MUJOCO_GL" not in os.environ:
+        has_egl = ctypes.util.find_library("EGL") is not None
+        has_osmesa = ctypes.util.find_library("OSMesa") is not None
+        os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
+    return os.environ["MUJOCO_GL"]

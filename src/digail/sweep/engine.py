@@ -143,7 +143,7 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
     state["resuming"] = next((s for s in state["todo"] if s in state.get("started", [])), None)
     state["host"] = os.uname().nodename
     write_state(root, job, state)
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the digail CLI picks MUJOCO_GL itself when it is unset
     for stage in job.stages:
         if stage_done(state, stage):
             continue

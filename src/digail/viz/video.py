@@ -11,8 +11,6 @@ Each video is written twice: an MP4 (H.264 through imageio-ffmpeg) to download, 
 
 from __future__ import annotations
 
-import ctypes.util
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
+from digail.utils import ensure_offscreen_gl
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
@@ -28,18 +27,6 @@ GIF_MAX_FRAMES = 150
 """Most frames a GIF keeps (the stride grows for long videos), so that a report embedding it stays small."""
 BANNER_PIXELS = 24
 """Height of the caption strip drawn above every frame."""
-
-
-def ensure_offscreen_gl() -> str:
-    """Set `MUJOCO_GL` for headless rendering unless the user chose one: `egl`, or `osmesa` without libEGL.
-
-    Only effective before MuJoCo is first imported. Returns the value in force.
-    """
-    if "MUJOCO_GL" not in os.environ:
-        has_egl = ctypes.util.find_library("EGL") is not None
-        has_osmesa = ctypes.util.find_library("OSMesa") is not None
-        os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
-    return os.environ["MUJOCO_GL"]
 
 
 @dataclass
