@@ -118,3 +118,9 @@ def test_learning_curves_single_and_multi(tmp_path):
     assert _size(F.learning_curves(runs["gail"][0], tmp_path / "g.png")) == _px(3.4 * 3, 3.0)
     assert _size(F.learning_curves_multi(runs, tmp_path / "multi.png")) == _px(3.6 * 5, 3.2)
     assert F.learning_curves(tmp_path / "nothing") is None
+    # without evaluations during training, the normalised return comes from the training episodes and eval.json
+    (runs["gail"][0] / "eval.json").write_text('{"normalized_return": 0.9, "expert": {"mean_return": -50.0}}')
+    derived = F.run_curves(runs["gail"][0])["derived/normalized_return"]
+    assert np.allclose(derived, F.read_metrics(runs["gail"][0])["rollout/ep_return"] / -50.0)
+    assert _size(F.learning_curves(runs["gail"][0], tmp_path / "g2.png")) == _px(3.4 * 4, 3.0)
+    assert "derived/normalized_return" not in F.run_curves(runs["digail"][0])  # it has evaluations

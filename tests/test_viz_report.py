@@ -169,6 +169,12 @@ def test_video_and_report_commands(smoke_run, chromium, tmp_path):
     assert "2 seeds" in text and "Directed-Info GAIL" in text
     images = browser_check(page, chromium, tmp_path / "compare.png")
     assert images and all(i["width"] > 0 for i in images)
+    # a sweep folder keeps its runs one level further down (SWEEP/<env>/<run>)
+    sweep = tmp_path / "sweep"
+    for src, name in ((run, "digail_s0"), (second, "digail_s1")):
+        shutil.copytree(src, sweep / "digail-CircleWorld-v0" / name, ignore=shutil.ignore_patterns("tb", "videos"))
+    assert main(["report", "--compare", str(sweep)]) == 0
+    assert "2 seeds" in (sweep / "compare.html").read_text()
 
 
 def test_report_errors_are_one_sentence(tmp_path, capsys):

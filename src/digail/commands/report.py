@@ -23,7 +23,8 @@ class ReportArgs:
     compare: bool = False
     """build a methods-by-seeds page (learning curves, table of medians) instead of one run's report"""
     out: Path | None = None
-    """output page (default: RUN/report.html; with --compare, compare.html in the runs' common folder)"""
+    """output page (default: RUN/report.html; with --compare, compare.html in the sweep folder or the runs' common
+    folder)"""
     figures: bool = True
     """redraw the run's figures from its model and demonstrations first (--no-figures: use those present)"""
     unsmoothed: Path | None = None
@@ -44,7 +45,9 @@ def report_command(args: ReportArgs) -> Path:
         runs = find_runs(args.runs)
         if not runs:
             raise UserError(f"no run folders (with a config.json) in {', '.join(map(str, args.runs))}.")
-        out = args.out or _common_parent(runs) / "compare.html"
+        folder = Path(args.runs[0])
+        sweep = len(args.runs) == 1 and not (folder / "config.json").exists()
+        out = args.out or (folder if sweep else _common_parent(runs)) / "compare.html"
         page = write_compare_report(runs, out)
         print(f"compared {len(runs)} runs: {page}")
         return page
@@ -58,14 +61,16 @@ def report_command(args: ReportArgs) -> Path:
     return page
 
 
-def find_runs(paths: tuple[Path, ...] | list[Path]) -> list[Path]:
-    """Run folders among `paths`: each path holding a config.json, else its sub-folders that do (a sweep)."""
+def find_runs(paths: tuple[Path, ...] | list[Path], depth: int = 3) -> list[Path]:
+    """Run folders among `paths`: each path holding a config.json, else the run folders found below it, up to
+    `depth` levels down (a sweep keeps its runs in SWEEP/<env>/<run>). A run's own sub-folders (its vae/) are not
+    runs of their own here."""
     out: list[Path] = []
     for p in map(Path, paths):
         if (p / "config.json").exists():
             out.append(p)
-        else:
-            out += sorted(c.parent for c in p.glob("*/config.json"))
+        elif depth > 0 and p.is_dir():
+            out += find_runs(sorted(c for c in p.iterdir() if c.is_dir() and not c.name.startswith(".")), depth - 1)
     return out
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -43,10 +44,13 @@ LEARNING_KEYS: tuple[tuple[str, str], ...] = (
     ("rollout/ep_return", "episode return (env reward)"),
     ("eval/mean_return", "evaluation return (closed-loop)"),
     ("eval/normalized_return", "normalised return (agent / expert)"),
+    ("derived/normalized_return", "normalised return (training episodes / expert)"),
     ("disc/accuracy", "discriminator accuracy"),
     ("rollout/bonus", "log q bonus per step"),
 )
-"""Columns of metrics.csv the learning curves show, with their axis titles; absent columns are skipped."""
+"""Columns of metrics.csv the learning curves show, with their axis titles; absent columns are skipped.
+`derived/normalized_return` is not logged: `run_curves` adds it from the training episodes' return and the
+expert's mean return in eval.json when the run has no evaluations during training."""
 
 
 def code_colour(code: int) -> tuple[float, float, float, float]:
@@ -318,6 +322,31 @@ def read_metrics(run_dir: Path) -> dict[str, np.ndarray]:
     return {k: np.array([num(r.get(k)) for r in rows]) for k in keys}
 
 
+def run_curves(run_dir: Path) -> dict[str, np.ndarray]:
+    """`read_metrics`, plus `derived/normalized_return` = training-episode return / the expert's mean return (the
+    definition of eval.json's `normalized_return`) when metrics.csv has no `eval/normalized_return` (training ran
+    without `train.eval_every`) and eval.json knows the expert's return."""
+    metrics = read_metrics(run_dir)
+    has_eval = "eval/normalized_return" in metrics and np.isfinite(metrics["eval/normalized_return"]).any()
+    if metrics and not has_eval and "rollout/ep_return" in metrics:
+        try:
+            expert = json.loads((Path(run_dir) / "eval.json").read_text())["expert"]["mean_return"]
+        except (FileNotFoundError, json.JSONDecodeError, KeyError, TypeError):
+            expert = None
+        if isinstance(expert, int | float) and abs(expert) > 1e-6:
+            metrics["derived/normalized_return"] = metrics["rollout/ep_return"] / float(expert)
+    return metrics
+
+
+def _final_normalized(run_dir: Path) -> float | None:
+    """eval.json's closed-loop normalised return, drawn as the end point of the derived curve."""
+    try:
+        value = json.loads((Path(run_dir) / "eval.json").read_text()).get("normalized_return")
+    except (FileNotFoundError, json.JSONDecodeError, AttributeError):
+        return None
+    return float(value) if isinstance(value, int | float) else None
+
+
 def _present(metrics: Mapping[str, np.ndarray]) -> list[tuple[str, str]]:
     return [(k, t) for k, t in LEARNING_KEYS if k in metrics and np.isfinite(metrics[k]).any()]
 
@@ -326,9 +355,10 @@ def learning_curves(run_dir: Path, path: Path | None = None) -> Path | None:
     """Return, normalised return, discriminator accuracy and bonus against env steps for one run.
 
     Evaluation columns are logged every `train.eval_every` iterations only; their points are joined across the
-    gaps. Size (3.4 panels) x 3 inches; None when the run has no metrics.csv.
+    gaps. Without them the normalised return is that of the training episodes (`run_curves`), ending in a star at
+    the final closed-loop evaluation's. Size (3.4 panels) x 3 inches; None when the run has no metrics.csv.
     """
-    metrics = read_metrics(run_dir)
+    metrics = run_curves(run_dir)
     keys = _present(metrics)
     if not keys:
         return None
@@ -338,8 +368,11 @@ def learning_curves(run_dir: Path, path: Path | None = None) -> Path | None:
     for ax, (k, label) in zip(axes[0], keys, strict=True):
         ok = np.isfinite(metrics[k])
         ax.plot(step[ok], metrics[k][ok], marker="o" if ok.sum() < 30 else None, ms=3)
-        if k == "eval/normalized_return":
+        if k in ("eval/normalized_return", "derived/normalized_return"):
             ax.axhline(1.0, color="grey", ls="--", lw=1, label="expert")
+            final = _final_normalized(run_dir) if k.startswith("derived") else None
+            if final is not None:
+                ax.plot(step[ok][-1:], [final], "*", color="#d62020", ms=10, label="final closed-loop evaluation")
             ax.legend(fontsize=7)
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("env steps")
@@ -354,7 +387,7 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path]], path: Path, points
     Each run's curve is interpolated onto a common grid of `points` steps up to the shortest run of its method
     (no extrapolation). Size (3.6 panels) x 3.2 inches; None when no run has metrics.
     """
-    loaded = {m: [read_metrics(r) for r in rs] for m, rs in runs.items()}
+    loaded = {m: [run_curves(r) for r in rs] for m, rs in runs.items()}
     loaded = {m: [x for x in ms if x] for m, ms in loaded.items()}
     loaded = {m: ms for m, ms in loaded.items() if ms}
     keys = [kt for kt in LEARNING_KEYS if any(k in dict(_present(x)) for ms in loaded.values() for x in ms
@@ -376,7 +409,8 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path]], path: Path, points
             grid = np.linspace(start, end, points) if end > start else np.array([start])
             ys = np.stack([np.interp(grid, s, v) for s, v in curves])
             colour = plt.get_cmap("tab10")(i % 10)
-            ax.plot(grid, ys.mean(0), color=colour, label=f"{method} ({len(curves)} seeds)")
+            seeds = f"{len(curves)} seed" + ("s" if len(curves) > 1 else "")
+            ax.plot(grid, ys.mean(0), color=colour, label=f"{method} ({seeds})")
             if len(curves) > 1:
                 ax.fill_between(grid, ys.min(0), ys.max(0), color=colour, alpha=0.2, linewidth=0)
         ax.set_title(label, fontsize=9)

@@ -422,6 +422,10 @@ def method_of(cfg: Mapping[str, Any]) -> str:
     return METHOD_NAMES.get(method, method) + (" + L2" if isinstance(bc, int | float) and bc > 0 else "")
 
 
+def _seeds(n: int) -> str:
+    return f"{n} seed" if n == 1 else f"{n} seeds"
+
+
 def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
     """One page over many run folders: learning curves (mean and spread over seeds per method) and tables of
     medians and of each seed's main numbers. Returns `out`."""
@@ -468,7 +472,7 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
     parts = [f"<h1>digail: {len(groups)} method(s) × seeds on {_esc(env_names)}</h1>" if len(envs) <= 1
              else f"<h1>digail: {len(groups)} methods and environments × seeds</h1>",
              "<section class='headline'>"
-             f"<p>{len(runs)} runs: " + ", ".join(f"{_esc(m)} ({len(rs)} seeds)" for m, rs in sorted(groups.items()))
+             f"<p>{len(runs)} runs: " + ", ".join(f"{_esc(m)} ({_seeds(len(rs))})" for m, rs in sorted(groups.items()))
              + ". Medians over seeds; evaluation is closed-loop.</p>" + _table(header, rows) + "</section>"]
     if fig is not None:
         parts.append("<h2>Learning curves</h2><figure>" + _img(fig, "learning curves")
