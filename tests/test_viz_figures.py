@@ -57,7 +57,7 @@ def test_four_rooms_code_maps_and_action_table(tmp_path, rooms_model):
     assert actions.shape == (4, len(cells)) and set(np.unique(actions)) <= {0, 1, 2, 3}
     assert (12, 8) not in {tuple(c) for c in cells}
     path = F.four_rooms_code_maps(rooms_model, tmp_path / "maps.png", apple=(12, 8))
-    assert _size(path) == _px(3.2 * 4, 3.0)
+    assert _size(path) == _px(3.2 * 2, 3.0 * 2)  # K = 4: two rows of two
 
 
 def test_four_rooms_trajectories(tmp_path):

@@ -111,17 +111,18 @@ def four_rooms_action_table(model: Any, apple: tuple[int, int]) -> tuple[np.ndar
 def four_rooms_code_maps(model: Any, path: Path, apple: tuple[int, int] = (12, 8)) -> Path:
     """Paper Figure 3: one grid per code with an arrow for pi's most likely action in every free cell.
 
-    The apple (red disc) is the same in every panel. Size: (3.2 K) x 3 inches (at least 2 panels wide).
+    The apple (red disc) is the same in every panel. Panels two to a row, so that a phone shows each at half its
+    width rather than a quarter (K = 4): size 6.4 x (3 ceil(K / 2)) inches.
     """
     from digail.envs.four_rooms import ACTION_DELTAS
 
     cells, actions = four_rooms_action_table(model, apple)
     K = model.codes
-    cols = max(K, 2)
-    fig, axes = plt.subplots(1, cols, figsize=(3.2 * cols, 3.0), squeeze=False)
+    cols, rows = 2, max(1, math.ceil(K / 2))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.0 * rows), squeeze=False)
     deltas = np.array(ACTION_DELTAS, np.float64)
-    for k in range(cols):
-        ax = axes[0, k]
+    for k in range(rows * cols):
+        ax = axes[k // cols, k % cols]
         _draw_rooms(ax)
         if k >= K:
             ax.axis("off")

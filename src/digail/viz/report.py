@@ -120,6 +120,11 @@ def fmt(value: Any, kind: str = "num") -> str:
     return text if kind == "num" else f"{text} {kind}"
 
 
+def _file_size(path: Path) -> str:
+    size = path.stat().st_size
+    return f"{fmt(size / 1e6)} MB" if size >= 1e6 else f"{max(1, round(size / 1e3))} kB"
+
+
 def _esc(x: Any) -> str:
     return html.escape(str(x))
 
@@ -347,7 +352,7 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
         if mp4s:
             page_dir = (Path(out) if out is not None else run_dir / "report.html").resolve().parent
             links = ", ".join(f"<a href='{_esc(Path(os.path.relpath(p.resolve(), page_dir)).as_posix())}'>"
-                              f"{_esc(p.name)}</a> ({fmt(p.stat().st_size / 1e6)} MB)" for p in mp4s)
+                              f"{_esc(p.name)}</a> ({_file_size(p)})" for p in mp4s)
             parts.append(f"<p>Full-rate MP4 files beside this page: {links}.</p>")
 
     figs = {p.stem: p for p in sorted((run_dir / "figures").glob("*.png"))} if (run_dir / "figures").is_dir() else {}
