@@ -233,3 +233,12 @@ def ensure_offscreen_gl() -> str:
         has_osmesa = ctypes.util.find_library("OSMesa") is not None
         os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
     return os.environ["MUJOCO_GL"]
+
+
+def die_with_parent() -> None:
+    """In a child process (`preexec_fn`): get SIGKILL when the parent dies (Linux; elsewhere nothing), so that no
+    helper process outlives the command that started it."""
+    with contextlib.suppress(Exception):
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG

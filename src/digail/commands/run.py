@@ -6,8 +6,12 @@ closed-loop evaluation -> segmentation -> composition (Circle-World: reversed ci
 
 from __future__ import annotations
 
+import contextlib
+import json
+import subprocess
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any
@@ -100,7 +104,7 @@ def run_command(args: RunArgs) -> Path:
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
     from digail.nets.policy import ActionSpec
-    from digail.viz.report import BEFORE_POLISH, UNSMOOTHED, write_report
+    from digail.viz.report import BEFORE_POLISH, write_report
     from digail.viz.video import record_video
 
     set_torch_threads(1)
@@ -150,67 +154,60 @@ def run_command(args: RunArgs) -> Path:
         save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)  # the mark
         timings["pretrain_s"] = time.perf_counter() - t0
         print(f"[2/5] VAE pre-trained in {timings['pretrain_s']:.0f}s")
-    if args.smoothing_pair and preset.vae.smoothing_weight > 0:
+
+    pair = args.smoothing_pair and preset.vae.smoothing_weight > 0
+    with _unsmoothed_vae_beside(run_dir, args, demos_ref, timings) if pair else contextlib.nullcontext():
         t0 = time.perf_counter()
-        if (run_dir / UNSMOOTHED / "model.pt").is_file():
-            print("      VAE without the smoothing term (kept from the interrupted run)")
-        else:
-            _pretrain_unsmoothed(run_dir / UNSMOOTHED, trajs, dataset, preset.vae, args, demos_ref, device)
-            timings["pretrain_unsmoothed_s"] = time.perf_counter() - t0
-            print(f"      VAE without the smoothing term (for the comparison figure) in "
-                  f"{timings['pretrain_unsmoothed_s']:.0f}s")
+        # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
+        train_args = TrainArgs(env=args.env, demos=str(path_ref(demos_ref)), method="digail", vae=vae_dir.resolve(),
+                               preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
+        config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
+                            device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
+                            pipeline=True, run_args=to_dict(run_args), command=run_command_line(args, run_dir))
+        write_run_config(run_dir, config)
+        trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
+                                device=device)
+        trainer.model_config = config
+        ckpt = run_dir / "checkpoint.pt"
+        try:
+            if resuming and ckpt.is_file():
+                trainer.load_checkpoint(ckpt)
+                if trainer.iteration < cfg.iterations:
+                    print(f"      training resumes at iteration {trainer.iteration}/{cfg.iterations}")
+            if trainer.iteration < cfg.iterations or not (run_dir / "model.pt").is_file():
+                trainer.train()
+                trainer.save_checkpoint(ckpt)
+                timings["train_s"] = time.perf_counter() - t0
+                print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
+            else:
+                print("[3/5] Directed-Info GAIL trained (kept from the interrupted run)")
+        finally:
+            trainer.close()
+        model = trainer.model
 
-    t0 = time.perf_counter()
-    # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
-    train_args = TrainArgs(env=args.env, demos=str(path_ref(demos_ref)), method="digail", vae=vae_dir.resolve(),
-                           preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
-    config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
-                        device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
-                        pipeline=True, run_args=to_dict(run_args), command=run_command_line(args, run_dir))
-    write_run_config(run_dir, config)
-    trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
-                            device=device)
-    trainer.model_config = config
-    ckpt = run_dir / "checkpoint.pt"
-    try:
-        if resuming and ckpt.is_file():
-            trainer.load_checkpoint(ckpt)
-            if trainer.iteration < cfg.iterations:
-                print(f"      training resumes at iteration {trainer.iteration}/{cfg.iterations}")
-        if trainer.iteration < cfg.iterations or not (run_dir / "model.pt").is_file():
-            trainer.train()
-            trainer.save_checkpoint(ckpt)
-            timings["train_s"] = time.perf_counter() - t0
-            print(f"[3/5] Directed-Info GAIL trained in {timings['train_s']:.0f}s")
-        else:
-            print("[3/5] Directed-Info GAIL trained (kept from the interrupted run)")
-    finally:
-        trainer.close()
-    model = trainer.model
+        t0 = time.perf_counter()
+        episodes = args.episodes if args.episodes is not None else preset.eval_episodes
+        result = evaluate(model, args.env, episodes)
+        result["kind"] = "digail"
+        write_json(run_dir / "eval.json", result)
+        timings["evaluate_s"] = time.perf_counter() - t0
+        print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")
 
-    t0 = time.perf_counter()
-    episodes = args.episodes if args.episodes is not None else preset.eval_episodes
-    result = evaluate(model, args.env, episodes)
-    result["kind"] = "digail"
-    write_json(run_dir / "eval.json", result)
-    timings["evaluate_s"] = time.perf_counter() - t0
-    print(f"[4/5] evaluated on {episodes} episodes: mean return {result['mean_return']:.2f}")
-
-    t0 = time.perf_counter()
-    seg = write_segmentation(run_dir, model, trajs, demos=demos_ref)
-    composed = None
-    schedule = None
-    spec = env_spec(args.env)
-    if spec is not None and spec.compose_schedule is not None and seg and "mapping" in seg:
-        schedule = schedule_in_codes(spec.compose_schedule, seg["mapping"])
-        if schedule is None:
-            print("      composition skipped: the segmentation did not give every sub-task a code of its own")
-    if schedule is not None:
-        pairs = parse_schedule(schedule, model.codes, episode_limit(args.env))
-        composed, _ = compose(model, args.env, pairs, min(episodes, 100), 20_000)
-        composed["schedule"] = schedule
-        write_json(run_dir / "compose.json", composed)
-    timings["segment_compose_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        seg = write_segmentation(run_dir, model, trajs, demos=demos_ref)
+        composed = None
+        schedule = None
+        spec = env_spec(args.env)
+        if spec is not None and spec.compose_schedule is not None and seg and "mapping" in seg:
+            schedule = schedule_in_codes(spec.compose_schedule, seg["mapping"])
+            if schedule is None:
+                print("      composition skipped: the segmentation did not give every sub-task a code of its own")
+        if schedule is not None:
+            pairs = parse_schedule(schedule, model.codes, episode_limit(args.env))
+            composed, _ = compose(model, args.env, pairs, min(episodes, 100), 20_000)
+            composed["schedule"] = schedule
+            write_json(run_dir / "compose.json", composed)
+        timings["segment_compose_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     make_figures(run_dir, model=model, trajs=trajs)
     try:
@@ -238,31 +235,55 @@ def _segment_into(folder: Path, trajs: list[Any], demos_ref: str) -> Callable[[A
     return hook
 
 
-def _pretrain_unsmoothed(out: Path, trajs: list[Any], dataset: Any, vae: Any, args: RunArgs, demos_ref: str,
-                         device: Any) -> None:
-    """Pre-train the VAE of `vae` with the smoothing weight at 0 into `out`, for the side-by-side figure.
+@contextlib.contextmanager
+def _unsmoothed_vae_beside(run_dir: Path, args: RunArgs, demos_ref: str, timings: dict[str, float]) -> Iterator[None]:
+    """Pre-train the run's VAE without the smoothing term into RUN/vae_unsmoothed, in a second process (`digail
+    pretrain`) while the block runs, for the side-by-side figure.
 
-    Same settings and seed as the run's VAE otherwise, but no polish: the figure compares the two VAEs'
-    segmentations before any polish (the run's is kept in `BEFORE_POLISH`), so the polish is not needed and
-    not paid for. Written atomically; `model.pt` marks it complete.
+    The same preset and seed with `--vae.smoothing-weight 0 --vae.polish-steps 0`: the figure compares the two
+    VAEs' segmentations before any polish (the run's own is kept in `BEFORE_POLISH`), so the polish is not paid
+    for. A second process because Directed-Info GAIL trains on one thread: on two idle cores the comparison then
+    costs almost no wall-clock time, where in turn it would cost the VAE epochs again. Records
+    `pretrain_unsmoothed_s` (its own time) and `wait_unsmoothed_s` (how long the run waited for it at the end);
+    a failure costs the figure, not the run.
     """
-    from digail.algos.vae_pretrain import pretrain
-    from digail.checkpoint import save_model
-    from digail.commands.common import run_config, write_run_config
-    from digail.eval.segmentation import write_segmentation
-    from digail.nets.policy import ActionSpec
-    from digail.utils import atomic_dir
+    from digail.envs.registry import env_spec
+    from digail.utils import die_with_parent
+    from digail.viz.report import UNSMOOTHED
 
-    cfg = replace(vae, smoothing_weight=0.0, polish_steps=0)
-    action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
-    with atomic_dir(out, force=True) as tmp:  # force: a folder cut short by an interruption is replaced
-        model, _ = pretrain(trajs, cfg, action_spec=action, seed=args.seed, device=str(device), log_dir=tmp)
-        config = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
-                            device=args.device, vae=cfg, pipeline=True,
-                            purpose="the run's VAE without the smoothing term, for the segmentation_pair figure")
-        write_run_config(tmp, config)
-        write_segmentation(tmp, model, trajs, demos=demos_ref)
-        save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=args.env)
+    out = run_dir / UNSMOOTHED
+    spec = env_spec(args.env)
+    preset = args.preset or (spec.preset if spec is not None else None)
+    if (out / "model.pt").is_file() or preset is None:
+        if preset is not None:
+            print("      VAE without the smoothing term kept from the interrupted run")
+        yield
+        return
+    demos = str(Path(demos_ref).resolve()) if Path(demos_ref).exists() else demos_ref
+    argv = [sys.executable, "-m", "digail.cli", "pretrain", "--demos", demos, "--preset", preset, "--seed",
+            str(args.seed), "--device", args.device, "--out", str(out), "--force", "--vae.smoothing-weight", "0",
+            "--vae.polish-steps", "0"]
+    log = run_dir / f"{UNSMOOTHED}.log"
+    with open(log, "wb") as f:
+        proc = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+    print(f"      pre-training the VAE without the smoothing term beside it (log: {log})")
+    try:
+        yield
+    except BaseException:
+        proc.terminate()  # the CLI turns SIGTERM into a clean exit: no temporary folder is left
+        proc.wait()
+        raise
+    t0 = time.perf_counter()
+    rc = proc.wait()
+    timings["wait_unsmoothed_s"] = time.perf_counter() - t0
+    if rc == 0 and (out / "model.pt").is_file():
+        with contextlib.suppress(OSError, ValueError, KeyError):
+            timings["pretrain_unsmoothed_s"] = float(json.loads((out / "config.json").read_text())["train_time_s"])
+        log.unlink(missing_ok=True)
+        print(f"      VAE without the smoothing term done (waited {timings['wait_unsmoothed_s']:.0f}s for it)")
+    else:
+        print(f"      VAE without the smoothing term failed (exit status {rc}, see {log}); the segmentation figure "
+              "shows the Viterbi smoother instead")
 
 
 def _resume_args(run_dir: Path) -> RunArgs:

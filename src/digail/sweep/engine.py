@@ -19,7 +19,6 @@ import csv
 import json
 import os
 import shlex
-import signal
 import subprocess
 import sys
 import time
@@ -30,6 +29,7 @@ from typing import Any
 
 from digail.errors import UserError
 from digail.sweep.plan import Job, Stage
+from digail.utils import die_with_parent
 
 STATE_DIR = "trials"
 LOG_DIR = "logs"
@@ -86,14 +86,6 @@ def check_consistent(sweep: Path, jobs: list[Job]) -> None:
 
 
 # ------------------------------------------------------------------------------------------ the Ray task
-def _die_with_parent() -> None:
-    """In the child: get SIGKILL when the Ray worker that started us dies (Linux), so no stage outlives its task."""
-    with contextlib.suppress(Exception):
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-
-
 def _resolve_argv(sweep: Path, stage: Stage) -> tuple[str, ...]:
     if stage.labels is None:
         return stage.argv
@@ -164,7 +156,7 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
             f.write(f"{_newline_if_needed(log)}$ {line}\n".encode())  # a killed progress bar left none
             f.flush()
             rc = subprocess.call([sys.executable, "-m", "digail.cli", *actual], cwd=root, env=env, stdout=f,
-                                 stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
+                                 stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
         wall = time.time() - t0
         prev = state["stages"].get(stage.name, {})
         rec = {"argv": list(argv), "rc": rc, "wall_s": prev.get("wall_s", 0.0) + wall, "resumed": resumed}

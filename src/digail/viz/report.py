@@ -203,6 +203,17 @@ BEFORE_POLISH = "vae/before_polish"
 """Where `digail run` keeps its VAE's own segmentation before the polish refits q to it."""
 UNSMOOTHED = "vae_unsmoothed"
 """Where `digail run` keeps the VAE pre-trained without the smoothing term (`RunArgs.smoothing_pair`)."""
+TIMING_LABELS = {
+    "demos_s": "demonstrations (loaded or recorded)",
+    "pretrain_s": "VAE pre-training and polish",
+    "pretrain_unsmoothed_s": "VAE without the smoothing term (a second process, beside the training)",
+    "train_s": "Directed-Info GAIL training",
+    "evaluate_s": "closed-loop evaluation",
+    "segment_compose_s": "segmentation and composition",
+    "wait_unsmoothed_s": "waiting for the VAE without the smoothing term",
+    "figures_video_s": "figures and video",
+}
+"""Names of the stages in timings.json."""
 SMOOTHING_KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode")
 FIGURE_CAPTIONS = {
     "four_rooms_codes": "Four Rooms (paper Figure 3): the most likely action of each code's sub-task policy in every "
@@ -388,8 +399,8 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
         parts.append(_table(["metric", "value"], metric_rows([comp])))
     if timings:
         parts.append("<h2>Timings</h2>")
-        rows = [[k.removesuffix("_s").replace("_", " "), fmt(v, "s")] for k, v in timings.items()
-                if isinstance(v, int | float)]
+        rows = [[TIMING_LABELS.get(k, k.removesuffix("_s").replace("_", " ")), fmt(v, "s")]
+                for k, v in timings.items() if isinstance(v, int | float)]
         parts.append(_table(["stage", "wall-clock time"], rows))
     parts.append("<h2>How this run was made</h2>")
     parts.append(f"<pre>{_esc(run_command(cfg))}</pre>")
