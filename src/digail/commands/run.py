@@ -46,8 +46,8 @@ class RunArgs:
     from its checkpoint (other flags are ignored)"""
     smoothing_pair: bool = True
     """when the preset's VAE has a smoothing term (Circle-World), also pre-train a VAE without it (the same settings
-    and seed, no polish) into RUN/vae_unsmoothed, for the figure of the two segmentations side by side; about as
-    long again as the VAE epochs (--no-smoothing-pair skips it)"""
+    and seed, no polish) into RUN/vae_unsmoothed, for the figure of the two segmentations side by side; it runs in a
+    second process beside the training, which uses one thread (--no-smoothing-pair skips it)"""
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
