@@ -102,6 +102,20 @@ def test_fast_chain_matches_autograd(hard: bool, bptt: bool) -> None:
         torch.testing.assert_close(g, r)
 
 
+def test_cosine_lrs_are_the_schedulers_floats() -> None:
+    from digail.algos.polish import cosine_lrs
+
+    param = torch.nn.Parameter(torch.zeros(1))
+    opt = torch.optim.SGD([param], lr=1e-3)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(opt, 50)
+    seen = []
+    for _ in range(50):
+        seen.append(opt.param_groups[0]["lr"])
+        opt.step()
+        schedule.step()
+    assert cosine_lrs(1e-3, 50) == seen
+
+
 @pytest.mark.parametrize("bptt", [False, True])
 def test_hard_samples_are_one_hot_and_gradients_reach_encoder(bptt: bool) -> None:
     torch.manual_seed(1)
