@@ -72,6 +72,32 @@ def test_subproc_matches_sync_exactly(env_id, kwargs, steps):
         sub.close()
 
 
+@pytest.mark.parametrize("kwargs, steps", [({}, 260), ({"max_episode_steps": 15}, 40)])
+def test_batched_circle_world_matches_sync_exactly(kwargs, steps):
+    """The array Circle-World gives the wrapped envs' numbers bit for bit: observations, rewards, time limits,
+    final observations and infos (the circle scores of full episodes), with a zero action among them."""
+    from digail.envs.circle_world import CircleWorldVecEnv
+
+    sync = VecEnv.of("digail/CircleWorld-v0", 5, **kwargs)
+    batched = CircleWorldVecEnv("digail/CircleWorld-v0", 5, **kwargs)
+    try:
+        acts = _actions(sync.single_action_space, steps, 5)
+        acts[3][2] = 0.0  # does not move
+        obs_a, a = _run(sync, acts)
+        obs_b, b = _run(batched, acts)
+        np.testing.assert_array_equal(obs_a, obs_b)
+        assert _assert_same(a, b) >= 10
+        for ra, rb in zip(a, b, strict=True):
+            assert ra[4] == rb[4]
+            assert {i: f[1] for i, f in ra[5].items()} == {i: f[1] for i, f in rb[5].items()}
+        with pytest.raises(ValueError, match="finite"):
+            batched.step(np.full((5, 2), np.nan, np.float32))
+    finally:
+        sync.close()
+        batched.close()
+    assert type(make_vec_env("digail/CircleWorld-v0", 2, "sync")) is CircleWorldVecEnv
+
+
 @pytest.mark.mujoco
 @needs_envpool
 @pytest.mark.parametrize("env_id, limit", [("Hopper-v5", 20), ("Walker2d-v5", 20), ("InvertedPendulum-v5", 4)])

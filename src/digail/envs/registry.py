@@ -109,6 +109,9 @@ class EnvSpec:
     """Directed-Info GAIL's mean return and std in the paper (Table 1, 300 episodes; Fetch: Table 2, the dense
     return over 100 episodes), which reports print beside a run's; the paper used the -v0/-v2 versions of the
     MuJoCo envs (None: the paper has no number for it)"""
+    batched: str | None = None
+    """`module:Class` of an array implementation of N copies that the `sync` backend uses instead of stepping N
+    envs in turn (`(env_id, num_envs, **kwargs)`; the same numbers, tested against `digail.envs.vector.VecEnv`)"""
 
     def tracked_info_keys(self) -> tuple[str, ...]:
         """Info keys an episode loop records per step for the step metrics."""
@@ -133,7 +136,8 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60)), auto_backend="sync",
-            scripted_expert="digail.experts.scripted:circle_expert", name="Circle-World"),
+            scripted_expert="digail.experts.scripted:circle_expert", name="Circle-World",
+            batched="digail.envs.circle_world:CircleWorldVecEnv"),
     # gymnasium-robotics is imported only when this one is made (digail.envs.fetch), and so is the expert's module
     # The paper's Table 2 measure is the dense return; the sparse one, success and grasp rates stand beside it
     EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50,

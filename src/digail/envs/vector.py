@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import importlib
 import importlib.util
 import multiprocessing as mp
 import os
@@ -472,6 +473,10 @@ def make_vec_env(env_id: str, num_envs: int, backend: Backend = "auto", *, worke
     parallel backends (0: one per core); `infos=False` skips the per-step info dicts (final infos stay)."""
     chosen = resolve_backend(env_id, backend)
     if chosen == "sync":
+        spec = env_spec(env_id)
+        if spec is not None and spec.batched is not None:  # the env's own array implementation, same numbers
+            module, name = spec.batched.split(":")
+            return getattr(importlib.import_module(module), name)(env_id, num_envs)  # type: ignore[no-any-return]
         return VecEnv.of(env_id, num_envs)
     if chosen == "subproc":
         return SubprocVecEnv(env_id, num_envs, workers=workers or None, infos=infos)
