@@ -12,7 +12,12 @@ Writes benchmarks/throughput.json with environment steps per second:
   it (Hopper does); train_sps is the fastest of them and train_backend names it;
 - train_over_own_rollouts_<backend>: the training iterations' rollout time over their total time;
 - sb3_ppo_sps: Stable-Baselines3 PPO with the same envs (DummyVecEnv, one process), batch, epochs, minibatch and
-  64x64 networks.
+  64x64 networks;
+- train_over_sync_<backend>: each backend's training throughput over the sync backend's (e.g. Fetch: subproc
+  against sync);
+- vae_demo_sps: VAE pre-training (`digail.algos.vae_pretrain.pretrain`, the env preset's settings, no polish) in
+  demonstration steps per second: epochs x steps in the demonstrations / time, on the env's shipped
+  demonstrations where there are some (vae_demos names them), else the random ones below.
 cpus is the cores this process may use and loadavg the machine's load when the run started (other jobs share it).
 Absolute numbers drift by +-25% on a shared 2-core machine; the ratios measured in one run are what to quote.
 Demonstrations are random-action rollouts: throughput does not depend on their quality.
@@ -66,6 +71,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=3)
     parser.add_argument("--codes", type=int, default=4)
     parser.add_argument("--rounds", type=int, default=5, help="interleaved repetitions; medians are reported")
+    parser.add_argument("--vae-epochs", type=int, default=2, help="VAE pre-training epochs per round")
     parser.add_argument("--out", default=str(Path(__file__).with_name("throughput.json")))
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -154,8 +160,25 @@ def main() -> None:
     def sb3() -> None:
         model_sb3.learn(total_timesteps=steps, reset_num_timesteps=False)
 
+    # VAE pre-training on the env's demonstrations at its preset's settings
+    from dataclasses import replace
+
+    from digail.algos.vae_pretrain import pretrain
+    from digail.data.demos import default_dataset_id
+    from digail.data.minari_io import load_dataset, shipped_dataset_ids
+
+    vae_id = default_dataset_id(args.env)
+    vae_trajs = list(load_dataset(vae_id).trajs) if vae_id in shipped_dataset_ids() else demos
+    results["vae_demos"] = vae_id if vae_trajs is not demos else "random"
+    vae_cfg = replace(preset_for(args.env).vae, epochs=args.vae_epochs, polish_steps=0)
+    vae_steps = args.vae_epochs * sum(len(t) for t in vae_trajs)
+    pretrain(vae_trajs, replace(vae_cfg, epochs=1), progress=False)  # warm-up
+
+    def vae() -> None:
+        pretrain(vae_trajs, vae_cfg, progress=False)
+
     # Rounds interleave the measurements so that drifting load on a shared machine hits all of them alike.
-    runs = {"random_sps": random_steps("sync"), "rollout_sps": rollouts, "sb3_ppo_sps": sb3}
+    runs = {"random_sps": random_steps("sync"), "rollout_sps": rollouts, "sb3_ppo_sps": sb3, "vae_demo_sps": vae}
     for b in backends:
         if b != "sync":
             runs[f"random_sps_{b}"] = random_steps(b)
@@ -165,7 +188,7 @@ def main() -> None:
         for name, fn in runs.items():
             t0 = time.perf_counter()
             fn()
-            samples[name].append(steps / (time.perf_counter() - t0))
+            samples[name].append((vae_steps if name == "vae_demo_sps" else steps) / (time.perf_counter() - t0))
         print(f"round {r + 1}: " + ", ".join(f"{k} {v[-1]:.0f}" for k, v in samples.items()), flush=True)
     for name, vals in samples.items():
         results[name] = float(np.median(vals))
@@ -193,6 +216,7 @@ def main() -> None:
         results["samples"][f"train_over_own_rollouts_{b}"] = shares[b]  # type: ignore[index]
         if b != "sync":
             results[f"random_over_random_sync_{b}"] = ratio(f"random_sps_{b}", "random_sps")
+            results[f"train_over_sync_{b}"] = ratio(f"train_sps_{b}", "train_sps_sync")
     results["targets_met"] = {"train_over_sb3>=2.5": results["train_over_sb3"] >= 2.5,  # type: ignore[operator]
                               "train_over_rollout>=1.5": results["train_over_rollout"] >= 1.5}  # type: ignore[operator]
     results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, "
