@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 
@@ -30,3 +31,21 @@ def one_hot(codes: torch.Tensor, k: int) -> torch.Tensor:
     valid = codes >= 0
     out[valid] = torch.nn.functional.one_hot(codes[valid], k).float()
     return out
+
+
+Layers = list[tuple[torch.Tensor, torch.Tensor]]
+
+
+def linear_layers(seq: nn.Sequential) -> Layers:
+    """The (weight, bias) pairs of an `mlp`, for `mlp_apply`."""
+    return [(m.weight, m.bias) for m in seq if isinstance(m, nn.Linear)]
+
+
+def mlp_apply(layers: Layers, x: torch.Tensor) -> torch.Tensor:
+    """`seq(x)` of the `mlp` whose `linear_layers` these are: the same operations (linear, ReLU, ..., linear), so
+    the same numbers and gradients, without the module calls, which cost more than the 2x64 layers' arithmetic in
+    the many-step VAE and polish loops."""
+    for w, b in layers[:-1]:
+        x = torch.relu(F.linear(x, w, b))
+    w, b = layers[-1]
+    return F.linear(x, w, b)

@@ -82,7 +82,10 @@ class SubtaskPolicy(nn.Module):
     def log_prob_entropy_of(self, inputs: torch.Tensor, acts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """`log_prob_entropy` from ready net inputs (`inputs(...)`); the Gaussian's entropy comes back as one
         scalar, since it does not depend on the state (the PPO update's form: fewest ops per minibatch)."""
-        out = self.net(inputs)
+        return self.head_log_prob_entropy(self.net(inputs), acts)
+
+    def head_log_prob_entropy(self, out: torch.Tensor, acts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`log_prob_entropy_of` from the net's output (for callers that run the net themselves: `mlp_apply`)."""
         if self.action.discrete:
             logp_all = torch.log_softmax(out, -1)
             return logp_all.gather(-1, acts.long()[..., None]).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
