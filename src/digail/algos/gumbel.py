@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from digail.nets.mlp import mlp_apply
 from digail.nets.vae import MacroPolicy
 
 
@@ -59,7 +60,8 @@ def gumbel_softmax_chain(q: MacroPolicy, obs_n: torch.Tensor, tau: float, hard: 
     with torch.no_grad():
         fed = _sample_chain(hard, pre, first.weight[:, D:], last.weight / tau, noise, *mids)
     prev = torch.cat([torch.zeros_like(fed[:1]), fed[:-1]]).transpose(0, 1)
-    logits = q(obs_n, prev)
+    # q(obs_n, prev) as bare operations (`mlp_apply`: the same numbers without the module calls)
+    logits = mlp_apply([(m.weight, m.bias) for m in linears], torch.cat([obs_n, prev], -1))
     codes = ((logits + gumbel_tm.transpose(0, 1)) / tau).softmax(-1)
     if hard:
         codes = F.one_hot(codes.argmax(-1), K).to(codes.dtype) + (codes - codes.detach())

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.optim import adam
+from digail.algos.ppo import LeanStep
 from digail.algos.polish import polish
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -177,6 +177,9 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     data = pad_demos(trajs, model, dev)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = adam(params, cfg.lr)
+    # clipping and Adam as direct fused calls: `nn.utils.clip_grad_norm_` and `Adam.step`'s numbers without their
+    # per-step Python work (`LeanStep`)
+    adam_step = LeanStep(opt, cfg.max_grad_norm)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
@@ -189,11 +192,10 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         for b in range(0, n, cfg.batch_size):
             batch = data[order[b:b + cfg.batch_size].to(dev)]
             loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch))
-            opt.zero_grad(set_to_none=True)
+            for p in params:
+                p.grad = None
             loss.backward()
-            if cfg.max_grad_norm is not None:
-                nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
-            opt.step()
+            adam_step()
             weight = float(batch.mask.sum().item()) / total_steps
             for k in LOSS_KEYS:
                 sums[k] += parts[k] * weight
