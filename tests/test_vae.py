@@ -102,6 +102,23 @@ def test_fast_chain_matches_autograd(hard: bool, bptt: bool) -> None:
         torch.testing.assert_close(g, r)
 
 
+@pytest.mark.parametrize("hard", [False, True])
+def test_scripted_sampling_loop_gives_the_python_loops_bits(hard: bool) -> None:
+    """The TorchScript loop of the no-bptt chain runs eager's kernels in eager's order: equal, not just close."""
+    from digail.algos.gumbel import _chain_loop, _scripted_loop
+
+    g = torch.Generator().manual_seed(3)
+    T, B, H, K = 30, 6, 16, 3
+    pre = torch.randn(T, B, H, generator=g)
+    w_prev_t, w_out_t = torch.randn(K, H, generator=g), 0.5 * torch.randn(H, K, generator=g)
+    noise = torch.randn(T, B, K, generator=g)
+    w_ts, b_s = [0.3 * torch.randn(H, H, generator=g)], [torch.randn(H, generator=g)]
+    ref = _chain_loop(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0)
+    assert _scripted_loop() is not _chain_loop  # scripted here
+    for _ in range(4):  # the profiling executor re-plans after the first runs
+        assert torch.equal(_scripted_loop()(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0), ref)
+
+
 def test_cosine_lrs_are_the_schedulers_floats() -> None:
     from digail.algos.polish import cosine_lrs
 

@@ -8,6 +8,7 @@ product per layer and a softmax. `_GumbelChain` backpropagates through the whole
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -70,21 +71,46 @@ def gumbel_softmax_chain(q: MacroPolicy, obs_n: torch.Tensor, tau: float, hard: 
 
 def _sample_chain(hard: bool, pre: torch.Tensor, w_prev: torch.Tensor, w_out: torch.Tensor, noise: torch.Tensor,
                   *mids: torch.Tensor) -> torch.Tensor:
-    """The sampling loop of `_GumbelChain` alone (no gradient, nothing kept): the codes fed forward (T, B, K)."""
-    K = w_out.shape[0]
-    pairs = [(mids[i].t(), mids[i + 1]) for i in range(0, len(mids), 2)]
-    w_prev_t, w_out_t = w_prev.t(), w_out.t()
+    """The sampling loop of `_GumbelChain` alone (no gradient, nothing kept): the codes fed forward (T, B, K).
+
+    The loop runs in TorchScript (`_scripted_loop`) without the Python interpreter between its ~6 T tiny
+    operations; the kernels and their order are the Python loop's, so are the bits (tests/test_vae.py).
+    """
+    w_ts = [mids[i].t() for i in range(0, len(mids), 2)]
+    b_s = [mids[i + 1] for i in range(0, len(mids), 2)]
+    return _scripted_loop()(hard, pre, w_prev.t(), w_out.t(), noise, w_ts, b_s, 1.0)
+
+
+def _chain_loop(hard: bool, pre: torch.Tensor, w_prev_t: torch.Tensor, w_out_t: torch.Tensor, noise: torch.Tensor,
+                w_ts: list[torch.Tensor], b_s: list[torch.Tensor], one: float) -> torch.Tensor:
+    """Per time step: h = relu(pre_t + prev @ w_prev_t), the middle layers, then prev = softmax(h @ w_out_t +
+    noise_t). `one` (1.0) is addmm's beta and alpha as an argument: TorchScript splits an addmm whose beta and
+    alpha are the constant 1 into a matrix product and an addition, which rounds differently from eager's addmm."""
+    K = w_out_t.shape[1]
     prev = pre.new_zeros(pre.shape[1], K)
-    fed = []
-    for pre_t, noise_t in zip(pre.unbind(0), noise.unbind(0), strict=True):
-        h = torch.addmm(pre_t, prev, w_prev_t).relu_()
-        for w_t, b in pairs:
-            h = torch.addmm(b, h, w_t).relu_()
-        prev = torch.addmm(noise_t, h, w_out_t).softmax(-1)
+    fed: list[torch.Tensor] = []
+    for t in range(pre.shape[0]):
+        h = torch.addmm(pre[t], prev, w_prev_t, beta=one, alpha=one).relu_()
+        for i in range(len(w_ts)):
+            h = torch.addmm(b_s[i], h, w_ts[i], beta=one, alpha=one).relu_()
+        prev = torch.addmm(noise[t], h, w_out_t, beta=one, alpha=one).softmax(-1)
         if hard:
             prev = F.one_hot(prev.argmax(-1), K).to(prev.dtype)
         fed.append(prev)
     return torch.stack(fed)
+
+
+_SCRIPTED: list[Callable[..., torch.Tensor]] = []
+
+
+def _scripted_loop() -> Callable[..., torch.Tensor]:
+    """`_chain_loop` scripted once per process; the Python function where this torch cannot script it."""
+    if not _SCRIPTED:
+        try:
+            _SCRIPTED.append(torch.jit.script(_chain_loop))
+        except Exception:  # TorchScript unavailable or changed: the same numbers, slower
+            _SCRIPTED.append(_chain_loop)
+    return _SCRIPTED[0]
 
 
 class _GumbelChain(torch.autograd.Function):
