@@ -72,17 +72,27 @@ def test_subproc_matches_sync_exactly(env_id, kwargs, steps):
         sub.close()
 
 
-@pytest.mark.parametrize("kwargs, steps", [({}, 260), ({"max_episode_steps": 15}, 40)])
-def test_batched_circle_world_matches_sync_exactly(kwargs, steps):
-    """The array Circle-World gives the wrapped envs' numbers bit for bit: observations, rewards, time limits,
-    final observations and infos (the circle scores of full episodes), with a zero action among them."""
-    from digail.envs.circle_world import CircleWorldVecEnv
+@pytest.mark.parametrize("env_id, kwargs, steps", [
+    ("digail/CircleWorld-v0", {}, 260),  # full episodes: the circle scores in the final infos
+    ("digail/CircleWorld-v0", {"max_episode_steps": 15}, 40),
+    ("digail/FourRooms-v0", {}, 300),  # apples reached (terminations) and time limits
+    ("digail/FourRooms-v0", {"max_episode_steps": 10}, 40),
+])
+def test_batched_synthetic_worlds_match_sync_exactly(env_id, kwargs, steps):
+    """The array implementations give the wrapped envs' numbers bit for bit: observations, rewards,
+    terminations, time limits, final observations, every info."""
+    from digail.envs.registry import env_spec
 
-    sync = VecEnv.of("digail/CircleWorld-v0", 5, **kwargs)
-    batched = CircleWorldVecEnv("digail/CircleWorld-v0", 5, **kwargs)
+    sync = VecEnv.of(env_id, 5, **kwargs)
+    batched = make_vec_env(env_id, 5, "sync")
+    spec = env_spec(env_id)
+    assert spec is not None and spec.batched is not None and spec.batched.endswith(type(batched).__name__)
+    batched.close()
+    batched = type(batched)(env_id, 5, **kwargs)
     try:
         acts = _actions(sync.single_action_space, steps, 5)
-        acts[3][2] = 0.0  # does not move
+        if env_id == "digail/CircleWorld-v0":
+            acts[3][2] = 0.0  # does not move
         obs_a, a = _run(sync, acts)
         obs_b, b = _run(batched, acts)
         np.testing.assert_array_equal(obs_a, obs_b)
@@ -90,12 +100,12 @@ def test_batched_circle_world_matches_sync_exactly(kwargs, steps):
         for ra, rb in zip(a, b, strict=True):
             assert ra[4] == rb[4]
             assert {i: f[1] for i, f in ra[5].items()} == {i: f[1] for i, f in rb[5].items()}
-        with pytest.raises(ValueError, match="finite"):
-            batched.step(np.full((5, 2), np.nan, np.float32))
+        bad = np.full((5, 2), np.nan, np.float32) if env_id == "digail/CircleWorld-v0" else np.full(5, 4)
+        with pytest.raises(ValueError, match="finite|integers"):
+            batched.step(bad)
     finally:
         sync.close()
         batched.close()
-    assert type(make_vec_env("digail/CircleWorld-v0", 2, "sync")) is CircleWorldVecEnv
 
 
 @pytest.mark.mujoco

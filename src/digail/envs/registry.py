@@ -132,7 +132,8 @@ _LOCOMOTION_PPO: dict[str, Any] = {
 
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
-            auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert", name="Four Rooms"),
+            auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert", name="Four Rooms",
+            batched="digail.envs.four_rooms:FourRoomsVecEnv"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60)), auto_backend="sync",
