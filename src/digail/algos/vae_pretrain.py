@@ -36,8 +36,8 @@ import torch
 
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.optim import adam
-from digail.algos.ppo import LeanStep
 from digail.algos.polish import polish
+from digail.algos.ppo import LeanStep
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_demos
