@@ -16,6 +16,15 @@ so every task sees the same defaults. Each (task, seed) runs exactly what a user
 
 (in this process, through `digail.cli.main`, so the imports are paid once). The table holds per seed the
 accuracy, NMI, boundary F1, switches per episode and the truth's, the pre-training time, and their medians.
+
+Two measurements of the label-free choices (`digail.algos.model_selection`), written beside the table:
+
+    python benchmarks/segmentation.py --measure restarts --restarts 3 --tasks ... -> segmentation_restarts.json
+        per (task, seed): N restarts on the same split as `--vae.restarts N`, each one's held-out description
+        length and accuracy on all demonstrations; a hit when the lowest description length is also the most
+        accurate (ties count)
+    python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
+        per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
 """
 
 from __future__ import annotations
@@ -98,9 +107,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                         help="extra `digail pretrain` flags for every task, e.g. vae.smoothing-weight=0.3")
+    parser.add_argument("--measure", choices=["table", "restarts", "codes"], default="table")
+    parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     extra = [part for item in args.set for part in (f"--{item.split('=', 1)[0]}", *item.split("=", 1)[1].split())]
+    if args.measure != "table":
+        out = args.out.with_name(f"segmentation_{args.measure}.json") if args.out.name == "segmentation.json" \
+            else args.out
+        measure(args, out)
+        return
     result: dict[str, Any] = {"command": "python benchmarks/segmentation.py " + shlex.join(sys.argv[1:] if argv is None
                                                                                            else argv),
                               "settings": extra, "tasks": {}}
@@ -120,6 +136,67 @@ def main(argv: list[str] | None = None) -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
     print(table(result))
+
+
+def measure(args: argparse.Namespace, out: Path) -> None:
+    """`--measure restarts` or `--measure codes` (module docstring)."""
+    import dataclasses
+
+    from digail.algos.decode import segment_many
+    from digail.algos.model_selection import description_length, heldout_split
+    from digail.algos.vae_pretrain import pretrain
+    from digail.config import VAEConfig
+    from digail.data.minari_io import load_dataset
+    from digail.eval.segmentation import segmentation_metrics
+    from digail.nets.policy import ActionSpec
+    from digail.utils import set_torch_threads
+
+    set_torch_threads(1)
+    argv = sys.argv[1:]
+    result: dict[str, Any] = {"command": "python benchmarks/segmentation.py " + shlex.join(argv), "tasks": {}}
+    if out.exists():
+        result["tasks"] = json.loads(out.read_text()).get("tasks", {})
+    for name in args.tasks:
+        demos, codes, shipped, _ = task_data(name, args.data)
+        rows = []
+        for seed in args.seeds:
+            if args.measure == "codes":
+                run = args.runs / f"{name}_auto_s{seed}"
+                cmd = ["pretrain", "--demos", demos, "--codes", "auto", "--seed", str(seed), "--out", str(run),
+                       "--force", *(["--preset", "default"] if shipped else [])]
+                print("$ digail " + shlex.join(cmd), flush=True)
+                t0 = time.perf_counter()
+                if digail(cmd) != 0:
+                    raise SystemExit(f"digail pretrain --codes auto failed on {name} seed {seed}")
+                config = json.loads((run / "config.json").read_text())
+                chosen = int(config["vae"]["codes"])
+                rows.append({"seed": seed, "true_codes": codes, "chosen": chosen, "hit": chosen == codes,
+                             "curve": config["k_selection"], "time_s": round(time.perf_counter() - t0, 1)})
+                print(f"== {name} seed {seed}: K = {chosen} (true {codes})", flush=True)
+            else:
+                ds = load_dataset(demos)
+                cfg = dataclasses.replace(VAEConfig(), codes=codes)
+                train, held = heldout_split(len(ds.trajs), cfg.heldout_fraction, seed)
+                fit_on, held_out = [ds.trajs[i] for i in train], [ds.trajs[i] for i in held]
+                labels = [t.subtasks for t in ds.trajs]
+                restarts = []
+                for r in range(args.restarts):
+                    model, _ = pretrain(fit_on, cfg, action_spec=ActionSpec.from_space(ds.action_space),
+                                        seed=seed + r, progress=False)
+                    m = segmentation_metrics(segment_many(model, ds.trajs), labels)
+                    restarts.append({"seed": seed + r, **description_length(model, held_out),
+                                     "accuracy": m["accuracy"], "switches_per_episode": m["switches_per_episode"]})
+                pick = min(range(len(restarts)), key=lambda i: restarts[i]["dl_per_step"])
+                best = max(r["accuracy"] for r in restarts)
+                rows.append({"seed": seed, "restarts": restarts, "chosen": restarts[pick]["seed"],
+                             "chosen_accuracy": restarts[pick]["accuracy"], "best_accuracy": best,
+                             "hit": restarts[pick]["accuracy"] >= best - 1e-9})
+                print(f"== {name} seed {seed}: chosen accuracy {restarts[pick]['accuracy']:.3f}, best {best:.3f}",
+                      flush=True)
+        result["tasks"][name] = {"codes": codes, "seeds": rows, "hits": sum(r["hit"] for r in rows),
+                                 "of": len(rows)}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1) + "\n")
 
 
 def table(result: dict[str, Any]) -> str:

@@ -39,7 +39,8 @@ from torch import nn
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.model_selection import description_length, heldout_split
 from digail.algos.optim import adam
-from digail.algos.polish import polish
+from digail.algos.polish import fit_to_codes, polish
+from digail.algos.segment_init import hard_em_segmentation
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_demos
@@ -206,11 +207,11 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
 def auto_epochs(cfg: VAEConfig, n_demos: int) -> int:
     """`cfg.epochs`, or when that is None the epochs that give about `cfg.steps` gradient steps on `n_demos`
     demonstrations (at least one epoch): the work, and the temperature and warm-up schedules, then follow the
-    number of updates, not the size of the data."""
+    number of updates, not the size of the data (0 when `cfg.steps` is 0)."""
     if cfg.epochs is not None:
         return cfg.epochs
     per_epoch = math.ceil(n_demos / cfg.batch_size)
-    return max(1, round(cfg.steps / per_epoch))
+    return 0 if cfg.steps == 0 else max(1, round(cfg.steps / per_epoch))
 
 
 def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, obs_dim: int, seed: int,
@@ -224,6 +225,10 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
                                else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
+    if cfg.init == "em" and cfg.codes > 1:
+        first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed)
+        fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
+        model.train()
     data = pad_demos(trajs, model, dev)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = adam(params, cfg.lr)

@@ -38,10 +38,11 @@ def record_course(name: str, root: str | os.PathLike[str], seed: int = 0, episod
         raise UserError(f"unknown course {name!r}; choose one of {', '.join(COURSES)}.")
     course = COURSES[name]
     dataset_id = course_dataset_id(name, seed)
-    folder = Path(root) / dataset_id
+    root = Path(root).resolve()  # Minari resolves relative roots against its own folders
+    folder = root / dataset_id
     if (folder / "data" / "metadata.json").is_file():
         return folder
-    with _minari_root_at(Path(root)):
+    with _minari_root_at(root):
         env = make_env(COURSE_ENV_ID, **course.kwargs)
         inner = env.unwrapped
         assert isinstance(inner, WaypointCourseEnv)
