@@ -87,3 +87,11 @@ def test_codes_auto_finds_the_true_number_of_sub_tasks(minari_root: Path) -> Non
     model, _, curve = select_codes(ds.trajs, FAST, [2, 3, 4], seed=0, progress=False)
     assert [c["codes"] for c in curve] == [2, 3, 4]
     assert model.codes == 2, curve
+
+
+def test_the_vae_alone_needs_training_steps() -> None:
+    from digail.errors import UserError
+
+    with pytest.raises(UserError, match="--vae.steps"):
+        VAEConfig(init="none")
+    assert VAEConfig(init="none", steps=10).steps == 10

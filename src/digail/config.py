@@ -148,6 +148,9 @@ class VAEConfig:
         if self.epochs is not None:
             _require(isinstance(self.epochs, int) and self.epochs >= 0, "--vae.epochs", "at least 0", self.epochs)
         _require(self.init in ("em", "none"), "--vae.init", "em or none", self.init)
+        if self.init == "none" and self.epochs is None and self.steps == 0:
+            raise UserError("--vae.init none trains nothing without the VAE's own steps; add --vae.steps N (e.g. "
+                            "1000) or --vae.epochs N.")
         _require(_finite(self.tau0) and self.tau0 > 0, "--vae.tau0", "positive", self.tau0)
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",

@@ -155,6 +155,8 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     mean, std = obs.mean(0), obs.std(0) + 1e-6
     xs = _features(trajs, mean, std)
     acts = [np.asarray(t.acts) for t in trajs]
+    a_fit: list[np.ndarray]
+    a_feat: list[np.ndarray]
     if discrete:
         n_act = int(max(int(a.max()) for a in acts)) + 1
         a_feat = [np.eye(n_act)[a.astype(np.int64).reshape(-1)] for a in acts]
