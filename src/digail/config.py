@@ -122,7 +122,7 @@ class VAEConfig:
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
     switching linear sub-task policies (`digail.algos.segment_init`; without it the VAE collapsed onto one code on
-    every benchmark task tried), `none` starts from random weights (the paper)"""
+    both benchmark tasks it was run on), `none` starts from random weights (the paper)"""
     init_steps: int = 3000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0

@@ -2,7 +2,7 @@
 
 Why: the VAE's macro-policy q(c_t | s_t, c_{t-1}) never sees the actions, so early in training its relaxed codes
 carry no information, the decoder learns to ignore them and the KL term pulls q onto the prior (collapse). On the
-segmentation benchmark the plain VAE collapsed on every task tried (accuracy 0.27-0.53, KL 0). This module finds
+segmentation benchmark the plain VAE collapsed on both tasks it was run on (accuracy 0.27-0.53, KL 0). This module finds
 a segmentation from the actions themselves, which q then imitates before the VAE's own training continues.
 
 Model: each code k has a linear sub-task policy on the normalised state, a ~ N(W_k [s, 1], sigma_k^2) per action
