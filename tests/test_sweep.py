@@ -192,6 +192,7 @@ def _kill_worker_mid_training(sweep: Path, run: str, done: threading.Event, kill
         time.sleep(0.1)
 
 
+@pytest.mark.slow  # about 3 minutes of Ray on 2 cores: CI runs it with `make test-slow`
 def test_local_sweep_survives_a_killed_worker_and_reports_a_failure(ray_local, tmp_path, capsys):
     sweep = (tmp_path / "sweep").resolve()
     spec = spec_from_dict(__import__("tomllib").loads(FAULT_SPEC))

@@ -31,8 +31,18 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     """
     from digail.algos.decode import segment_many
 
+    return fit_to_codes(model, trajs, segment_many(model, trajs), cfg.polish_steps, cfg.polish_lr,
+                        q_noise=cfg.q_noise, q_anticipate=cfg.q_anticipate, seed=seed, progress=progress,
+                        minibatch=minibatch)
+
+
+def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_per_demo: Sequence[np.ndarray],
+                 steps: int, lr: float, *, q_noise: float = 0.0, q_anticipate: int = 0, seed: int = 0,
+                 progress: bool = True, minibatch: int = 256, desc: str = "polish") -> HierarchicalPolicy:
+    """Fit pi by maximum likelihood of a_t given (s_t, c_t) and q by cross-entropy of c_t given (s_t, c_{t-1})
+    to the given codes (one (T_i,) array per demonstration), `steps` Adam steps at rate `lr` cosine-decayed to
+    0; in place. What `polish` does with q's own segmentation, and `VAEConfig.init` with a first one."""
     dev = next(model.parameters()).device
-    codes_per_demo = segment_many(model, trajs)
     obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32).reshape(len(t.acts), -1)
                                           for t in trajs]), device=dev)
     acts = torch.as_tensor(np.concatenate([np.asarray(t.acts) for t in trajs]), device=dev)
@@ -41,7 +51,7 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     codes = torch.as_tensor(np.concatenate(codes_per_demo), device=dev)
     # q's targets anticipate each switch; its previous-code inputs stay the segmentation's, so the switching
     # state itself (previous code still the old one) keeps its target too
-    q_codes = torch.as_tensor(np.concatenate([anticipate_switches(c, cfg.q_anticipate) for c in codes_per_demo]),
+    q_codes = torch.as_tensor(np.concatenate([anticipate_switches(c, q_anticipate) for c in codes_per_demo]),
                               device=dev)
     start = model.codes  # index of the zero row: c_{-1}
     prevs = torch.as_tensor(np.concatenate([np.r_[start, c[:-1]] for c in codes_per_demo]), device=dev)
@@ -53,22 +63,22 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
     prev_1h = table[prevs]
     model.train()
     params = [*model.pi.parameters(), *model.q.parameters()]
-    opt = adam(params, cfg.polish_lr)
+    opt = adam(params, lr)
     group = opt.param_groups[0]
-    lrs = cosine_lrs(cfg.polish_lr, cfg.polish_steps)
+    lrs = cosine_lrs(lr, steps)
     # a step is a few dozen small operations, so Python work per step is the cost: the nets run as bare
     # operations (`mlp_apply`) and Adam as direct fused calls (`LeanStep`); the same operations, the same numbers
     pi_layers, q_layers = linear_layers(model.pi.net), linear_layers(model.q.net)
     adam_step = LeanStep(opt, None)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
-    bar = progress_bar(cfg.polish_steps, progress, desc="polish", unit="step")
-    for step in range(cfg.polish_steps):
+    bar = progress_bar(steps, progress, desc=desc, unit="step")
+    for step in range(steps):
         group["lr"] = lrs[step]
         idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
         log_pi, _ = model.pi.head_log_prob_entropy(mlp_apply(pi_layers, pi_in[idx]), acts[idx])
         noisy = obs_n[idx]
-        if cfg.q_noise > 0:
-            noisy = noisy + cfg.q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
+        if q_noise > 0:
+            noisy = noisy + q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
         q_logits = mlp_apply(q_layers, torch.cat([noisy, prev_1h[idx]], -1))  # MacroPolicy.forward
         loss = -log_pi.mean() + F.cross_entropy(q_logits, q_codes[idx])
         for p in params:
@@ -76,7 +86,7 @@ def polish(model: HierarchicalPolicy, trajs: Sequence[Trajectory], cfg: VAEConfi
         loss.backward()
         adam_step()
         if bar is not None and step % 200 == 0:
-            bar.update(min(200, cfg.polish_steps - step))
+            bar.update(min(200, steps - step))
             bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
     if bar is not None:
         bar.close()

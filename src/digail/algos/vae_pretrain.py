@@ -25,6 +25,7 @@ masked.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -35,9 +36,11 @@ import numpy as np
 import torch
 
 from digail.algos.gumbel import gumbel_softmax_chain
+from digail.algos.model_selection import description_length, heldout_split
 from digail.algos.optim import adam
-from digail.algos.polish import polish
+from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
+from digail.algos.segment_init import hard_em_segmentation
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_demos
@@ -140,9 +143,13 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
 def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: ActionSpec | None = None, seed: int = 0,
              device: str | torch.device = "cpu", progress: bool = True, log_dir: str | Path | None = None,
              before_polish: Callable[[HierarchicalPolicy], None] | None = None,
-             ) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
+             restart_log: list[dict[str, float]] | None = None) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
     """Fit the hierarchical policy (q, p, pi and the observation normaliser) to demonstrations as a VAE, then
     `polish` it when `cfg.polish_steps` > 0.
+
+    With `cfg.restarts` = N > 1, N VAEs (seeds `seed` .. `seed` + N - 1) train on the demonstrations less a
+    held-out share (`cfg.heldout_fraction`), and the one whose causal segmentation describes the held-out
+    actions in the fewest nats (`digail.algos.model_selection`) is kept, then polished on all of them.
 
     Args:
         trajs: the demonstrations (unsegmented; oracle labels, if any, are not used).
@@ -155,25 +162,73 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         before_polish: called with the model (in eval mode) once the VAE epochs are done and before the polish
             (also when there is none): the VAE's own segmentation, e.g. to compare smoothing weights, is only
             visible there, since the polish refits q to it. It must not change the model or draw random numbers.
+        restart_log: with `cfg.restarts` > 1, receives one dict per restart (its seed and held-out scores,
+            `digail.algos.model_selection.description_length`); the lowest `dl_per_step` is kept.
 
     Returns:
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
         `losses/recon`, `losses/kl`, `losses/smooth` (per-step averages over the epoch), `vae/tau`, `time/s`.
     """
-    if cfg.codes < 1 or cfg.epochs < 0 or cfg.batch_size < 1:
-        raise UserError("VAE settings need codes >= 1, epochs >= 0 and batch_size >= 1.")
+    if cfg.codes < 1 or cfg.batch_size < 1:
+        raise UserError("VAE settings need codes >= 1 and batch_size >= 1.")
     obs_dim, action_spec = check_demos(trajs, action_spec)
     dev = resolve_device(str(device))
-    seed_everything(seed)
-    gen = torch.Generator(device=dev).manual_seed(seed)
     if cfg.decoder_obs is not None and not 0 <= cfg.decoder_obs[0] < cfg.decoder_obs[1] <= obs_dim:
         raise UserError(f"decoder_obs {cfg.decoder_obs} is not a feature range within the {obs_dim} observation "
                         "features; give (start, stop) with 0 <= start < stop <= obs size.")
+    if cfg.restarts > 1:
+        # every restart trains on the same demonstrations and is scored on the same held-out ones
+        train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
+        fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
+        best: tuple[float, HierarchicalPolicy, dict[str, list[float]]] | None = None
+        for r in range(cfg.restarts):
+            model, history = _fit(fit_on, cfg, action_spec, obs_dim, seed + r, dev, progress)
+            score = description_length(model, held)
+            if restart_log is not None:
+                restart_log.append({"seed": seed + r, **score})
+            if best is None or score["dl_per_step"] < best[0]:
+                best = (score["dl_per_step"], model, history)
+        assert best is not None
+        _, model, history = best
+    else:
+        model, history = _fit(trajs, cfg, action_spec, obs_dim, seed, dev, progress)
+    if before_polish is not None:
+        model.eval()
+        before_polish(model)
+        model.train()
+    if cfg.polish_steps > 0:
+        polish(model, trajs, cfg, seed=seed, progress=progress)
+    if log_dir is not None:
+        write_losses_csv(Path(log_dir) / "losses.csv", history)
+        write_tensorboard(Path(log_dir), history)
+    return model.eval(), history
+
+
+def auto_epochs(cfg: VAEConfig, n_demos: int) -> int:
+    """`cfg.epochs`, or when that is None the epochs that give about `cfg.steps` gradient steps on `n_demos`
+    demonstrations (at least one epoch): the work, and the temperature and warm-up schedules, then follow the
+    number of updates, not the size of the data (0 when `cfg.steps` is 0)."""
+    if cfg.epochs is not None:
+        return cfg.epochs
+    per_epoch = math.ceil(n_demos / cfg.batch_size)
+    return 0 if cfg.steps == 0 else max(1, round(cfg.steps / per_epoch))
+
+
+def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, obs_dim: int, seed: int,
+         dev: torch.device, progress: bool) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
+    """One VAE training from the seed `seed` (`pretrain` without the restarts and the polish)."""
+    seed_everything(seed)
+    gen = torch.Generator(device=dev).manual_seed(seed)
+    epochs = auto_epochs(cfg, len(trajs))
     model = HierarchicalPolicy(obs_dim, cfg.codes, action_spec, cfg.hidden, cfg.learn_prior,
                                decoder_obs=None if cfg.decoder_obs is None
                                else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
+    if cfg.init == "em" and cfg.codes > 1:
+        first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed)
+        fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
+        model.train()
     data = pad_demos(trajs, model, dev)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = adam(params, cfg.lr)
@@ -184,14 +239,14 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
     start = time.perf_counter()
-    bar = progress_bar(cfg.epochs, progress)
-    for epoch in range(cfg.epochs):
-        tau = cfg.tau(epoch)
+    bar = progress_bar(epochs, progress)
+    for epoch in range(epochs):
+        tau = cfg.tau(epoch, epochs)
         order = torch.randperm(n, generator=torch.Generator().manual_seed(seed * 100_003 + epoch))
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         for b in range(0, n, cfg.batch_size):
             batch = data[order[b:b + cfg.batch_size].to(dev)]
-            loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch))
+            loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch, epochs))
             for p in params:
                 p.grad = None
             loss.backward()
@@ -215,15 +270,6 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
                             smooth=f"{sums['losses/smooth']:.3f}", tau=f"{tau:.2f}", refresh=False)
     if bar is not None:
         bar.close()
-    if before_polish is not None:
-        model.eval()
-        before_polish(model)
-        model.train()
-    if cfg.polish_steps > 0:
-        polish(model, trajs, cfg, seed=seed, progress=progress)
-    if log_dir is not None:
-        write_losses_csv(Path(log_dir) / "losses.csv", history)
-        write_tensorboard(Path(log_dir), history)
     return model.eval(), history
 
 
@@ -247,3 +293,36 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
         for i, epoch in enumerate(history["epoch"]):
             for key in (*LOSS_KEYS, "vae/tau"):
                 writer.add_scalar(key, history[key][i], int(epoch))
+
+
+def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], *,
+                 action_spec: ActionSpec | None = None, seed: int = 0, device: str | torch.device = "cpu",
+                 progress: bool = True, log_dir: str | Path | None = None
+                 ) -> tuple[HierarchicalPolicy, dict[str, list[float]], list[dict[str, float]]]:
+    """Choose the number of codes K without labels: one VAE per K in `candidates` on the demonstrations less a
+    held-out share, scored by the description length of the held-out actions (`model_selection`); the lowest
+    wins and is polished on all demonstrations.
+
+    Returns:
+        `(model, history, curve)`: the chosen model, its training history and one dict per candidate K
+        (`codes` and the held-out scores of `description_length`).
+    """
+    train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
+    fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
+    curve: list[dict[str, float]] = []
+    best: tuple[float, HierarchicalPolicy, dict[str, list[float]]] | None = None
+    for k in candidates:
+        model, history = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0),
+                                  action_spec=action_spec, seed=seed, device=device, progress=progress)
+        score = description_length(model, held)
+        curve.append({"codes": k, **score})
+        if best is None or score["dl_per_step"] < best[0]:
+            best = (score["dl_per_step"], model, history)
+    assert best is not None
+    _, model, history = best
+    if cfg.polish_steps > 0:
+        polish(model, trajs, cfg, seed=seed, progress=progress)
+    if log_dir is not None:
+        write_losses_csv(Path(log_dir) / "losses.csv", history)
+        write_tensorboard(Path(log_dir), history)
+    return model.eval(), history, curve

@@ -7,6 +7,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from digail.config import VAEConfig, check_at_least, check_seed, get_preset
 from digail.errors import UserError
@@ -18,8 +19,12 @@ class PretrainArgs:
 
     demos: str
     """Minari dataset folder or id"""
-    codes: int | None = None
-    """number of sub-task codes K (default: the preset's)"""
+    codes: int | Literal["auto"] | None = None
+    """number of sub-task codes K (default: the preset's); `auto` tries K = 2 .. `max_codes` and keeps the one
+    whose segmentation describes held-out demonstrations in the fewest nats (no labels; the curve is written to
+    config.json as `k_selection`)"""
+    max_codes: int = 8
+    """largest K that `--codes auto` tries"""
     preset: str | None = None
     """settings preset (default: the one for the dataset's env)"""
     out: Path | None = None
@@ -35,7 +40,9 @@ class PretrainArgs:
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        check_at_least(self.codes, "--codes")
+        if self.codes != "auto":
+            check_at_least(self.codes, "--codes")
+        check_at_least(self.max_codes, "--max-codes", 2)
 
 
 def defaults(argv: Sequence[str]) -> PretrainArgs:
@@ -53,7 +60,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     settings with `demos`, `env_id`, `seed`), `losses.csv`, and the segmentation of the training demonstrations
     (`codes.npz`, `segmentation.json`, `figures/segmentation.png`).
     """
-    from digail.algos.vae_pretrain import pretrain
+    from digail.algos.vae_pretrain import auto_epochs, pretrain, select_codes
     from digail.checkpoint import run_config, save_model, write_run_config
     from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
@@ -69,7 +76,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     cfg = args.vae
     if args.preset is not None:
         get_preset(args.preset)  # reports an unknown preset name
-    if args.codes is not None:
+    if isinstance(args.codes, int):
         if args.codes < 1:
             raise UserError(f"--codes must be at least 1, got {args.codes}.")
         cfg = dataclasses.replace(cfg, codes=args.codes)
@@ -78,12 +85,31 @@ def pretrain_command(args: PretrainArgs) -> Path:
     config = run_config(kind="vae", env_id=dataset.env_id, demos=args.demos, seed=args.seed, preset=args.preset,
                         device=args.device, vae=cfg, args=args, dataset_id=dataset.dataset_id)
     demos_ref = config["demos"]
-    print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} (K = {cfg.codes}, "
-          f"{cfg.epochs} epochs)")
+    candidates = list(range(2, args.max_codes + 1)) if args.codes == "auto" else None
+    restarts = f", best of {cfg.restarts} restarts" if cfg.restarts > 1 else ""
+    print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} "
+          f"(K = {'auto: ' + ', '.join(map(str, candidates)) if candidates else cfg.codes}, "
+          f"{auto_epochs(cfg, len(dataset.trajs))} epochs{restarts})")
     with atomic_dir(run, force=args.force) as tmp:
         started = time.perf_counter()
-        model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
-                            log_dir=tmp)
+        restart_log: list[dict[str, float]] = []
+        if candidates:
+            model, _, curve = select_codes(dataset.trajs, cfg, candidates, action_spec=action_spec, seed=args.seed,
+                                           device=args.device, log_dir=tmp)
+            config["k_selection"] = curve
+            config["vae"]["codes"] = model.codes
+            print("K selection (held-out description length, nats per step; lower is better): "
+                  + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" for c in curve) + f" -> K = {model.codes}")
+        else:
+            model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
+                                log_dir=tmp, restart_log=restart_log)
+        if restart_log:
+            config["restarts"] = restart_log
+            chosen = min(restart_log, key=lambda r: r["dl_per_step"])
+            print("restarts (held-out description length, nats per step): "
+                  + ", ".join(f"seed {int(r['seed'])}: {r['dl_per_step']:.4f}" for r in restart_log)
+                  + f" -> seed {int(chosen['seed'])}")
+        config["vae"]["epochs_run"] = auto_epochs(cfg, len(dataset.trajs))
         config["train_time_s"] = round(time.perf_counter() - started, 2)
         save_model(tmp / "model.pt", model, kind="vae", config=config, env_id=dataset.env_id)
         write_run_config(tmp, config)

@@ -148,6 +148,9 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
             scripted_expert="digail.experts.fetch:fetch_expert", name="Fetch pick-and-place",
             paper_return=(-11.74, 5.87)),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
+    # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset
+    EnvSpec("digail/WaypointCourse-v0", "default", 20, "digail.envs.waypoints:WaypointCourseEnv",
+            auto_backend="sync"),
     # SAC as in the RL-Zoo's entry (learning rate 1e-3, SB3's other defaults); the replay buffer holds the
     # whole budget; 64x64 nets keep one gradient step per env step affordable on a CPU
     EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync", paper_return=(-125.39, 103.75), rl_expert=ExpertSpec(

@@ -1,0 +1,215 @@
+"""Segmentation benchmark (issue 14): `digail pretrain` + `digail segment` with the defaults, K given, on data no
+setting was tuned for.
+
+    python benchmarks/segmentation.py          # every task, seeds 0 1 2 -> benchmarks/results/segmentation.json
+    python benchmarks/segmentation.py --tasks shuttle square --seeds 0 --out /tmp/seg.json
+    python benchmarks/segmentation.py --set vae.smoothing-weight=0.3 ...   (extra flags for every `digail pretrain`)
+
+Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once per seed 0 with Minari's API by
+`digail.data.courses.record_course` into `--data`, default runs/segbench/datasets), and three shipped data sets:
+Circle-World (K = 2), Four Rooms (K = 4, label = the room-to-room sub-task) and the Fetch phases (K = 4: reach,
+grasp, carry, place). The shipped ones run with `--preset default`, the settings an env without a preset gets,
+so every task sees the same defaults. Each (task, seed) runs exactly what a user types:
+
+    digail pretrain --demos D --codes K --seed S --out R/<task>_sS [--preset default]
+    digail segment R/<task>_sS
+
+(in this process, through `digail.cli.main`, so the imports are paid once). The table holds per seed the
+accuracy, NMI, boundary F1, switches per episode and the truth's, the pre-training time, and their medians.
+
+Two measurements of the label-free choices (`digail.algos.model_selection`), written beside the table:
+
+    python benchmarks/segmentation.py --measure restarts --restarts 3 --tasks ... -> segmentation_restarts.json
+        per (task, seed): N restarts on the same split as `--vae.restarts N`, each one's held-out description
+        length and accuracy on all demonstrations; a hit when the lowest description length is also the most
+        accurate (ties count)
+    python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
+        per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from digail.cli import main as digail
+from digail.data.courses import record_course
+from digail.envs.waypoints import COURSES
+
+HERE = Path(__file__).resolve().parent
+
+SHIPPED: dict[str, dict[str, Any]] = {
+    "circle-world": dict(demos="digail/circleworld/expert-v0", codes=2,
+                         description="Circle-World: clockwise then counter-clockwise (shipped, 12 000 steps)"),
+    "four-rooms": dict(demos="digail/fourrooms/expert-v0", codes=4,
+                       description="Four Rooms: the next corridor (shipped)"),
+    "fetch": dict(demos="digail/fetchpickandplace/expert-v0", codes=4,
+                  description="FetchPickAndPlace phases reach / grasp / carry / place (shipped, 25 000 steps)"),
+}
+
+KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode", "time_s")
+
+
+def task_names() -> list[str]:
+    return [*COURSES, *SHIPPED]
+
+
+def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
+    """(demos, K, shipped, description) of task `name`, recording a course's data set first if needed."""
+    if name in COURSES:
+        folder = record_course(name, data_root, seed=0)
+        return str(folder), COURSES[name].codes, False, COURSES[name].description
+    spec = SHIPPED[name]
+    return spec["demos"], spec["codes"], True, spec["description"]
+
+
+def run_one(name: str, seed: int, runs: Path, data_root: Path, extra: list[str]) -> dict[str, Any]:
+    demos, codes, shipped, _ = task_data(name, data_root)
+    run = runs / f"{name}_s{seed}"
+    pretrain = ["pretrain", "--demos", demos, "--codes", str(codes), "--seed", str(seed), "--out", str(run),
+                "--force", *(["--preset", "default"] if shipped else []), *extra]
+    print("$ digail " + shlex.join(pretrain), flush=True)
+    t0 = time.perf_counter()
+    if digail(pretrain) != 0:
+        raise SystemExit(f"digail pretrain failed on {name} seed {seed}")
+    elapsed = time.perf_counter() - t0
+    if digail(["segment", str(run)]) != 0:
+        raise SystemExit(f"digail segment failed on {name} seed {seed}")
+    seg = json.loads((run / "segmentation.json").read_text())
+    config = json.loads((run / "config.json").read_text())
+    row = {k: seg[k] for k in KEYS if k in seg}
+    row.update(time_s=round(elapsed, 1), seed=seed, steps=seg["steps"], episodes=seg["episodes"],
+               epochs=config["vae"].get("epochs_run", config["vae"]["epochs"]),
+               command=f"digail {shlex.join(pretrain)}")
+    if "restarts" in config:
+        row["restarts"] = config["restarts"]
+    return row
+
+
+def summarize(rows: list[dict[str, Any]]) -> dict[str, float]:
+    return {k: float(np.median([r[k] for r in rows])) for k in KEYS if all(k in r for r in rows)}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=task_names(), choices=task_names())
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "segmentation.json")
+    parser.add_argument("--runs", type=Path, default=Path("runs/segbench"))
+    parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
+    parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
+                        help="extra `digail pretrain` flags for every task, e.g. vae.smoothing-weight=0.3")
+    parser.add_argument("--measure", choices=["table", "restarts", "codes"], default="table")
+    parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
+    args = parser.parse_args(argv)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    extra = [part for item in args.set for part in (f"--{item.split('=', 1)[0]}", *item.split("=", 1)[1].split())]
+    if args.measure != "table":
+        out = args.out.with_name(f"segmentation_{args.measure}.json") if args.out.name == "segmentation.json" \
+            else args.out
+        measure(args, out)
+        return
+    result: dict[str, Any] = {"command": "python benchmarks/segmentation.py " + shlex.join(sys.argv[1:] if argv is None
+                                                                                           else argv),
+                              "settings": extra, "tasks": {}}
+    if args.out.exists():  # keep tasks of an earlier call that this one does not run
+        old = json.loads(args.out.read_text())
+        if old.get("settings") == extra:
+            result["tasks"] = old.get("tasks", {})
+    for name in args.tasks:
+        rows = [run_one(name, s, args.runs, args.data, extra) for s in args.seeds]
+        _, codes, _, description = task_data(name, args.data)
+        result["tasks"][name] = {"description": description, "codes": codes, "seeds": rows,
+                                 "median": summarize(rows)}
+        med = result["tasks"][name]["median"]
+        print(f"== {name}: accuracy {med['accuracy']:.3f}  NMI {med['nmi']:.3f}  F1 {med['boundary_f1']:.3f}  "
+              f"switches {med['switches_per_episode']:.2f} (truth {med['true_switches_per_episode']:.2f})  "
+              f"{med['time_s']:.0f} s", flush=True)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(table(result))
+
+
+def measure(args: argparse.Namespace, out: Path) -> None:
+    """`--measure restarts` or `--measure codes` (module docstring)."""
+    import dataclasses
+
+    from digail.algos.decode import segment_many
+    from digail.algos.model_selection import description_length, heldout_split
+    from digail.algos.vae_pretrain import pretrain
+    from digail.config import VAEConfig
+    from digail.data.minari_io import load_dataset
+    from digail.eval.segmentation import segmentation_metrics
+    from digail.nets.policy import ActionSpec
+    from digail.utils import set_torch_threads
+
+    set_torch_threads(1)
+    argv = sys.argv[1:]
+    result: dict[str, Any] = {"command": "python benchmarks/segmentation.py " + shlex.join(argv), "tasks": {}}
+    if out.exists():
+        result["tasks"] = json.loads(out.read_text()).get("tasks", {})
+    for name in args.tasks:
+        demos, codes, shipped, _ = task_data(name, args.data)
+        rows = []
+        for seed in args.seeds:
+            if args.measure == "codes":
+                run = args.runs / f"{name}_auto_s{seed}"
+                cmd = ["pretrain", "--demos", demos, "--codes", "auto", "--seed", str(seed), "--out", str(run),
+                       "--force", *(["--preset", "default"] if shipped else [])]
+                print("$ digail " + shlex.join(cmd), flush=True)
+                t0 = time.perf_counter()
+                if digail(cmd) != 0:
+                    raise SystemExit(f"digail pretrain --codes auto failed on {name} seed {seed}")
+                config = json.loads((run / "config.json").read_text())
+                chosen = int(config["vae"]["codes"])
+                rows.append({"seed": seed, "true_codes": codes, "chosen": chosen, "hit": chosen == codes,
+                             "curve": config["k_selection"], "time_s": round(time.perf_counter() - t0, 1)})
+                print(f"== {name} seed {seed}: K = {chosen} (true {codes})", flush=True)
+            else:
+                ds = load_dataset(demos)
+                cfg = dataclasses.replace(VAEConfig(), codes=codes)
+                train, held = heldout_split(len(ds.trajs), cfg.heldout_fraction, seed)
+                fit_on, held_out = [ds.trajs[i] for i in train], [ds.trajs[i] for i in held]
+                labels = [t.subtasks for t in ds.trajs]
+                restarts = []
+                for r in range(args.restarts):
+                    model, _ = pretrain(fit_on, cfg, action_spec=ActionSpec.from_space(ds.action_space),
+                                        seed=seed + r, progress=False)
+                    m = segmentation_metrics(segment_many(model, ds.trajs), labels)
+                    restarts.append({"seed": seed + r, **description_length(model, held_out),
+                                     "accuracy": m["accuracy"], "switches_per_episode": m["switches_per_episode"]})
+                pick = min(range(len(restarts)), key=lambda i: restarts[i]["dl_per_step"])
+                best = max(r["accuracy"] for r in restarts)
+                rows.append({"seed": seed, "restarts": restarts, "chosen": restarts[pick]["seed"],
+                             "chosen_accuracy": restarts[pick]["accuracy"], "best_accuracy": best,
+                             "hit": restarts[pick]["accuracy"] >= best - 1e-9})
+                print(f"== {name} seed {seed}: chosen accuracy {restarts[pick]['accuracy']:.3f}, best {best:.3f}",
+                      flush=True)
+        result["tasks"][name] = {"codes": codes, "seeds": rows, "hits": sum(r["hit"] for r in rows),
+                                 "of": len(rows)}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1) + "\n")
+
+
+def table(result: dict[str, Any]) -> str:
+    lines = ["| task | K | accuracy | NMI | boundary F1 | switches / episode (truth) | time |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, task in result["tasks"].items():
+        m = task["median"]
+        accs = " / ".join(f"{r['accuracy']:.2f}" for r in task["seeds"])
+        lines.append(f"| {name} | {task['codes']} | {m['accuracy']:.3f} ({accs}) | {m['nmi']:.2f} | "
+                     f"{m['boundary_f1']:.2f} | {m['switches_per_episode']:.2f} ({m['true_switches_per_episode']:.2f})"
+                     f" | {m['time_s']:.0f} s |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,199 @@
+"""A first segmentation for the VAE to start from: hard EM on switching linear sub-task policies (`VAEConfig.init`).
+
+Why: the VAE's macro-policy q(c_t | s_t, c_{t-1}) never sees the actions, so early in training its relaxed codes
+carry no information, the decoder learns to ignore them and the KL term pulls q onto the prior (collapse). On the
+segmentation benchmark the plain VAE collapsed on both tasks it was run on (accuracy 0.27-0.53, KL 0). This module finds
+a segmentation from the actions themselves, which q then imitates before the VAE's own training continues.
+
+Model: each code k has a linear sub-task policy on the normalised state, a ~ N(W_k [s, 1], sigma_k^2) per action
+dimension (continuous; weighted least squares) or softmax(W_k [s, 1]) (discrete; a few Adam steps). A
+segmentation costs the actions' negative log-likelihood under its codes plus, per switch, the nats needed to say
+where it happens and to which code, log T + log(K - 1) (T: the mean episode length): the description length of
+`digail.algos.model_selection`, with no free parameter. Hard EM alternates the exact minimiser over
+segmentations (Viterbi) and the policies' refit, from k-means clusters of (action, state) pairs.
+
+Linear sub-task policies are the point: a network sees enough of the state to fit the whole demonstration with
+one code, and then no segmentation explains the actions better than none; a linear policy per code cannot, so
+the codes must carry what differs between sub-tasks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from digail.data.trajectory import Trajectory
+
+
+def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
+    out = []
+    for t in trajs:
+        obs = np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1)
+        out.append(np.c_[(obs - mean) / std, np.ones(len(t))])
+    return out
+
+
+def _kmeans(z: np.ndarray, k: int, rng: np.random.Generator, iters: int = 30) -> np.ndarray:
+    """Labels of k-means (k-means++ start) on the rows of `z`."""
+    centres = [z[rng.integers(len(z))]]
+    for _ in range(1, k):
+        d2 = np.min([((z - c) ** 2).sum(1) for c in centres], 0)
+        p = d2 / d2.sum() if d2.sum() > 0 else None
+        centres.append(z[rng.choice(len(z), p=p)])
+    c = np.array(centres)
+    labels = np.zeros(len(z), np.int64)
+    for _ in range(iters):
+        labels = ((z[:, None, :] - c[None]) ** 2).sum(-1).argmin(1)
+        for j in range(k):
+            if np.any(labels == j):
+                c[j] = z[labels == j].mean(0)
+    return labels
+
+
+def _viterbi(loglik: np.ndarray, lengths: np.ndarray, penalty: float) -> list[np.ndarray]:
+    """Per episode, the codes minimising -sum_t loglik[t, c_t] + penalty * (number of switches).
+
+    `loglik` is (B, T_max, K), zero beyond each episode's length (there every code scores alike, so the best
+    code at the last real step stays the best to the end and the backtrack passes through unchanged). All
+    episodes at once, one loop over time.
+    """
+    B, T, K = loglik.shape
+    rows = np.arange(B)
+    score = loglik[:, 0].copy()
+    back = np.zeros((B, T, K), np.int64)
+    for t in range(1, T):
+        best_prev = score.argmax(1)
+        switch = score[rows, best_prev] - penalty
+        stay = score >= switch[:, None]
+        back[:, t] = np.where(stay, np.arange(K)[None], best_prev[:, None])
+        score = np.where(stay, score, switch[:, None]) + loglik[:, t]
+    path = np.empty((B, T), np.int64)
+    path[:, -1] = score.argmax(1)
+    for t in range(T - 1, 0, -1):
+        path[:, t - 1] = back[rows, t, path[:, t]]
+    return [path[i, :n].copy() for i, n in enumerate(lengths)]
+
+
+class _LinearPolicies:
+    """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
+
+    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3) -> None:
+        self.k, self.discrete = k, discrete
+        # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
+        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.w = np.zeros((k, dim_x, act_dim))
+        self.log_var = np.zeros((k, act_dim))
+
+    def fit(self, x: np.ndarray, a: np.ndarray, codes: np.ndarray) -> None:
+        for j in range(self.k):
+            sel = codes == j
+            if sel.sum() == 0:
+                continue  # an unused code keeps its last policy
+            xj, aj = x[sel], a[sel]
+            if self.discrete:
+                self.w[j] = _softmax_regression(xj, aj, self.w.shape[2], self.w[j], self.ridge)
+            else:
+                gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
+                self.w[j] = np.linalg.solve(gram, xj.T @ aj)
+                resid = aj - xj @ self.w[j]
+                self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
+
+    def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """(T, K) log-likelihood of each step's action under each code's policy."""
+        out = np.einsum("td,kda->tka", x, self.w)
+        if self.discrete:
+            out = out - out.max(-1, keepdims=True)
+            logp = out - np.log(np.exp(out).sum(-1, keepdims=True))
+            return np.take_along_axis(logp, a.astype(np.int64)[:, None, None].repeat(self.k, 1), 2)[..., 0]
+        var = np.exp(self.log_var)[None]
+        return -0.5 * (((a[:, None, :] - out) ** 2) / var + self.log_var[None] + math.log(2 * math.pi)).sum(-1)
+
+
+def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ridge: np.ndarray,
+                        steps: int = 60) -> np.ndarray:
+    xt = torch.as_tensor(x, dtype=torch.float64)
+    at = torch.as_tensor(a, dtype=torch.int64).reshape(-1)
+    w = torch.tensor(w0, dtype=torch.float64, requires_grad=True)
+    ridge_t = torch.as_tensor(ridge, dtype=torch.float64)
+    opt = torch.optim.LBFGS([w], max_iter=steps, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = torch.nn.functional.cross_entropy(xt @ w, at) + (ridge_t[:, None] * w ** 2).sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    return w.detach().numpy()
+
+
+def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
+                         rounds: int = 30, starts: int = 4, ridge: float = 1.0) -> list[np.ndarray]:
+    """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
+    docstring): from each of `starts` k-means starts, up to `rounds` of Viterbi and refit (stopping when nothing
+    changes); the segmentation with the shortest description length wins."""
+    rng = np.random.default_rng(seed)
+    best: tuple[float, list[np.ndarray]] | None = None
+    for start in range(starts):
+        cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, chunks=start == 0, ridge=ridge)
+        if best is None or cost < best[0]:
+            best = (cost, seg)
+    assert best is not None
+    return best[1]
+
+
+def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
+             rounds: int, chunks: bool = False, ridge: float = 1e-3) -> tuple[float, list[np.ndarray]]:
+    """One hard-EM run: (description length in nats, codes per demonstration). It starts from k-means clusters
+    of (action, state) pairs, or with `chunks` from every demonstration cut into K equal consecutive pieces
+    (codes 0, 1, ..., K - 1 in time: near the truth when sub-tasks come in one order, where k-means of the
+    actions can settle on pieces of a curve instead)."""
+    obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
+    mean, std = obs.mean(0), obs.std(0) + 1e-6
+    xs = _features(trajs, mean, std)
+    acts = [np.asarray(t.acts) for t in trajs]
+    a_fit: list[np.ndarray]
+    a_feat: list[np.ndarray]
+    if discrete:
+        n_act = int(max(int(a.max()) for a in acts)) + 1
+        a_feat = [np.eye(n_act)[a.astype(np.int64).reshape(-1)] for a in acts]
+        a_fit = [a.astype(np.int64).reshape(-1) for a in acts]
+    else:
+        a_fit = [np.asarray(a, np.float64).reshape(len(a), -1) for a in acts]
+        flat = np.concatenate(a_fit)
+        a_feat = [(a - flat.mean(0)) / (flat.std(0) + 1e-6) for a in a_fit]
+        n_act = flat.shape[1]
+    x_all, a_all = np.concatenate(xs), np.concatenate(a_fit)
+    # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
+    z = np.concatenate([np.c_[af, 0.5 * x[:, :-1]] for af, x in zip(a_feat, xs, strict=True)])
+    bounds = np.cumsum([0, *[len(t) for t in trajs]])
+    if chunks:
+        seg = [np.minimum(np.arange(len(t)) * codes // len(t), codes - 1) for t in trajs]
+    else:
+        labels = _kmeans(z, codes, rng)
+        seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
+    policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge)
+    penalty = math.log(float(np.mean([len(t) for t in trajs]))) + math.log(max(codes - 1, 1))
+    lengths = np.array([len(t) for t in trajs])
+
+    def padded_loglik() -> np.ndarray:
+        flat = policies.loglik(x_all, a_all)
+        out = np.zeros((len(trajs), lengths.max(), codes))
+        for i in range(len(trajs)):
+            out[i, :lengths[i]] = flat[bounds[i]:bounds[i + 1]]
+        return out
+
+    for _ in range(rounds):
+        policies.fit(x_all, a_all, np.concatenate(seg))
+        new = _viterbi(padded_loglik(), lengths, penalty)
+        if all(np.array_equal(n, o) for n, o in zip(new, seg, strict=True)):
+            break
+        seg = new
+    policies.fit(x_all, a_all, np.concatenate(seg))
+    flat_codes = np.concatenate(seg)
+    cost = -float(policies.loglik(x_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
+    cost += penalty * sum(int(np.count_nonzero(np.diff(c))) for c in seg)
+    return cost, seg
