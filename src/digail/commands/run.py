@@ -91,7 +91,7 @@ def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
 def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
-    from digail.algos.vae_pretrain import pretrain
+    from digail.algos.vae_pretrain import auto_epochs, pretrain
     from digail.checkpoint import load_model, path_ref, run_config, save_model, write_run_config
     from digail.commands.common import new_run_dir
     from digail.commands.report import make_figures
@@ -150,6 +150,7 @@ def run_command(args: RunArgs) -> Path:
                                                                              demos_ref))
         vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                              device=args.device, vae=preset.vae, pipeline=True)
+        vae_cfg["vae"]["epochs_run"] = auto_epochs(preset.vae, len(trajs))  # as `digail pretrain` records it
         write_run_config(vae_dir, vae_cfg)
         save_model(vae_dir / "model.pt", vae_model, kind="vae", config=vae_cfg, env_id=args.env)  # the mark
         timings["pretrain_s"] = time.perf_counter() - t0
