@@ -366,12 +366,13 @@ def figures() -> dict[str, Any]:
         gen = play_episodes(model, spec["env"], ROLLOUTS, 10_000, render=False)
         gen_obs, gen_codes = [np.asarray(e.obs)[:len(e.codes)] for e in gen], [np.asarray(e.codes) for e in gen]
         rec["run"] = str(run.relative_to(HERE.parent))
-        if env in ("hopper", "walker2d"):
+        # the phase label's standardisation comes from the demonstrations, shared by every score below
+        stats = phase_stats(demo_obs, spec["env"]) if env in ("hopper", "walker2d") else None
+        if stats is not None:
             rec["figures"].append(str(F.code_strips(
                 {f"demonstrations (codes from q), {spec['env']}": demo_codes,
                  "Directed-Info GAIL closed-loop rollouts": gen_codes},
                 FIGURES / f"{env}_codes_time.png").relative_to(HERE.parent)))
-            stats = phase_stats(demo_obs, spec["env"])
             rec["code_gait"] = {
                 "demonstrations": code_phase_scores(demo_codes, [gait_phase(o, spec["env"], stats) for o in demo_obs]),
                 "rollouts": code_phase_scores(gen_codes, [gait_phase(o, spec["env"], stats) for o in gen_obs]),
@@ -386,7 +387,7 @@ def figures() -> dict[str, Any]:
             rec["figures"].append(str(F.state_pca(
                 demo_obs, k8_codes, FIGURES / "hopper_k8_pca.png",
                 title="Hopper-v5 expert states (PCA), coloured by the K = 8 VAE's code").relative_to(HERE.parent)))
-            stats = phase_stats(demo_obs, spec["env"])
+            assert stats is not None
             rec["code_gait_k8_demonstrations"] = code_phase_scores(
                 k8_codes, [gait_phase(o, spec["env"], stats) for o in demo_obs])
         out[env] = rec
