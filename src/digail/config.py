@@ -357,6 +357,13 @@ PRESETS: dict[str, Preset] = {
         # it by KL 9-21 and Directed-Info GAIL fell from -97 to -794 over 300 episodes (docs/experiments.md)
         dict(batch_size=1024, minibatch_size=256, target_kl=0.02),
     ),
+    "invertedpendulum": _preset(
+        dict(**VAE_BEFORE_ISSUE_14, codes=4, epochs=1000, batch_size=16),
+        dict(iterations=2000, bonus_weight=0.01),
+        # the pendulum's, and learning rates decayed to 0: with a constant rate the deterministic policy kept
+        # dropping from 1000 to 150-850 between evaluations and ended wherever the last update left it
+        dict(batch_size=1024, minibatch_size=256, target_kl=0.02, anneal_lr=True),
+    ),
     "hopper": _preset(
         dict(**VAE_BEFORE_ISSUE_14, codes=4, epochs=2000, batch_size=32),
         dict(iterations=5000, bonus_weight=0.01),
