@@ -5,18 +5,19 @@ by maximum likelihood and q by cross-entropy on jittered states (`VAEConfig.poli
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+from torch import Tensor
 
 from digail.algos.optim import adam
 from digail.algos.ppo import LeanStep
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
-from digail.nets.mlp import linear_layers, mlp_apply
+from digail.nets.mlp import linear_layers
 from digail.nets.vae import HierarchicalPolicy
 from digail.utils import progress_bar
 
@@ -66,24 +67,30 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     opt = adam(params, lr)
     group = opt.param_groups[0]
     lrs = cosine_lrs(lr, steps)
-    # a step is a few dozen small operations, so Python work per step is the cost: the nets run as bare
-    # operations (`mlp_apply`) and Adam as direct fused calls (`LeanStep`); the same operations, the same numbers
+    # a step is a few dozen small operations, so Python and autograd work per step is the cost: the loss and its
+    # gradient run as one scripted function (`_step_grads`: autograd's own backward kernels, so the same numbers)
+    # and Adam as direct fused calls (`LeanStep`)
     pi_layers, q_layers = linear_layers(model.pi.net), linear_layers(model.q.net)
+    pi_w, pi_b = [w for w, _ in pi_layers], [b for _, b in pi_layers]
+    q_w, q_b = [w for w, _ in q_layers], [b for _, b in q_layers]
+    discrete = model.action.discrete
+    log_std = model.q.net[0].weight if discrete else model.pi.log_std  # unused when discrete
+    targets = [*pi_w, *pi_b, *([] if discrete else [log_std]), *q_w, *q_b]
+    step_grads = _scripted_step()
     adam_step = LeanStep(opt, None)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
     bar = progress_bar(steps, progress, desc=desc, unit="step")
     for step in range(steps):
         group["lr"] = lrs[step]
         idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
-        log_pi, _ = model.pi.head_log_prob_entropy(mlp_apply(pi_layers, pi_in[idx]), acts[idx])
         noisy = obs_n[idx]
         if q_noise > 0:
             noisy = noisy + q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
-        q_logits = mlp_apply(q_layers, torch.cat([noisy, prev_1h[idx]], -1))  # MacroPolicy.forward
-        loss = -log_pi.mean() + F.cross_entropy(q_logits, q_codes[idx])
-        for p in params:
-            p.grad = None
-        loss.backward()
+        with torch.no_grad():
+            grads, loss = step_grads(pi_in[idx], acts[idx], torch.cat([noisy, prev_1h[idx]], -1), q_codes[idx],
+                                     pi_w, pi_b, log_std, q_w, q_b, discrete)
+        for p, g in zip(targets, grads, strict=True):
+            p.grad = g
         adam_step()
         if bar is not None and step % 200 == 0:
             bar.update(min(200, steps - step))
@@ -94,6 +101,74 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
         raise UserError("the VAE polish diverged (non-finite weights); lower --vae.polish-lr or set "
                         "--vae.polish-steps 0.")
     return model.eval()
+
+
+def _linear_backward(g: Tensor, x: Tensor, w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Autograd's backward of `F.linear(x, w, b)` for 2-D x: the weight's (g^T x, its orientation for a
+    transposed weight), the bias's and the input's gradients."""
+    return g.t().mm(x), g.sum(0), g.mm(w)
+
+
+def _step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: list[Tensor], pi_b: list[Tensor],
+                log_std: Tensor, q_w: list[Tensor], q_b: list[Tensor], discrete: bool) -> tuple[list[Tensor], Tensor]:
+    """The gradients of the polish loss -mean log pi(a | s, c) + CE(q(s~, c_prev), c) for one minibatch, as
+    `loss.backward()` computes them (the same kernels on the same numbers, so the same bits): pi's weights and
+    biases, its log-std (continuous), then q's weights and biases; and the loss."""
+    mb = pi_x.shape[0]
+    losses: list[Tensor] = []
+    grads: list[Tensor] = []
+    for net in range(2):
+        ws, bs = (pi_w, pi_b) if net == 0 else (q_w, q_b)
+        xs = [pi_x if net == 0 else q_x]
+        for i in range(len(ws) - 1):
+            xs.append(torch.relu(F.linear(xs[-1], ws[i], bs[i])))
+        out = F.linear(xs[-1], ws[-1], bs[-1])
+        if net == 0 and not discrete:
+            ls = log_std.clamp(-5.0, 2.0)
+            e = torch.exp(-ls)
+            diff = acts - out
+            z = diff * e
+            logp = -0.5 * z.pow(2).sum(-1) - ls.sum() - 0.5 * out.shape[-1] * 1.8378770664093453  # log(2 pi)
+            losses.append(-logp.mean())
+            g_z = (2.0 * z) * (-0.5 * (-1.0 / mb))
+            g_ls = -((g_z * diff).sum(0) * e) + torch.full((mb,), 1.0 / mb).sum()  # exp(-ls), then -ls.sum()
+            g_ls = torch.where((log_std >= -5.0) & (log_std <= 2.0), g_ls, torch.zeros_like(g_ls))
+            g = -(g_z * e)
+        else:
+            # pi's categorical log-likelihood and q's cross-entropy: log-softmax, then the picked entries' mean
+            target = acts if net == 0 else q_codes
+            lsm = out.log_softmax(-1)
+            losses.append(-lsm.gather(-1, target.long().unsqueeze(-1)).mean())
+            g_pick = torch.zeros_like(lsm).scatter_(-1, target.long().unsqueeze(-1), -1.0 / mb)
+            g = torch._log_softmax_backward_data(g_pick, lsm, -1, lsm.dtype)
+            g_ls = g.new_zeros(0)
+        g_ws: list[Tensor] = []
+        g_bs: list[Tensor] = []
+        for i in range(len(ws) - 1, -1, -1):
+            g_w, g_b, g_in = _linear_backward(g, xs[i], ws[i])
+            g_ws.append(g_w)
+            g_bs.append(g_b)
+            if i > 0:
+                g = torch.ops.aten.threshold_backward(g_in, xs[i], 0.0)
+        g_ws.reverse()
+        g_bs.reverse()
+        grads += g_ws + g_bs
+        if net == 0 and not discrete:
+            grads.append(g_ls)
+    return grads, losses[0] + losses[1]
+
+
+_SCRIPTED: list[Callable[..., tuple[list[Tensor], Tensor]]] = []
+
+
+def _scripted_step() -> Callable[..., tuple[list[Tensor], Tensor]]:
+    """`_step_grads` scripted once per process; the Python function where this torch cannot script it."""
+    if not _SCRIPTED:
+        try:
+            _SCRIPTED.append(torch.jit.script(_step_grads))
+        except Exception:  # TorchScript unavailable or changed: the same numbers, slower
+            _SCRIPTED.append(_step_grads)
+    return _SCRIPTED[0]
 
 
 def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:

@@ -41,6 +41,7 @@ from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
 from digail.algos.segment_init import hard_em_segmentation
+from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_demos
@@ -139,6 +140,23 @@ def vae_loss(model: HierarchicalPolicy, batch: DemoBatch, cfg: VAEConfig, tau: f
     return total, parts
 
 
+class FusedVAEStep:
+    """`vae_loss` and its backward pass for soft samples without bptt, through `VAEGrad`: the same Gumbel draws
+    from `generator` as `gumbel_softmax_chain`, the gradient left in each parameter's `.grad`."""
+
+    def __init__(self, model: HierarchicalPolicy, cfg: VAEConfig) -> None:
+        self.grad, self.cfg = VAEGrad(model), cfg
+
+    def step(self, batch: DemoBatch, tau: float, warmup: float, generator: torch.Generator) -> dict[str, float]:
+        B, T = batch.mask.shape
+        K = self.cfg.codes
+        u = torch.rand((T, B, K), generator=generator, device=batch.mask.device).clamp_(1e-10, 1.0 - 1e-7)
+        cfg = self.cfg
+        return self.grad(batch.obs_n.transpose(0, 1).contiguous(), batch.acts.transpose(0, 1).contiguous(),
+                         batch.mask.t().contiguous(), -torch.log(-torch.log(u)), tau, warmup * cfg.kl_weight,
+                         warmup * cfg.smoothing_weight, cfg.entropy_weight)
+
+
 # -------------------------------------------------------------------------------------------- training
 def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: ActionSpec | None = None, seed: int = 0,
              device: str | torch.device = "cpu", progress: bool = True, log_dir: str | Path | None = None,
@@ -235,6 +253,8 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     # clipping and Adam as direct fused calls: `nn.utils.clip_grad_norm_` and `Adam.step`'s numbers without their
     # per-step Python work (`LeanStep`)
     adam_step = LeanStep(opt, cfg.max_grad_norm)
+    # soft samples without bptt (every preset): the loss and its gradient in one scripted pass (`VAEGrad`)
+    fused = None if cfg.hard or cfg.bptt else FusedVAEStep(model, cfg)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
@@ -246,10 +266,13 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
         sums = dict.fromkeys(LOSS_KEYS, 0.0)
         for b in range(0, n, cfg.batch_size):
             batch = data[order[b:b + cfg.batch_size].to(dev)]
-            loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch, epochs))
-            for p in params:
-                p.grad = None
-            loss.backward()
+            if fused is None:
+                loss, parts = vae_loss(model, batch, cfg, tau, gen, warmup=cfg.warmup(epoch, epochs))
+                for p in params:
+                    p.grad = None
+                loss.backward()
+            else:
+                parts = fused.step(batch, tau, cfg.warmup(epoch, epochs), gen)
             adam_step()
             weight = float(batch.mask.sum().item()) / total_steps
             for k in LOSS_KEYS:
