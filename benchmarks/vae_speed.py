@@ -1,14 +1,16 @@
 """VAE pre-training and polish speed of this checkout against another commit's code, side by side in one run.
 
     python benchmarks/vae_speed.py [--baseline 57dc4a4] [--dataset digail/circleworld/expert-v0]
-        [--preset circle-world] [--epochs 60] [--polish-steps 3000] [--rounds 3]
+        [--preset circle-world] [--epochs N] [--polish-steps N] [--rounds 3]
 
 Each round runs the baseline's `src` (extracted with `git archive`) and this checkout's in fresh subprocesses,
 one after the other, so that a shared machine's drifting load hits both alike: `pretrain` for `--epochs` of the
-preset's settings, then `polish` for `--polish-steps` (0: none), one torch thread. Writes
+preset's settings (default: the preset's own), then `polish` for `--polish-steps` (default: the preset's; 0:
+none), one torch thread. Round r uses seed `--seed` + r, so that three rounds score three seeds. Writes
 benchmarks/vae_speed.json: seconds per epoch and per polish step of each side (medians over rounds), the
-new-over-old speed-ups (medians of per-round ratios), and a hash of each side's final weights (equal hashes: the
-same numbers bit for bit).
+new-over-old speed-ups (medians of per-round ratios, wall clock and the process's CPU time), a hash of each side's
+final weights (equal hashes: the same numbers bit for bit) and, where the demonstrations carry oracle labels, each
+side's segmentation scores per seed (causal decoding after the polish: accuracy, NMI, boundary F1).
 """
 
 from __future__ import annotations
@@ -37,24 +39,33 @@ from digail.config import get_preset
 from digail.data.minari_io import load_dataset
 dataset, preset, epochs, steps, seed = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 trajs = list(load_dataset(dataset).trajs)
-cfg = replace(get_preset(preset).vae, epochs=epochs, polish_steps=steps)
-t0 = time.perf_counter()
+base = get_preset(preset).vae
+cfg = replace(base, epochs=base.epochs if epochs < 0 else epochs,
+              polish_steps=base.polish_steps if steps < 0 else steps)
+t0, c0 = time.perf_counter(), time.process_time()
 model, _ = pretrain(trajs, replace(cfg, polish_steps=0), seed=seed, progress=False)
-t1 = time.perf_counter()
-if steps:
+t1, c1 = time.perf_counter(), time.process_time()
+if cfg.polish_steps:
     polish(model, trajs, cfg, seed=seed, progress=False)
-t2 = time.perf_counter()
+t2, c2 = time.perf_counter(), time.process_time()
 sd = model.state_dict()
 digest = hashlib.sha256(b"".join(sd[k].detach().numpy().tobytes() for k in sorted(sd))).hexdigest()[:16]
-print(json.dumps({"pretrain_s": t1 - t0, "polish_s": t2 - t1, "demo_steps": sum(len(t) for t in trajs),
-                  "hash": digest}))
+out = {"seed": seed, "epochs": cfg.epochs, "polish_steps": cfg.polish_steps, "pretrain_s": t1 - t0,
+       "polish_s": t2 - t1, "pretrain_cpu_s": c1 - c0, "polish_cpu_s": c2 - c1,
+       "demo_steps": sum(len(t) for t in trajs), "hash": digest}
+if all(t.subtasks is not None for t in trajs):
+    from digail.algos.decode import segment_many
+    from digail.eval.segmentation import segmentation_metrics
+    scores = segmentation_metrics(segment_many(model.eval(), trajs), [t.subtasks for t in trajs])
+    out.update({k: float(scores[k]) for k in ("accuracy", "nmi", "boundary_f1")})
+print(json.dumps(out))
 """
 
 
-def run_side(src: Path, args: argparse.Namespace) -> dict[str, float | str]:
+def run_side(src: Path, args: argparse.Namespace, seed: int) -> dict[str, float | str]:
     env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
     out = subprocess.run([sys.executable, "-c", CHILD, args.dataset, args.preset, str(args.epochs),
-                          str(args.polish_steps), str(args.seed)], env=env, check=True, capture_output=True, text=True)
+                          str(args.polish_steps), str(seed)], env=env, check=True, capture_output=True, text=True)
     return json.loads(out.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
 
@@ -63,8 +74,8 @@ def main() -> None:
     parser.add_argument("--baseline", default="57dc4a4", help="git revision to compare against")
     parser.add_argument("--dataset", default="digail/circleworld/expert-v0")
     parser.add_argument("--preset", default="circle-world")
-    parser.add_argument("--epochs", type=int, default=60)
-    parser.add_argument("--polish-steps", type=int, default=3000)
+    parser.add_argument("--epochs", type=int, default=-1, help="VAE epochs (-1: the preset's)")
+    parser.add_argument("--polish-steps", type=int, default=-1, help="polish steps (-1: the preset's)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=str(Path(__file__).with_name("vae_speed.json")))
@@ -78,27 +89,35 @@ def main() -> None:
         samples: dict[str, list[dict[str, float | str]]] = {k: [] for k in sides}
         for r in range(args.rounds):
             for name, src in sides.items():
-                samples[name].append(run_side(src, args))
+                samples[name].append(run_side(src, args, args.seed + r))
             print(f"round {r + 1}: " + ", ".join(f"{k} pretrain {v[-1]['pretrain_s']:.1f}s polish "
                                                  f"{v[-1]['polish_s']:.1f}s" for k, v in samples.items()), flush=True)
 
     def col(name: str, key: str) -> np.ndarray:
         return np.array([float(s[key]) for s in samples[name]])
 
+    epochs, steps = int(samples["new"][0]["epochs"]), int(samples["new"][0]["polish_steps"])
     results: dict[str, object] = {"baseline": args.baseline, "dataset": args.dataset, "preset": args.preset,
-                                  "epochs": args.epochs, "polish_steps": args.polish_steps, "rounds": args.rounds,
+                                  "epochs": epochs, "polish_steps": steps, "rounds": args.rounds,
+                                  "seeds": [args.seed + r for r in range(args.rounds)],
                                   "cpus": len(os.sched_getaffinity(0)), "loadavg": list(os.getloadavg())}
     for name in sides:
-        results[f"{name}_s_per_epoch"] = float(np.median(col(name, "pretrain_s"))) / max(args.epochs, 1)
-        if args.polish_steps:
-            results[f"{name}_ms_per_polish_step"] = 1e3 * float(np.median(col(name, "polish_s"))) / args.polish_steps
-        results[f"{name}_hash"] = sorted({str(s["hash"]) for s in samples[name]})
-    results["speedup_pretrain"] = float(np.median(col("old", "pretrain_s") / col("new", "pretrain_s")))
-    if args.polish_steps:
-        results["speedup_polish"] = float(np.median(col("old", "polish_s") / col("new", "polish_s")))
-    both = {k: col(k, "pretrain_s") + col(k, "polish_s") for k in sides}
-    results["speedup_total"] = float(np.median(both["old"] / both["new"]))
+        results[f"{name}_s_per_epoch"] = float(np.median(col(name, "pretrain_s"))) / max(epochs, 1)
+        if steps:
+            results[f"{name}_ms_per_polish_step"] = 1e3 * float(np.median(col(name, "polish_s"))) / steps
+        results[f"{name}_hash"] = [str(s["hash"]) for s in samples[name]]
+    for clock in ("", "_cpu"):
+        results[f"speedup_pretrain{clock}"] = float(np.median(col("old", f"pretrain{clock}_s")
+                                                              / col("new", f"pretrain{clock}_s")))
+        if steps:
+            results[f"speedup_polish{clock}"] = float(np.median(col("old", f"polish{clock}_s")
+                                                                / col("new", f"polish{clock}_s")))
+        both = {k: col(k, f"pretrain{clock}_s") + col(k, f"polish{clock}_s") for k in sides}
+        results[f"speedup_total{clock}"] = float(np.median(both["old"] / both["new"]))
     results["same_weights"] = results["old_hash"] == results["new_hash"]
+    if "accuracy" in samples["new"][0]:
+        for key in ("accuracy", "nmi", "boundary_f1"):
+            results[f"seg_{key}"] = {k: col(k, key).round(4).tolist() for k in sides}
     results["samples"] = samples
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "samples"}, indent=2))

@@ -17,6 +17,7 @@ from digail.algos.decode import segment_many
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.polish import anticipate_switches, polish
 from digail.algos.vae_pretrain import (
+    DemoBatch,
     categorical_kl,
     pad_demos,
     pretrain,
@@ -117,6 +118,74 @@ def test_scripted_sampling_loop_gives_the_python_loops_bits(hard: bool) -> None:
     assert _scripted_loop() is not _chain_loop  # scripted here
     for _ in range(4):  # the profiling executor re-plans after the first runs
         assert torch.equal(_scripted_loop()(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0), ref)
+
+
+@pytest.mark.parametrize("discrete", [False, True])
+def test_hand_written_vae_gradient_matches_autograd(discrete: bool) -> None:
+    """`VAEGrad` (the pre-training's path for soft samples without bptt) gives `vae_loss`'s value and gradient:
+    padded steps, a decoder that sees part of the observation, the KL, smoothing and entropy terms and a learned
+    prior all included (float64, so that only the order of the float operations differs)."""
+    from digail.algos.vae_grad import VAEGrad
+
+    torch.manual_seed(0)
+    spec = ActionSpec(True, 3) if discrete else ActionSpec(False, 2)
+    model = HierarchicalPolicy(4, 3, spec, (16, 12), decoder_obs=(1, 4) if discrete else None).double()
+    with torch.no_grad():
+        for p in model.parameters():
+            p += 0.3 * torch.randn_like(p)
+    B, T = 5, 11
+    mask = torch.ones(B, T, dtype=torch.float64)
+    mask[1, 7:] = 0.0
+    obs = torch.randn(B, T, 4, dtype=torch.float64) * mask[..., None]
+    acts = torch.randint(0, 3, (B, T)) if discrete else torch.randn(B, T, 2, dtype=torch.float64)
+    gumbel = -torch.log(-torch.log(torch.rand(B, T, 3, dtype=torch.float64)))
+    cfg = VAEConfig(codes=3, smoothing_weight=0.2, entropy_weight=0.05, kl_weight=0.7)
+    tau, warmup = 0.6, 0.5
+    loss, parts = vae_loss(model, DemoBatch(obs, acts, mask), cfg, tau, gumbel=gumbel, warmup=warmup)
+    params = [p for p in model.parameters() if p.requires_grad]
+    ref = torch.autograd.grad(loss, params)
+    got = VAEGrad(model)(obs.transpose(0, 1).contiguous(), acts.transpose(0, 1).contiguous(), mask.t().contiguous(),
+                         gumbel.transpose(0, 1).contiguous(), tau, warmup * cfg.kl_weight,
+                         warmup * cfg.smoothing_weight, cfg.entropy_weight)
+    for key in parts:
+        assert got[key] == pytest.approx(parts[key], rel=1e-10)
+    for p, r in zip(params, ref, strict=True):
+        torch.testing.assert_close(p.grad, r, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("discrete", [False, True])
+def test_scripted_polish_step_gives_autograds_bits(discrete: bool) -> None:
+    """The polish's scripted loss-and-gradient step runs autograd's backward kernels: equal, not just close."""
+    from digail.algos.polish import _scripted_step, _step_grads
+
+    torch.manual_seed(1)
+    spec = ActionSpec(True, 4) if discrete else ActionSpec(False, 2)
+    model = HierarchicalPolicy(5, 3, spec, (64, 64))
+    if not discrete:
+        with torch.no_grad():
+            model.pi.log_std.fill_(0.3)
+    mb = 256
+    pi_x, q_x = torch.randn(mb, 8), torch.randn(mb, 8)
+    acts = torch.randint(0, 4, (mb,)) if discrete else torch.randn(mb, 2)
+    q_codes = torch.randint(0, 3, (mb,))
+    pi_layers = [(m.weight, m.bias) for m in model.pi.net if isinstance(m, torch.nn.Linear)]
+    q_layers = [(m.weight, m.bias) for m in model.q.net if isinstance(m, torch.nn.Linear)]
+    from digail.nets.mlp import mlp_apply
+
+    log_pi, _ = model.pi.head_log_prob_entropy(mlp_apply(pi_layers, pi_x), acts)
+    loss = -log_pi.mean() + F.cross_entropy(mlp_apply(q_layers, q_x), q_codes)
+    targets = [*(w for w, _ in pi_layers), *(b for _, b in pi_layers), *([] if discrete else [model.pi.log_std]),
+               *(w for w, _ in q_layers), *(b for _, b in q_layers)]
+    ref = torch.autograd.grad(loss, targets)
+    log_std = model.q.net[0].weight if discrete else model.pi.log_std
+    args = (pi_x, acts, q_x, q_codes, [w for w, _ in pi_layers], [b for _, b in pi_layers], log_std,
+            [w for w, _ in q_layers], [b for _, b in q_layers], discrete)
+    for fn in (_step_grads, _scripted_step(), _scripted_step(), _scripted_step()):
+        with torch.no_grad():
+            grads, value = fn(*args)
+        assert torch.allclose(value, loss)
+        for g, r in zip(grads, ref, strict=True):
+            assert torch.equal(g, r)
 
 
 def test_cosine_lrs_are_the_schedulers_floats() -> None:

@@ -62,6 +62,7 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
         # pi's input rows are built once here instead of per minibatch (concatenation is exact: same numbers)
         pi_in = model.pi.inputs(obs_n, table[codes])
     prev_1h = table[prevs]
+    q_in, obs_dim = torch.cat([obs_n, prev_1h], -1), obs_n.shape[1]
     model.train()
     params = [*model.pi.parameters(), *model.q.parameters()]
     opt = adam(params, lr)
@@ -83,12 +84,12 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     for step in range(steps):
         group["lr"] = lrs[step]
         idx = torch.randint(0, len(obs_n), (minibatch,), generator=gen, device=dev)
-        noisy = obs_n[idx]
+        q_x = q_in.index_select(0, idx)  # [obs_n, prev_1h] rows: MacroPolicy.forward's input
         if q_noise > 0:
-            noisy = noisy + q_noise * torch.randn(noisy.shape, generator=gen, device=dev)
+            q_x[:, :obs_dim] += q_noise * torch.randn((minibatch, obs_dim), generator=gen, device=dev)
         with torch.no_grad():
-            grads, loss = step_grads(pi_in[idx], acts[idx], torch.cat([noisy, prev_1h[idx]], -1), q_codes[idx],
-                                     pi_w, pi_b, log_std, q_w, q_b, discrete)
+            grads, loss = step_grads(pi_in.index_select(0, idx), acts.index_select(0, idx), q_x,
+                                     q_codes.index_select(0, idx), pi_w, pi_b, log_std, q_w, q_b, discrete)
         for p, g in zip(targets, grads, strict=True):
             p.grad = g
         adam_step()

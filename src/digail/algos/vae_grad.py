@@ -45,16 +45,17 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
     m = (mask / n).unsqueeze(-1)  # (T, B, 1): each step's weight in the per-step averages
 
     # --- the sampling chain: q's hidden layers kept for the backward pass
-    pre = F.linear(obs, q_w[0][:, :D], q_b[0])
+    rows = T * B  # the batched parts run on 2-D (time x batch, features) views
+    pre = F.linear(obs.reshape(rows, D), q_w[0][:, :D], q_b[0]).view(T, B, -1).unbind(0)
     w_prev_t = q_w[0][:, D:].t()
     w_mid_t = [q_w[i].t() for i in range(1, len(q_w) - 1)]
     w_out_t = (q_w[-1] / tau).t()
-    noise = (q_b[-1] + gumbel) / tau
+    noise = ((q_b[-1] + gumbel) / tau).unbind(0)
     n_hidden = len(q_w) - 1
     hidden: list[list[Tensor]] = [[] for _ in range(n_hidden)]
     samples: list[Tensor] = []
     prev = obs.new_zeros(B, K)
-    for t in range(T):
+    for t in range(T):  # views from `unbind`: indexing a list costs less than a tensor `select` per step
         h = torch.addmm(pre[t], prev, w_prev_t, beta=one, alpha=one).relu_()
         hidden[0].append(h)
         for i in range(n_hidden - 1):
@@ -62,16 +63,16 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
             hidden[i + 1].append(h)
         prev = torch.addmm(noise[t], h, w_out_t, beta=one, alpha=one).softmax(-1)
         samples.append(prev)
-    hs = [torch.stack(layer) for layer in hidden]
+    hs = [torch.stack(layer).view(rows, -1) for layer in hidden]
     codes = torch.stack(samples)  # (T, B, K) relaxed samples c~_t
     prev_codes = torch.cat([obs.new_zeros(1, B, K), codes[:-1]])
-    logits = F.linear(hs[-1], q_w[-1], q_b[-1])
+    logits = F.linear(hs[-1], q_w[-1], q_b[-1]).view(T, B, K)
 
     # --- decoder pi(a_t | s_t, c~_t)
-    acts_in = [torch.cat([obs[:, :, dec_lo:dec_hi], codes], -1)]
+    acts_in = [torch.cat([obs[:, :, dec_lo:dec_hi], codes], -1).view(rows, -1)]
     for i in range(len(pi_w) - 1):
         acts_in.append(F.linear(acts_in[-1], pi_w[i], pi_b[i]).relu_())
-    out = F.linear(acts_in[-1], pi_w[-1], pi_b[-1])
+    out = F.linear(acts_in[-1], pi_w[-1], pi_b[-1]).view(T, B, -1)
     grads_tail: list[Tensor] = []
     if discrete:
         logp_all = out.log_softmax(-1)
@@ -120,29 +121,29 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
     g_codes[1:] += g_s * (coef * wb * b / nb - a / den)
 
     # --- back through the decoder: its weights, and its code input
-    g_h = g_out
+    g_h = g_out.view(rows, -1)
     g_pi_w: list[Tensor] = []
     g_pi_b: list[Tensor] = []
     for i in range(len(pi_w) - 1, -1, -1):
         x = acts_in[i]
         g_pi_w.append(_outer(g_h, x))
-        g_pi_b.append(g_h.sum((0, 1)))
+        g_pi_b.append(g_h.sum(0))
         if i > 0:
             g_h = torch.ops.aten.threshold_backward(g_h @ pi_w[i], x, 0.0)
         else:
-            g_codes = g_codes + g_h @ pi_w[0][:, pi_w[0].shape[1] - K:]
+            g_codes = g_codes + (g_h @ pi_w[0][:, pi_w[0].shape[1] - K:]).view(T, B, K)
     g_pi_w.reverse()
     g_pi_b.reverse()
 
     # --- codes = softmax((logits + gumbel) / tau), then q's layers (its previous-code input held fixed)
     g_logits = g_logits + codes * (g_codes - (g_codes * codes).sum(-1, keepdim=True)) / tau
-    g_h = g_logits
+    g_h = g_logits.view(rows, K)
     g_q_w: list[Tensor] = []
     g_q_b: list[Tensor] = []
     for i in range(len(q_w) - 1, -1, -1):
-        x = hs[i - 1] if i > 0 else torch.cat([obs, prev_codes], -1)
+        x = hs[i - 1] if i > 0 else torch.cat([obs, prev_codes], -1).view(rows, -1)
         g_q_w.append(_outer(g_h, x))
-        g_q_b.append(g_h.sum((0, 1)))
+        g_q_b.append(g_h.sum(0))
         if i > 0:
             g_h = torch.ops.aten.threshold_backward(g_h @ q_w[i], x, 0.0)
     g_q_w.reverse()
