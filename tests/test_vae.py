@@ -153,6 +153,23 @@ def test_hand_written_vae_gradient_matches_autograd(discrete: bool) -> None:
         torch.testing.assert_close(p.grad, r, rtol=1e-9, atol=1e-12)
 
 
+def test_pretraining_on_the_hand_written_gradient_follows_autograds() -> None:
+    """Whole epochs (Adam included) on `VAEGrad` end where the autograd path ends, to float rounding."""
+    import digail.algos.vae_pretrain as vp
+
+    demos = two_phase_demos(n=12, steps=10)
+    cfg = VAEConfig(codes=2, epochs=4, batch_size=4, init="none", smoothing_weight=0.1, entropy_weight=0.03)
+    fused, _ = pretrain(demos, cfg, seed=0, progress=False)
+    original = vp.FusedVAEStep
+    try:
+        vp.FusedVAEStep = lambda model, cfg: None  # type: ignore[assignment,misc]
+        plain, _ = pretrain(demos, cfg, seed=0, progress=False)
+    finally:
+        vp.FusedVAEStep = original
+    for (name, a), b in zip(fused.state_dict().items(), plain.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5, msg=name)
+
+
 @pytest.mark.parametrize("discrete", [False, True])
 def test_scripted_polish_step_gives_autograds_bits(discrete: bool) -> None:
     """The polish's scripted loss-and-gradient step runs autograd's backward kernels: equal, not just close."""

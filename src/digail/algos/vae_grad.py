@@ -22,9 +22,9 @@ from digail.nets.vae import HierarchicalPolicy
 
 
 def _outer(g: Tensor, x: Tensor) -> Tensor:
-    """A linear layer's weight gradient sum_rows g^T x, as x^T g transposed: several times faster for the thin
-    first layers than the other orientation (MKL, measured), and the form autograd uses."""
-    return (x.reshape(-1, x.shape[-1]).t() @ g.reshape(-1, g.shape[-1])).t()
+    """A linear layer's weight gradient g^T x (summed over rows), computed as (x^T g)^T: several times faster for
+    the thin layers here (MKL, measured). Contiguous, since the fused Adam kernel reads the gradient's memory."""
+    return (x.reshape(-1, x.shape[-1]).t() @ g.reshape(-1, g.shape[-1])).t().contiguous()
 
 
 def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau: float, q_w: list[Tensor],
