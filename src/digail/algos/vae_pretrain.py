@@ -19,7 +19,8 @@ smoothing weights, an entropy bonus on q, the polish) are measured in docs/exper
 
 Speed: only the sampling chain is sequential (`digail.algos.gumbel`); the decoder, the KL, the smoothing and entropy
 terms are evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and
-masked.
+masked. With soft samples and the gradient stopped at q's previous-code input (every preset), training takes the
+loss's gradient from `digail.algos.vae_grad` (one scripted pass, backpropagation by hand) instead of autograd.
 """
 
 from __future__ import annotations
