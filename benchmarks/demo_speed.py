@@ -32,12 +32,13 @@ RESULT_KEYS = {"eval.json": ("", ("mean_return", "order_correct_rate", "radius_e
 """run-folder file -> (prefix, keys) of the headline results recorded per run"""
 
 
-def run_side(src: Path, out: Path, args: argparse.Namespace) -> dict[str, Any]:
-    """One `digail run` with the code under `src`; its wall time, stage timings and headline results."""
+def run_side(src: Path, out: Path, args: argparse.Namespace, extra: list[str]) -> dict[str, Any]:
+    """One `digail run` (plus `extra` flags) with the code under `src`; its wall time, stage timings and headline
+    results."""
     env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "digail.cli", "run", args.env, "--out", str(out), "--seed", str(args.seed),
-                    "--force"], env=env, check=True, capture_output=True, text=True)
+                    "--force", *extra], env=env, check=True, capture_output=True, text=True)
     sample: dict[str, Any] = {"wall_s": time.perf_counter() - t0}
     timings = out / "timings.json"
     if timings.is_file():
@@ -56,6 +57,9 @@ def main() -> None:
     parser.add_argument("--env", default="digail/CircleWorld-v0")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--new-no-smoothing-pair", action="store_true",
+                        help="run this checkout with --no-smoothing-pair: the baseline's work where the baseline "
+                             "predates the second VAE (57dc4a4 does)")
     parser.add_argument("--out", default=str(Path(__file__).with_name("demo_speed.json")))
     args = parser.parse_args()
 
@@ -68,7 +72,8 @@ def main() -> None:
         for r in range(args.rounds):
             order = ["old", "new"] if r % 2 == 0 else ["new", "old"]
             for name in order:
-                samples[name].append(run_side(sides[name], Path(tmp) / f"run_{name}_{r}", args))
+                extra = ["--no-smoothing-pair"] if name == "new" and args.new_no_smoothing_pair else []
+                samples[name].append(run_side(sides[name], Path(tmp) / f"run_{name}_{r}", args, extra))
             print(f"round {r + 1}: " + ", ".join(f"{k} {samples[k][-1]['wall_s']:.0f}s" for k in order), flush=True)
             write_results(args, samples)  # after every round: a long run cut short keeps its finished rounds
 
@@ -79,6 +84,7 @@ def write_results(args: argparse.Namespace, samples: dict[str, list[dict[str, An
 
     results: dict[str, Any] = {"baseline": args.baseline, "env": args.env, "seed": args.seed,
                                "rounds": len(samples["new"]), "command": f"digail run {args.env} --seed {args.seed}",
+                               "new_no_smoothing_pair": args.new_no_smoothing_pair,
                                "cpus": len(os.sched_getaffinity(0)), "loadavg": list(os.getloadavg())}
     for name in samples:
         results[f"{name}_wall_s"] = float(np.median(col(name, "wall_s")))
