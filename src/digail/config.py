@@ -123,7 +123,7 @@ class VAEConfig:
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
     switching linear sub-task policies (`digail.algos.segment_init`; without it the VAE collapsed onto one code on
     both benchmark tasks it was run on), `none` starts from random weights (the paper)"""
-    init_steps: int = 3000
+    init_steps: int = 6000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0
     """after the VAE, gradient steps of polishing on q's own causal segmentation of the demonstrations (0: none):
