@@ -77,12 +77,10 @@ def markdown(t: dict[str, Any]) -> str:
         seeds = rec["seeds"]
         mid = sorted(seeds, key=lambda r: r["mean_return"])[(len(seeds) - 1) // 2]
 
-        def per_seed(key: str) -> str:
-            return " / ".join(f"{r[key]:.2f}" for r in seeds)
-
+        rates = [" / ".join(f"{r[key]:.2f}" for r in seeds) for key in ("success_rate", "grasp_rate", "lift_rate")]
         lines.append(f"| {NAMES[method]} | {PAPER[method]:.2f} | {mid['mean_return']:.2f} +- {mid['std_return']:.2f} "
-                     f"| {per_seed('success_rate')} | {per_seed('grasp_rate')} | {per_seed('lift_rate')} "
-                     f"| {rec['median_sparse_return']:.2f} | {(mid['env_steps'] or 0) / 1e3:.0f}k | {len(seeds)} of 3 |")
+                     f"| {' | '.join(rates)} | {rec['median_sparse_return']:.2f} "
+                     f"| {(mid['env_steps'] or 0) / 1e3:.0f}k | {len(seeds)} of 3 |")
     return "\n".join(lines)
 
 
