@@ -11,6 +11,7 @@ The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --sp
                                                          eval/* learning curve of every started trial so far
     python benchmarks/table1.py run hopper vae-k8 0      the appendix's K = 8 VAE on Hopper (for its PCA figure)
     python benchmarks/table1.py markdown                 the README table from table1.json, the paper's beside ours
+    python benchmarks/table1.py readme                   the same table into README.md (between its table1 markers)
     python benchmarks/table1.py publish                  the median seed's run folder per env and method (model,
                                                          config, eval, curves, figures) -> benchmarks/results/runs/
     python benchmarks/table1.py figures                  -> benchmarks/results/figures/table1/ (learning curves,
@@ -318,6 +319,17 @@ def markdown(table: dict[str, Any] | None = None) -> str:
     return "\n".join(lines)
 
 
+README = HERE.parent / "README.md"
+MARKERS = ("<!-- table1:start (python benchmarks/table1.py readme) -->", "<!-- table1:end -->")
+
+
+def readme() -> None:
+    """Replace the table between the README's table1 markers with `markdown()` of table1.json."""
+    text = README.read_text()
+    start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
+    README.write_text(text[:start] + "\n" + markdown() + "\n" + text[end:])
+
+
 PUBLISHED = HERE / "results" / "runs"
 PUBLISH_FILES = ("model.pt", "config.json", "eval.json", "metrics.csv", "segmentation.json")
 
@@ -446,6 +458,7 @@ def main() -> None:
     sub.add_parser("figures")
     sub.add_parser("markdown")
     sub.add_parser("publish")
+    sub.add_parser("readme")
     args = ap.parse_args()
     if args.cmd == "run":
         run_trial(args.env, args.method, args.seed)
@@ -460,6 +473,8 @@ def main() -> None:
         print(" ".join(plan()))
     elif args.cmd == "markdown":
         print(markdown())
+    elif args.cmd == "readme":
+        readme()
     elif args.cmd == "publish":
         print("\n".join(publish()))
     elif args.cmd == "figures":
