@@ -88,8 +88,9 @@ def _viterbi(loglik: np.ndarray, lengths: np.ndarray, penalty: float) -> list[np
 class _LinearPolicies:
     """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
 
-    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3) -> None:
-        self.k, self.discrete = k, discrete
+    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
+                 shared_variance: bool = True) -> None:
+        self.k, self.discrete, self.shared_variance = k, discrete, shared_variance
         # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
         self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
         self.w = np.zeros((k, dim_x, act_dim))
@@ -107,8 +108,11 @@ class _LinearPolicies:
             else:
                 gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
                 self.w[j] = np.linalg.solve(gram, xj.T @ aj)
-                sq_resid[j] = ((aj - xj @ self.w[j]) ** 2).sum(0)
-        if not self.discrete:
+                resid = aj - xj @ self.w[j]
+                sq_resid[j] = (resid ** 2).sum(0)
+                if not self.shared_variance:
+                    self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
+        if not self.discrete and self.shared_variance:
             # one noise level per action dimension for all codes (module docstring: why not one per code)
             self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
 
@@ -142,14 +146,17 @@ def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ri
 
 
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
-                         rounds: int = 30, starts: int = 4, ridge: float = 1.0) -> list[np.ndarray]:
+                         rounds: int = 30, starts: int = 4, ridge: float = 1.0,
+                         shared_variance: bool = True) -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
     docstring): from each of `starts` k-means starts, up to `rounds` of Viterbi and refit (stopping when nothing
-    changes); the segmentation with the shortest description length wins."""
+    changes); the segmentation with the shortest description length wins. `shared_variance=False`: one action
+    variance per code (the first version, kept for the runs made with it)."""
     rng = np.random.default_rng(seed)
     best: tuple[float, list[np.ndarray]] | None = None
     for start in range(starts):
-        cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, chunks=start == 0, ridge=ridge)
+        cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, chunks=start == 0, ridge=ridge,
+                             shared_variance=shared_variance)
         if best is None or cost < best[0]:
             best = (cost, seg)
     assert best is not None
@@ -157,7 +164,8 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
-             rounds: int, chunks: bool = False, ridge: float = 1e-3) -> tuple[float, list[np.ndarray]]:
+             rounds: int, chunks: bool = False, ridge: float = 1e-3,
+             shared_variance: bool = True) -> tuple[float, list[np.ndarray]]:
     """One hard-EM run: (description length in nats, codes per demonstration). It starts from k-means clusters
     of (action, state) pairs, or with `chunks` from every demonstration cut into K equal consecutive pieces
     (codes 0, 1, ..., K - 1 in time: near the truth when sub-tasks come in one order, where k-means of the
@@ -186,7 +194,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     else:
         labels = _kmeans(z, codes, rng)
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
-    policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge)
+    policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge, shared_variance)
     penalty = math.log(float(np.mean([len(t) for t in trajs]))) + math.log(max(codes - 1, 1))
     lengths = np.array([len(t) for t in trajs])
 
