@@ -11,6 +11,9 @@ The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --sp
                                                          eval/* learning curve of every started trial so far
     python benchmarks/table1.py run hopper vae-k8 0      the appendix's K = 8 VAE on Hopper (for its PCA figure)
     python benchmarks/table1.py markdown                 the README table from table1.json, the paper's beside ours
+    python benchmarks/table1.py readme                   the same table into README.md (between its table1 markers)
+    python benchmarks/table1.py publish                  the median seed's run folder per env and method (model,
+                                                         config, eval, curves, figures) -> benchmarks/results/runs/
     python benchmarks/table1.py figures                  -> benchmarks/results/figures/table1/ (learning curves,
                                                          code strips, Pendulum code map, K = 8 PCA) and
                                                          benchmarks/results/table1_codes.json (code-gait agreement)
@@ -316,6 +319,51 @@ def markdown(table: dict[str, Any] | None = None) -> str:
     return "\n".join(lines)
 
 
+README = HERE.parent / "README.md"
+MARKERS = ("<!-- table1:start (python benchmarks/table1.py readme) -->", "<!-- table1:end -->")
+
+
+def readme() -> None:
+    """Replace the table between the README's table1 markers with `markdown()` of table1.json."""
+    text = README.read_text()
+    start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
+    README.write_text(text[:start] + "\n" + markdown() + "\n" + text[end:])
+
+
+PUBLISHED = HERE / "results" / "runs"
+PUBLISH_FILES = ("model.pt", "config.json", "eval.json", "metrics.csv", "segmentation.json")
+
+
+def publish() -> list[str]:
+    """Copy the median seed's run folder of every env and method with an evaluation into
+    benchmarks/results/runs/<env>_<method>_s<seed>/ (small files only: no checkpoint, no TensorBoard), replacing
+    an earlier median of the same env and method, so that `digail evaluate` can re-check every table cell."""
+    import shutil
+
+    PUBLISHED.mkdir(parents=True, exist_ok=True)
+    done = []
+    for env in ENVS:
+        for method in METHODS:
+            recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
+            if not recs:
+                continue
+            recs.sort(key=lambda r: r["mean_return"])
+            rec = recs[(len(recs) - 1) // 2]
+            src = ROOT.parent.parent / rec["run"]
+            dest = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
+            for old in PUBLISHED.glob(f"{env}_{method}_s*"):
+                if old != dest:
+                    shutil.rmtree(old)
+            dest.mkdir(exist_ok=True)
+            for name in PUBLISH_FILES:
+                if (src / name).exists():
+                    shutil.copy2(src / name, dest / name)
+            if (src / "figures").is_dir():
+                shutil.copytree(src / "figures", dest / "figures", dirs_exist_ok=True)
+            done.append(str(dest.relative_to(HERE.parent)))
+    return done
+
+
 # --------------------------------------------------------------------------------------------- figures
 FIGURES = HERE / "results" / "figures" / "table1"
 ROLLOUTS = 5  # closed-loop episodes drawn and scored per run (evaluation seeds 10000 + i)
@@ -409,6 +457,8 @@ def main() -> None:
     sub.add_parser("progress")
     sub.add_parser("figures")
     sub.add_parser("markdown")
+    sub.add_parser("publish")
+    sub.add_parser("readme")
     args = ap.parse_args()
     if args.cmd == "run":
         run_trial(args.env, args.method, args.seed)
@@ -423,6 +473,10 @@ def main() -> None:
         print(" ".join(plan()))
     elif args.cmd == "markdown":
         print(markdown())
+    elif args.cmd == "readme":
+        readme()
+    elif args.cmd == "publish":
+        print("\n".join(publish()))
     elif args.cmd == "figures":
         print(json.dumps(figures(), indent=1))
     elif args.cmd == "progress":

@@ -65,3 +65,40 @@ def test_offscreen_gl_falls_back_to_osmesa_without_egl(monkeypatch, tmp_path, li
     assert os.environ["MUJOCO_GL"] == want
     monkeypatch.setenv("MUJOCO_GL", "glfw")
     assert ensure_offscreen_gl() == "glfw"
+
+
+def _four_rooms_model() -> HierarchicalPolicy:
+    from digail.envs import make_env
+
+    env = make_env("digail/FourRooms-v0")
+    torch.manual_seed(0)
+    return HierarchicalPolicy(env.observation_space.shape[0], 4, ActionSpec(True, 4))
+
+
+def test_find_outcome_picks_the_first_episode_that_ends_that_way(monkeypatch):
+    from digail.errors import UserError
+    from digail.viz import video
+
+    ends = [False, False, True, False, True]
+    fake = [video.RenderedEpisode(final_info={"is_success": e}) for e in ends]
+    monkeypatch.setattr(video, "play_episodes", lambda model, env_id, n, seed, **kw: fake[:n])
+    assert video.find_outcome(None, "x", True, seed=100, search=5) == 102
+    assert video.find_outcome(None, "x", False, seed=100, search=5) == 100
+    with pytest.raises(UserError, match="none of the 2 episodes from seed 100 ended in success"):
+        video.find_outcome(None, "x", True, seed=100, search=2)
+
+
+def test_video_outcome_on_real_episodes(tmp_path):
+    """An untrained Four Rooms policy never reaches the apple: its first failure is the first episode, a success
+    is reported missing; Circle-World has no is_success to choose by."""
+    from digail.errors import UserError
+    from digail.viz.video import find_outcome
+
+    model = _four_rooms_model()
+    seed = find_outcome(model, "digail/FourRooms-v0", False, seed=7, search=3)
+    assert seed == 7
+    assert not play_episodes(model, "digail/FourRooms-v0", 1, seed, render=False)[0].final_info["is_success"]
+    with pytest.raises(UserError, match="ended in success"):
+        find_outcome(model, "digail/FourRooms-v0", True, seed=7, search=3)
+    with pytest.raises(UserError, match="reports no info"):
+        find_outcome(_circle_model(), "digail/CircleWorld-v0", True, search=2)

@@ -245,7 +245,8 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
     if cfg.init == "em" and cfg.codes > 1:
-        first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed)
+        first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed,
+                                     shared_variance=cfg.init_variance == "shared")
         fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
         model.train()
     data = pad_demos(trajs, model, dev)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
@@ -24,7 +24,12 @@ class VideoArgs:
     max_steps: int | None = None
     """cut each episode after this many steps (default: play it to its end)"""
     name: str | None = None
-    """file name without extension (default: closed_loop, or composed for a schedule)"""
+    """file name without extension (default: closed_loop, composed for a schedule, or the outcome)"""
+    outcome: Literal["any", "success", "failure"] = "any"
+    """render the first episode from --seed on that ends in this outcome (the env's info['is_success'] at the
+    last step, e.g. Fetch and Four Rooms); any: the episodes from --seed as they come"""
+    search: int = 200
+    """with --outcome: episodes to try (played without frames) before giving up"""
 
 
 def video_command(args: VideoArgs) -> tuple[Path, Path]:
@@ -33,18 +38,26 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     from digail.commands.common import run_env_id
     from digail.errors import UserError
     from digail.eval.composition import CodeSchedule, parse_schedule
-    from digail.viz.video import record_video
+    from digail.viz.video import find_outcome, record_video
 
     run = Path(args.run)
     if args.episodes < 1:
         raise UserError(f"--episodes must be at least 1, got {args.episodes}.")
     model, meta = load_model(run / "model.pt")
     env_id = run_env_id(run, meta)
+    if args.search < 1:
+        raise UserError(f"--search must be at least 1, got {args.search}.")
     schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
-    name = args.name or ("composed" if schedule is not None else "closed_loop")
-    mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=args.seed, episodes=args.episodes,
+    seed = args.seed
+    if args.outcome != "any":
+        if schedule is not None or args.episodes != 1:
+            raise UserError("--outcome picks one closed-loop episode: drop --schedule and --episodes.")
+        seed = find_outcome(model, env_id, args.outcome == "success", args.seed, args.search, args.max_steps)
+    name = args.name or ("composed" if schedule is not None else "closed_loop" if args.outcome == "any"
+                         else args.outcome)
+    mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=seed, episodes=args.episodes,
                             schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
                             max_steps=args.max_steps)
-    print(f"wrote {mp4} and {gif}")
+    print(f"wrote {mp4} and {gif}" + (f" (seed {seed}, {args.outcome})" if args.outcome != "any" else ""))
     return mp4, gif
 

@@ -158,7 +158,8 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
         sac={"learning_rate": 1e-3, "buffer_size": 200_000},
         checkpoint_every=5_000, eval_every=2_500, eval_episodes=50, stop_at=None)),
     # balancing is easy: plain PPO with small nets
-    EnvSpec("InvertedPendulum-v5", "invertedpendulum", 25, envpool=True, paper_return=(1000.0, 14.97), rl_expert=ExpertSpec(
+    EnvSpec("InvertedPendulum-v5", "invertedpendulum", 25, envpool=True, paper_return=(1000.0, 14.97),
+            rl_expert=ExpertSpec(
         steps=300_000, target=1000.0, n_envs=8,
         ppo={"n_steps": 256, "batch_size": 64, "n_epochs": 10, "learning_rate": 3e-4, "gae_lambda": 0.95,
              "clip_range": 0.2, "ent_coef": 0.0},

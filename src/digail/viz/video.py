@@ -37,6 +37,7 @@ class RenderedEpisode:
     codes: list[int] = field(default_factory=list)
     obs: list[np.ndarray] = field(default_factory=list)
     ret: float = 0.0
+    final_info: dict[str, Any] = field(default_factory=dict)
 
 
 def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, schedule: Sequence[int] | None = None,
@@ -79,7 +80,7 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         if render:
             frames.append(np.asarray(env.render()))
         out.append(RenderedEpisode(frames=list(frames), codes=ep.codes, obs=[np.asarray(o) for o in ep.obs],
-                                   ret=ep.ret))
+                                   ret=ep.ret, final_info=dict(ep.final_info)))
         frames.clear()
 
     try:
@@ -90,6 +91,22 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     finally:
         env.close()
     return out
+
+
+def find_outcome(model: Any, env_id: str, success: bool, seed: int = 10_000, search: int = 200,
+                 max_steps: int | None = None) -> int:
+    """The seed of the first episode from `seed` on whose last step's `info["is_success"]` is `success` (played
+    without frames, so that only the chosen episode is rendered). Raises a UserError when the env reports no
+    `is_success` or none of `search` episodes ends that way."""
+    eps = play_episodes(model, env_id, search, seed, render=False, max_steps=max_steps)
+    if not any("is_success" in e.final_info for e in eps):
+        raise UserError(f"{env_id} reports no info['is_success'], so episodes cannot be chosen by outcome; drop "
+                        "--outcome.")
+    for i, ep in enumerate(eps):
+        if bool(ep.final_info.get("is_success", False)) == success:
+            return seed + i
+    raise UserError(f"none of the {search} episodes from seed {seed} ended in "
+                    f"{'success' if success else 'failure'}; try a larger --search or another --seed.")
 
 
 def annotate(frame: np.ndarray, text: str, code: int | None) -> np.ndarray:
