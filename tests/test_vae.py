@@ -106,7 +106,8 @@ def test_fast_chain_matches_autograd(hard: bool, bptt: bool) -> None:
 @pytest.mark.parametrize("hard", [False, True])
 def test_scripted_sampling_loop_gives_the_python_loops_bits(hard: bool) -> None:
     """The TorchScript loop of the no-bptt chain runs eager's kernels in eager's order: equal, not just close."""
-    from digail.algos.gumbel import _chain_loop, _scripted_loop
+    from digail.algos.gumbel import _chain_loop
+    from digail.algos.scripting import scripted
 
     g = torch.Generator().manual_seed(3)
     T, B, H, K = 30, 6, 16, 3
@@ -115,9 +116,9 @@ def test_scripted_sampling_loop_gives_the_python_loops_bits(hard: bool) -> None:
     noise = torch.randn(T, B, K, generator=g)
     w_ts, b_s = [0.3 * torch.randn(H, H, generator=g)], [torch.randn(H, generator=g)]
     ref = _chain_loop(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0)
-    assert _scripted_loop() is not _chain_loop  # scripted here
+    assert scripted(_chain_loop) is not _chain_loop  # scripted here
     for _ in range(4):  # the profiling executor re-plans after the first runs
-        assert torch.equal(_scripted_loop()(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0), ref)
+        assert torch.equal(scripted(_chain_loop)(hard, pre, w_prev_t, w_out_t, noise, w_ts, b_s, 1.0), ref)
 
 
 @pytest.mark.parametrize("discrete", [False, True])
@@ -173,7 +174,8 @@ def test_pretraining_on_the_hand_written_gradient_follows_autograds() -> None:
 @pytest.mark.parametrize("discrete", [False, True])
 def test_scripted_polish_step_gives_autograds_bits(discrete: bool) -> None:
     """The polish's scripted loss-and-gradient step runs autograd's backward kernels: equal, not just close."""
-    from digail.algos.polish import _scripted_step, _step_grads
+    from digail.algos.polish import _step_grads
+    from digail.algos.scripting import scripted
 
     torch.manual_seed(1)
     spec = ActionSpec(True, 4) if discrete else ActionSpec(False, 2)
@@ -197,7 +199,7 @@ def test_scripted_polish_step_gives_autograds_bits(discrete: bool) -> None:
     log_std = model.q.net[0].weight if discrete else model.pi.log_std
     args = (pi_x, acts, q_x, q_codes, [w for w, _ in pi_layers], [b for _, b in pi_layers], log_std,
             [w for w, _ in q_layers], [b for _, b in q_layers], discrete)
-    for fn in (_step_grads, _scripted_step(), _scripted_step(), _scripted_step()):
+    for fn in (_step_grads, scripted(_step_grads), scripted(_step_grads), scripted(_step_grads)):
         with torch.no_grad():
             grads, value = fn(*args)
         assert torch.allclose(value, loss)

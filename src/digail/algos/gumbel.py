@@ -8,13 +8,13 @@ product per layer and a softmax. `_GumbelChain` backpropagates through the whole
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from digail.algos.scripting import scripted
 from digail.nets.mlp import mlp_apply
 from digail.nets.vae import MacroPolicy
 
@@ -73,12 +73,12 @@ def _sample_chain(hard: bool, pre: torch.Tensor, w_prev: torch.Tensor, w_out: to
                   *mids: torch.Tensor) -> torch.Tensor:
     """The sampling loop of `_GumbelChain` alone (no gradient, nothing kept): the codes fed forward (T, B, K).
 
-    The loop runs in TorchScript (`_scripted_loop`) without the Python interpreter between its ~6 T tiny
+    The loop runs in TorchScript (`scripting.scripted`) without the Python interpreter between its ~6 T tiny
     operations; the kernels and their order are the Python loop's, so are the bits (tests/test_vae.py).
     """
     w_ts = [mids[i].t() for i in range(0, len(mids), 2)]
     b_s = [mids[i + 1] for i in range(0, len(mids), 2)]
-    return _scripted_loop()(hard, pre, w_prev.t(), w_out.t(), noise, w_ts, b_s, 1.0)
+    return scripted(_chain_loop)(hard, pre, w_prev.t(), w_out.t(), noise, w_ts, b_s, 1.0)
 
 
 def _chain_loop(hard: bool, pre: torch.Tensor, w_prev_t: torch.Tensor, w_out_t: torch.Tensor, noise: torch.Tensor,
@@ -98,19 +98,6 @@ def _chain_loop(hard: bool, pre: torch.Tensor, w_prev_t: torch.Tensor, w_out_t: 
             prev = F.one_hot(prev.argmax(-1), K).to(prev.dtype)
         fed.append(prev)
     return torch.stack(fed)
-
-
-_SCRIPTED: list[Callable[..., torch.Tensor]] = []
-
-
-def _scripted_loop() -> Callable[..., torch.Tensor]:
-    """`_chain_loop` scripted once per process; the Python function where this torch cannot script it."""
-    if not _SCRIPTED:
-        try:
-            _SCRIPTED.append(torch.jit.script(_chain_loop))
-        except Exception:  # TorchScript unavailable or changed: the same numbers, slower
-            _SCRIPTED.append(_chain_loop)
-    return _SCRIPTED[0]
 
 
 class _GumbelChain(torch.autograd.Function):

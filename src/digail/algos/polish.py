@@ -5,7 +5,7 @@ by maximum likelihood and q by cross-entropy on jittered states (`VAEConfig.poli
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -14,6 +14,7 @@ from torch import Tensor
 
 from digail.algos.optim import adam
 from digail.algos.ppo import LeanStep
+from digail.algos.scripting import scripted
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -77,7 +78,7 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     discrete = model.action.discrete
     log_std = model.q.net[0].weight if discrete else model.pi.log_std  # unused when discrete
     targets = [*pi_w, *pi_b, *([] if discrete else [log_std]), *q_w, *q_b]
-    step_grads = _scripted_step()
+    step_grads = scripted(_step_grads)
     adam_step = LeanStep(opt, None)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
     bar = progress_bar(steps, progress, desc=desc, unit="step")
@@ -157,19 +158,6 @@ def _step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: 
         if net == 0 and not discrete:
             grads.append(g_ls)
     return grads, losses[0] + losses[1]
-
-
-_SCRIPTED: list[Callable[..., tuple[list[Tensor], Tensor]]] = []
-
-
-def _scripted_step() -> Callable[..., tuple[list[Tensor], Tensor]]:
-    """`_step_grads` scripted once per process; the Python function where this torch cannot script it."""
-    if not _SCRIPTED:
-        try:
-            _SCRIPTED.append(torch.jit.script(_step_grads))
-        except Exception:  # TorchScript unavailable or changed: the same numbers, slower
-            _SCRIPTED.append(_step_grads)
-    return _SCRIPTED[0]
 
 
 def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:

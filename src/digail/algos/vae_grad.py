@@ -12,12 +12,11 @@ to float rounding, not bit for bit (tests/test_vae.py checks the gradients again
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from digail.algos.scripting import scripted
 from digail.nets.vae import HierarchicalPolicy
 
 
@@ -154,19 +153,6 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
     return grads, torch.stack([total, recon, kl, smooth])
 
 
-_SCRIPTED: list[Callable[..., tuple[list[Tensor], Tensor]]] = []
-
-
-def _scripted() -> Callable[..., tuple[list[Tensor], Tensor]]:
-    """`_loss_and_grads` scripted once per process; the Python function where this torch cannot script it."""
-    if not _SCRIPTED:
-        try:
-            _SCRIPTED.append(torch.jit.script(_loss_and_grads))
-        except Exception:  # TorchScript unavailable or changed: the same numbers, slower
-            _SCRIPTED.append(_loss_and_grads)
-    return _SCRIPTED[0]
-
-
 class VAEGrad:
     """Sets the VAE loss's gradient on the model's parameters (`.grad`) for one batch; returns the loss parts.
 
@@ -190,9 +176,9 @@ class VAEGrad:
                  smooth_coef: float, ent_coef: float) -> dict[str, float]:
         """Time-major inputs (T, B, ...); the coefficients already include the warm-up factor."""
         with torch.no_grad():
-            grads, parts = _scripted()(obs_n, acts, mask, gumbel, tau, self.q_w, self.q_b, self.pi_w, self.pi_b,
-                                       self.log_std, self.model.prior.table, self.discrete, self.dec_lo,
-                                       self.dec_hi, kl_coef, smooth_coef, ent_coef, 1.0)
+            grads, parts = scripted(_loss_and_grads)(
+                obs_n, acts, mask, gumbel, tau, self.q_w, self.q_b, self.pi_w, self.pi_b, self.log_std,
+                self.model.prior.table, self.discrete, self.dec_lo, self.dec_hi, kl_coef, smooth_coef, ent_coef, 1.0)
         for p, g in zip(self.targets, grads, strict=True):
             p.grad = g if p.requires_grad else None
         total, recon, kl, smooth = parts.tolist()
