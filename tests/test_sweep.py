@@ -313,3 +313,30 @@ def test_search_space_and_sample_runs_named_after_their_values():
     assert check_metric("seg/nmi") == ("segmentation.json", "nmi")
     with pytest.raises(UserError, match="metric"):
         check_metric("normalized_return")
+
+
+def test_table2_harness_tabulates_a_sweep_and_judges_the_targets():
+    """benchmarks/table2.py on a sweep's results.json: per-seed rates, medians, the issue's targets, the table."""
+    table2 = _harness("table2")
+
+    def seed(s: int, success: float, dense: float, status: str = "done") -> dict:
+        metrics = {"mean_return": dense, "std_return": 1.0, "sparse_return": 10 * dense, "success_rate": success,
+                   "grasp_rate": min(1.0, success + 0.1), "lift_rate": 0.5, "normalized_return": 1.0,
+                   "episodes": 100}
+        return {"seed": s, "run": f"fetch/m_s{s}", "status": status, "metrics": metrics, "env_steps": 204800,
+                "wall_s": 60.0, "commands": ["digail train ..."]}
+
+    results = {"name": "table2", "table": {table2.ENV: {
+        "digail-l2": {"seeds": {"0": seed(0, 0.9, -6.0), "1": seed(1, 0.4, -8.0), "2": seed(2, 0.7, -7.0)}},
+        "gail-l2": {"seeds": {"0": seed(0, 0.8, -6.5), "1": seed(1, 0.1, -9.0), "2": seed(2, 0.0, -1.0, "failed")}},
+    }}}
+    t = table2.table(results)
+    best, base = t["methods"]["digail-l2"], t["methods"]["gail-l2"]
+    assert best["median_success_rate"] == 0.7 and best["median_mean_return"] == -7.0 and best["complete"]
+    assert [r["seed"] for r in base["seeds"]] == [0, 1] and not base["complete"]  # the failed seed is left out
+    assert base["median_success_rate"] == pytest.approx(0.45)
+    assert t["targets"] == {"digail_l2_success_median_at_least_0.5": True, "digail_l2_success_at_least_gail_l2": True,
+                            "digail_l2_dense_better_than_paper": True, "complete": False}
+    md = table2.markdown(t)
+    assert "| Directed-Info GAIL + L2 | -9.47 | -7.00 +- 1.00 | 0.90 / 0.40 / 0.70 |" in md
+    assert "| GAIL + L2 | -12.05 |" in md and "2 of 3" in md and "| VAE |" not in md
