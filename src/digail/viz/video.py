@@ -98,13 +98,16 @@ def find_outcome(model: Any, env_id: str, success: bool, seed: int = 10_000, sea
     """The seed of the first episode from `seed` on whose last step's `info["is_success"]` is `success` (played
     without frames, so that only the chosen episode is rendered). Raises a UserError when the env reports no
     `is_success` or none of `search` episodes ends that way."""
-    eps = play_episodes(model, env_id, search, seed, render=False, max_steps=max_steps)
-    if not any("is_success" in e.final_info for e in eps):
-        raise UserError(f"{env_id} reports no info['is_success'], so episodes cannot be chosen by outcome; drop "
-                        "--outcome.")
-    for i, ep in enumerate(eps):
-        if bool(ep.final_info.get("is_success", False)) == success:
-            return seed + i
+    chunk = 10  # most policies show either outcome within a few episodes: do not play all `search` up front
+    for start in range(0, search, chunk):
+        eps = play_episodes(model, env_id, min(chunk, search - start), seed + start, render=False,
+                            max_steps=max_steps)
+        if start == 0 and not any("is_success" in e.final_info for e in eps):
+            raise UserError(f"{env_id} reports no info['is_success'], so episodes cannot be chosen by outcome; "
+                            "drop --outcome.")
+        for i, ep in enumerate(eps):
+            if bool(ep.final_info.get("is_success", False)) == success:
+                return seed + start + i
     raise UserError(f"none of the {search} episodes from seed {seed} ended in "
                     f"{'success' if success else 'failure'}; try a larger --search or another --seed.")
 
