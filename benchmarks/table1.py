@@ -325,9 +325,14 @@ MARKERS = ("<!-- table1:start (python benchmarks/table1.py readme) -->", "<!-- t
 
 def readme() -> None:
     """Replace the table between the README's table1 markers with `markdown()` of table1.json."""
-    text = README.read_text()
-    start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
-    README.write_text(text[:start] + "\n" + markdown() + "\n" + text[end:])
+    replace_in_readme(MARKERS, markdown())
+
+
+def replace_in_readme(markers: tuple[str, str], text: str) -> None:
+    """Put `text` between the README's two `markers` (shared with table2.py)."""
+    page = README.read_text()
+    start, end = page.index(markers[0]) + len(markers[0]), page.index(markers[1])
+    README.write_text(page[:start] + "\n" + text + "\n" + page[end:])
 
 
 PUBLISHED = HERE / "results" / "runs"
@@ -338,9 +343,6 @@ def publish() -> list[str]:
     """Copy the median seed's run folder of every env and method with an evaluation into
     benchmarks/results/runs/<env>_<method>_s<seed>/ (small files only: no checkpoint, no TensorBoard), replacing
     an earlier median of the same env and method, so that `digail evaluate` can re-check every table cell."""
-    import shutil
-
-    PUBLISHED.mkdir(parents=True, exist_ok=True)
     done = []
     for env in ENVS:
         for method in METHODS:
@@ -351,17 +353,26 @@ def publish() -> list[str]:
             rec = recs[(len(recs) - 1) // 2]
             src = ROOT.parent.parent / rec["run"]
             dest = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
-            for old in PUBLISHED.glob(f"{env}_{method}_s*"):
-                if old != dest:
-                    shutil.rmtree(old)
-            dest.mkdir(exist_ok=True)
-            for name in PUBLISH_FILES:
-                if (src / name).exists():
-                    shutil.copy2(src / name, dest / name)
-            if (src / "figures").is_dir():
-                shutil.copytree(src / "figures", dest / "figures", dirs_exist_ok=True)
+            publish_run(src, dest)
             done.append(str(dest.relative_to(HERE.parent)))
     return done
+
+
+def publish_run(src: Path, dest: Path) -> None:
+    """Copy a run folder's small files (and figures) to `dest` under benchmarks/results/runs/, replacing the
+    folder of another seed of the same cell (`<env>_<method>_s<seed>`; shared with table2.py)."""
+    import shutil
+
+    prefix = dest.name.rsplit("_s", 1)[0]
+    for old in dest.parent.glob(f"{prefix}_s*"):
+        if old != dest:
+            shutil.rmtree(old)
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in PUBLISH_FILES:
+        if (src / name).exists():
+            shutil.copy2(src / name, dest / name)
+    if (src / "figures").is_dir():
+        shutil.copytree(src / "figures", dest / "figures", dirs_exist_ok=True)
 
 
 # --------------------------------------------------------------------------------------------- figures

@@ -15,15 +15,18 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))  # table1.py beside this file, also when loaded by path (tests)
+from table1 import publish_run, replace_in_readme  # noqa: E402
+
 OUT = HERE / "results" / "table2.json"
 RUNS = HERE / "results" / "runs"
-README = HERE.parent / "README.md"
 MARKERS = ("<!-- table2:start (python benchmarks/table2.py SWEEP) -->", "<!-- table2:end -->")
 ENV = "digail/FetchPickAndPlace-v4"
 PAPER = {"vae": -14.07, "gail": -13.29, "digail": -11.74, "gail-l2": -12.05, "digail-l2": -9.47}
@@ -31,7 +34,6 @@ PAPER = {"vae": -14.07, "gail": -13.29, "digail": -11.74, "gail-l2": -12.05, "di
 NAMES = {"vae": "VAE", "gail": "GAIL", "digail": "Directed-Info GAIL", "gail-l2": "GAIL + L2",
          "digail-l2": "Directed-Info GAIL + L2"}
 KEYS = ("mean_return", "std_return", "sparse_return", "success_rate", "grasp_rate", "lift_rate", "normalized_return")
-PUBLISH_FILES = ("model.pt", "config.json", "eval.json", "metrics.csv", "segmentation.json")
 
 
 def table(results: dict[str, Any]) -> dict[str, Any]:
@@ -89,14 +91,8 @@ def publish(t: dict[str, Any], sweep: Path) -> list[str]:
     done = []
     for method, rec in t["methods"].items():
         mid = sorted(rec["seeds"], key=lambda r: r["mean_return"])[(len(rec["seeds"]) - 1) // 2]
-        src, dest = sweep / mid["run"], RUNS / f"fetch_{method}_s{mid['seed']}"
-        for old in RUNS.glob(f"fetch_{method}_s*"):
-            if old != dest:
-                shutil.rmtree(old)
-        dest.mkdir(parents=True, exist_ok=True)
-        for name in PUBLISH_FILES:
-            if (src / name).exists():
-                shutil.copy2(src / name, dest / name)
+        dest = RUNS / f"fetch_{method}_s{mid['seed']}"
+        publish_run(sweep / mid["run"], dest)
         done.append(str(dest.relative_to(HERE.parent)))
     return done
 
@@ -114,10 +110,7 @@ def main() -> None:
         shutil.copyfile(args.sweep / name, committed / name)
     print("\n".join(publish(t, args.sweep)))
     md = markdown(t)
-    text = README.read_text()
-    if MARKERS[0] in text:
-        start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
-        README.write_text(text[:start] + "\n" + md + "\n" + text[end:])
+    replace_in_readme(MARKERS, md)
     print(md)
     print(json.dumps(t.get("targets", {}), indent=1))
 
