@@ -28,6 +28,11 @@ Budgets (issue 13): 3M environment steps per run on Hopper and Walker2d, 1M on t
 batch sizes (Table 3) with `I = budget // batch` iterations. Finished stages are skipped and a killed training
 continues with `digail train --resume`, so the queue can be stopped and started again at any time; a lock per
 trial keeps two queues apart. Runs live in runs/table1/ (git-ignored); the summary keeps their numbers.
+
+On a machine without an earlier machine's runs/table1/ (a fresh clone), the committed table1.json and
+table1_progress.json stand for the lost folders: `summarize` and `progress` keep their records of trials whose
+folder is absent, `run`/`queue` skip a trial table1.json already holds, `publish` keeps a published median it
+cannot rebuild, and `figures` draws those trials' learning curves from table1_progress.json.
 """
 
 from __future__ import annotations
@@ -131,9 +136,23 @@ def ensure_vae(env: str, seed: int, log: Path) -> Path:
     return vae
 
 
+def recorded(env: str, method: str, seed: int) -> dict[str, Any] | None:
+    """The committed table1.json's record of a trial (None when it has none)."""
+    if not OUT.exists():
+        return None
+    seeds = json.loads(OUT.read_text()).get(env, {}).get("methods", {}).get(method, {}).get("seeds", [])
+    return next((r for r in seeds if r["seed"] == seed), None)
+
+
 def run_trial(env: str, method: str, seed: int) -> None:
     (ROOT / env).mkdir(parents=True, exist_ok=True)
     log = ROOT / env / f"{method}_s{seed}.log"
+    folder = ROOT / env / (f"vae_s{seed}" if method == "vae" else f"{method}_s{seed}")
+    rec = recorded(env, method, seed)
+    if rec is not None and not folder.exists() and rec["episodes"] >= EVAL_EPISODES:
+        print(f"{env}:{method}:{seed} is recorded in {OUT.name} (its folder was on another machine); skipped",
+              flush=True)
+        return
     if method == "vae-k8":  # not a table column: the appendix's larger context, drawn by `figures`
         run = ROOT / env / f"vae_k8_s{seed}"
         with lock(ROOT / env / f".vae_k8_s{seed}.lock") as mine:
@@ -185,9 +204,10 @@ def plan() -> list[str]:
 
 # --------------------------------------------------------------------------------------------- summary
 def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
+    """A trial's record from its run folder, else the committed table1.json's (folder on another machine)."""
     run = ROOT / env / (f"vae_s{seed}" if method == "vae" else f"{method}_s{seed}")
     if not (run / "eval.json").exists():
-        return None
+        return None if run.exists() else recorded(env, method, seed)
     ev = json.loads((run / "eval.json").read_text())
     rows = _metrics(run)
     curve = [(r["step"], r["eval/normalized_return"]) for r in rows if "eval/normalized_return" in r]
@@ -256,6 +276,8 @@ def summarize() -> dict[str, Any]:
 def progress() -> dict[str, Any]:
     """The learning curves (deterministic evaluations during training, 5 episodes each) of every trial that has
     started, finished or not: what a half-done table can honestly show."""
+    path = OUT.with_name("table1_progress.json")
+    before = json.loads(path.read_text()) if path.exists() else {}
     out: dict[str, Any] = {}
     for env in ENVS:
         for method in METHODS:
@@ -263,6 +285,8 @@ def progress() -> dict[str, Any]:
                 run = ROOT / env / f"{method}_s{seed}"
                 rows = _metrics(run)
                 if not rows:
+                    if not run.exists() and f"{env}:{method}:{seed}" in before:  # measured on another machine
+                        out[f"{env}:{method}:{seed}"] = before[f"{env}:{method}:{seed}"]
                     continue
                 spec = ENVS[env]
                 curve = [[int(r["step"]), round(r["eval/normalized_return"], 4), round(r["eval/mean_return"], 2)]
@@ -276,7 +300,6 @@ def progress() -> dict[str, Any]:
                     "commands": [ln[2:].strip() for ln in log.read_text().splitlines() if ln.startswith("$ ")]
                     if log.exists() else [],
                 }
-    path = OUT.with_name("table1_progress.json")
     path.write_text(json.dumps(out, indent=1) + "\n")
     return out
 
@@ -353,6 +376,11 @@ def publish() -> list[str]:
             rec = recs[(len(recs) - 1) // 2]
             src = ROOT.parent.parent / rec["run"]
             dest = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
+            if not (src / "model.pt").exists():  # the median's folder was on another machine
+                if not dest.exists():
+                    print(f"{env}:{method}: the median seed {rec['seed']} is neither here nor published; kept "
+                          "the published folder", file=sys.stderr)
+                continue
             publish_run(src, dest)
             done.append(str(dest.relative_to(HERE.parent)))
     return done
@@ -385,9 +413,25 @@ def _median_seed_run(env: str, method: str) -> Path | None:
     recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
     if recs:
         recs.sort(key=lambda r: r["mean_return"])
-        return ROOT.parent.parent / recs[(len(recs) - 1) // 2]["run"]
+        rec = recs[(len(recs) - 1) // 2]
+        run = ROOT.parent.parent / rec["run"]
+        published = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
+        return run if (run / "model.pt").exists() or not (published / "model.pt").exists() else published
     runs = sorted(p for p in (ROOT / env).glob(f"{method}_s*") if (p / "model.pt").exists())
     return runs[0] if runs else None
+
+
+def _curves(env: str, method: str, seed: int) -> Path | dict[str, np.ndarray] | None:
+    """A trial's learning curves: its run folder, else its eval/* curve in table1_progress.json (folder lost)."""
+    run = ROOT / env / f"{method}_s{seed}"
+    if (run / "metrics.csv").exists():
+        return run
+    path = OUT.with_name("table1_progress.json")
+    rec = json.loads(path.read_text()).get(f"{env}:{method}:{seed}") if path.exists() else None
+    if run.exists() or not rec or not rec["curve_step_normalized_mean"]:
+        return None
+    curve = np.asarray(rec["curve_step_normalized_mean"], dtype=float)
+    return {"step": curve[:, 0], "eval/normalized_return": curve[:, 1], "eval/mean_return": curve[:, 2]}
 
 
 def figures() -> dict[str, Any]:
@@ -408,9 +452,9 @@ def figures() -> dict[str, Any]:
     FIGURES.mkdir(parents=True, exist_ok=True)
     out: dict[str, Any] = {}
     for env, spec in ENVS.items():
-        runs = {m: [ROOT / env / f"{m}_s{s}" for s in SEEDS if (ROOT / env / f"{m}_s{s}" / "metrics.csv").exists()]
-                for m in METHODS if m != "vae"}
-        runs = {m: rs for m, rs in runs.items() if rs}
+        runs = {m: [_curves(env, m, s) for s in SEEDS] for m in METHODS if m != "vae"}
+        runs = {m: [c for c in cs if c is not None] for m, cs in runs.items()}
+        runs = {m: cs for m, cs in runs.items() if cs}
         rec: dict[str, Any] = {"figures": []}
         if runs and (p := F.learning_curves_multi(runs, FIGURES / f"{env}_learning_curves.png")) is not None:
             rec["figures"].append(str(p.relative_to(HERE.parent)))

@@ -382,13 +382,15 @@ def learning_curves(run_dir: Path, path: Path | None = None) -> Path | None:
     return _save(fig, path)
 
 
-def learning_curves_multi(runs: Mapping[str, Sequence[Path]], path: Path, points: int = 50) -> Path | None:
+def learning_curves_multi(runs: Mapping[str, Sequence[Path | Mapping[str, np.ndarray]]], path: Path,
+                          points: int = 50) -> Path | None:
     """Mean (line) and min-max spread (band) over seeds per method, against env steps.
 
+    A run is its folder (metrics.csv) or its curves already read (`run_curves`' keys, "step" among them).
     Each run's curve is interpolated onto a common grid of `points` steps up to the shortest run of its method
     (no extrapolation). Size (3.6 panels) x 3.2 inches; None when no run has metrics.
     """
-    loaded = {m: [run_curves(r) for r in rs] for m, rs in runs.items()}
+    loaded = {m: [dict(r) if isinstance(r, Mapping) else run_curves(r) for r in rs] for m, rs in runs.items()}
     loaded = {m: [x for x in ms if x] for m, ms in loaded.items()}
     loaded = {m: ms for m, ms in loaded.items() if ms}
     keys = [kt for kt in LEARNING_KEYS if any(k in dict(_present(x)) for ms in loaded.values() for x in ms
