@@ -3,13 +3,16 @@ pairs (the paper's Fetch experiment) and the anchor to the initial policy."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
 from digail.algos.expert_data import ExpertData
-from digail.algos.ppo import PPOBatch
 from digail.nets.policy import SubtaskPolicy
+
+if TYPE_CHECKING:  # ppo_update recognises `AnchorLoss`, so ppo's modules import this one
+    from digail.algos.ppo import PPOBatch
 
 
 def bc_loss(pi: SubtaskPolicy, expert: ExpertData, eye: torch.Tensor, batch_size: int, gen: torch.Generator, *,
@@ -24,16 +27,34 @@ def bc_loss(pi: SubtaskPolicy, expert: ExpertData, eye: torch.Tensor, batch_size
     return (mean - expert.acts[idx]).pow(2).sum(-1).mean()
 
 
-def anchor_loss(pi: SubtaskPolicy, anchor: SubtaskPolicy, batch: PPOBatch, batch_size: int, gen: torch.Generator
-                ) -> Callable[[], torch.Tensor]:
+@dataclass(frozen=True, eq=False)
+class AnchorLoss:
     """The anchor term on `batch`'s own states: squared distance between pi's mean action (or logits) and the
-    frozen initial policy `anchor`'s, on a fresh random subset of `batch_size` states per call."""
+    frozen initial policy `anchor`'s, on a fresh random subset of `batch_size` states per call.
 
-    def loss() -> torch.Tensor:
-        idx = torch.randint(len(batch), (batch_size,), generator=gen)
-        obs, codes = batch.obs[idx], batch.codes[idx]
+    A callable object rather than a closure so that `ppo_update` can recognise it and compute it inside its
+    hand-written gradient (`ppo_grad`), drawing the same random rows.
+    """
+
+    pi: SubtaskPolicy
+    anchor: SubtaskPolicy
+    batch: PPOBatch
+    batch_size: int
+    gen: torch.Generator
+
+    def rows(self) -> torch.Tensor:
+        """The next call's random rows of `batch` (each call draws these, then evaluates on them)."""
+        return torch.randint(len(self.batch), (self.batch_size,), generator=self.gen)
+
+    def __call__(self) -> torch.Tensor:
+        idx = self.rows()
+        obs, codes = self.batch.obs[idx], self.batch.codes[idx]
         with torch.no_grad():
-            target = anchor.net(anchor.inputs(obs, codes))
-        return (pi.net(pi.inputs(obs, codes)) - target).pow(2).sum(-1).mean()
+            target = self.anchor.net(self.anchor.inputs(obs, codes))
+        return (self.pi.net(self.pi.inputs(obs, codes)) - target).pow(2).sum(-1).mean()
 
-    return loss
+
+def anchor_loss(pi: SubtaskPolicy, anchor: SubtaskPolicy, batch: PPOBatch, batch_size: int, gen: torch.Generator
+                ) -> AnchorLoss:
+    """The anchor term (`AnchorLoss`) as an aux loss for `ppo_update`."""
+    return AnchorLoss(pi, anchor, batch, batch_size, gen)
