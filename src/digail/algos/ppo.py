@@ -202,9 +202,11 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
     updates = 0
     grad_fn = PPOGrad(policy, value) if hand_grad and train_policy and not cfg.compile else None
     # the hand-written gradient covers the anchor term alone among the aux terms; its frozen targets come once per
-    # update (the values per minibatch were the same, to float rounding), its rows are drawn per minibatch as before
+    # update (the values per minibatch were the same, to float rounding), its rows are drawn per minibatch as before.
+    # That needs an anchor that cannot move during the update: no parameter of it trains
     anchor_name, (anchor_fn, anchor_coef) = next(iter(aux.items()), ("", (None, 0.0)))
-    own_anchor = isinstance(anchor_fn, AnchorLoss) and anchor_fn.pi is policy and anchor_fn.batch is batch
+    own_anchor = (isinstance(anchor_fn, AnchorLoss) and anchor_fn.pi is policy and anchor_fn.batch is batch
+                  and not any(p.requires_grad for p in anchor_fn.anchor.parameters()))
     if grad_fn is not None and grad_fn.applies and (not aux or (len(aux) == 1 and own_anchor)):
         no_rows = x_pi[:0]  # pi's inputs and targets for no anchor rows (no anchor term)
         # each step sets every covered gradient; one clear here leaves any other parameter's at None, not stale
