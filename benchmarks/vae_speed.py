@@ -4,13 +4,14 @@
         [--preset circle-world] [--epochs N] [--polish-steps N] [--rounds 3]
 
 Each round runs the baseline's `src` (extracted with `git archive`) and this checkout's in fresh subprocesses,
-one after the other, so that a shared machine's drifting load hits both alike: `pretrain` for `--epochs` of the
-preset's settings (default: the preset's own), then `polish` for `--polish-steps` (default: the preset's; 0:
-none), one torch thread. Round r uses seed `--seed` + r, so that three rounds score three seeds. Writes
-benchmarks/vae_speed.json: seconds per epoch and per polish step of each side (medians over rounds), the
-new-over-old speed-ups (medians of per-round ratios, wall clock and the process's CPU time), a hash of each side's
-final weights (equal hashes: the same numbers bit for bit) and, where the demonstrations carry oracle labels, each
-side's segmentation scores per seed (causal decoding after the polish: accuracy, NMI, boundary F1).
+one after the other, so that a shared machine's drifting load hits both alike: `pretrain` with each side's own
+version of the preset (its hard-EM start where it has one; `--epochs` overrides the epochs), then `polish` for
+`--polish-steps` (default: the preset's; 0: none), one torch thread. Round r uses seed `--seed` + r, so that three
+rounds score three seeds. Writes benchmarks/vae_speed.json: each side's epochs, start and seconds of pre-training
+and polish (medians over rounds), the new-over-old speed-ups (medians of per-round ratios, wall clock and the
+process's CPU time), a hash of each side's final weights (equal hashes: the same numbers bit for bit) and, where
+the demonstrations carry oracle labels, each side's segmentation scores per seed (causal decoding after the
+polish: accuracy, NMI, boundary F1).
 """
 
 from __future__ import annotations
@@ -43,14 +44,15 @@ base = get_preset(preset).vae
 cfg = replace(base, epochs=base.epochs if epochs < 0 else epochs,
               polish_steps=base.polish_steps if steps < 0 else steps)
 t0, c0 = time.perf_counter(), time.process_time()
-model, _ = pretrain(trajs, replace(cfg, polish_steps=0), seed=seed, progress=False)
+model, history = pretrain(trajs, replace(cfg, polish_steps=0), seed=seed, progress=False)
 t1, c1 = time.perf_counter(), time.process_time()
 if cfg.polish_steps:
     polish(model, trajs, cfg, seed=seed, progress=False)
 t2, c2 = time.perf_counter(), time.process_time()
 sd = model.state_dict()
 digest = hashlib.sha256(b"".join(sd[k].detach().numpy().tobytes() for k in sorted(sd))).hexdigest()[:16]
-out = {"seed": seed, "epochs": cfg.epochs, "polish_steps": cfg.polish_steps, "pretrain_s": t1 - t0,
+out = {"seed": seed, "epochs": len(history["epoch"]), "init": getattr(cfg, "init", "none"),
+       "init_steps": getattr(cfg, "init_steps", 0), "polish_steps": cfg.polish_steps, "pretrain_s": t1 - t0,
        "polish_s": t2 - t1, "pretrain_cpu_s": c1 - c0, "polish_cpu_s": c2 - c1,
        "demo_steps": sum(len(t) for t in trajs), "hash": digest}
 if all(t.subtasks is not None for t in trajs):
@@ -96,13 +98,19 @@ def main() -> None:
     def col(name: str, key: str) -> np.ndarray:
         return np.array([float(s[key]) for s in samples[name]])
 
-    epochs, steps = int(samples["new"][0]["epochs"]), int(samples["new"][0]["polish_steps"])
+    steps = int(samples["new"][0]["polish_steps"])
+    # each side runs its own version of the preset: the epochs, hard-EM start and polish it actually did
     results: dict[str, object] = {"baseline": args.baseline, "dataset": args.dataset, "preset": args.preset,
-                                  "epochs": epochs, "polish_steps": steps, "rounds": args.rounds,
+                                  **{f"{k}_{key}": samples[k][0].get(key) for k in sides
+                                     for key in ("epochs", "init", "init_steps", "polish_steps")},
+                                  "rounds": args.rounds,
                                   "seeds": [args.seed + r for r in range(args.rounds)],
                                   "cpus": len(os.sched_getaffinity(0)), "loadavg": list(os.getloadavg())}
     for name in sides:
-        results[f"{name}_s_per_epoch"] = float(np.median(col(name, "pretrain_s"))) / max(epochs, 1)
+        results[f"{name}_pretrain_s"] = float(np.median(col(name, "pretrain_s")))
+        results[f"{name}_polish_s"] = float(np.median(col(name, "polish_s")))
+        if int(samples[name][0]["epochs"]):
+            results[f"{name}_s_per_epoch"] = results[f"{name}_pretrain_s"] / int(samples[name][0]["epochs"])
         if steps:
             results[f"{name}_ms_per_polish_step"] = 1e3 * float(np.median(col(name, "polish_s"))) / steps
         results[f"{name}_hash"] = [str(s["hash"]) for s in samples[name]]

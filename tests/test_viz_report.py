@@ -87,11 +87,11 @@ def _check_page_text(text: str) -> None:
 
 @pytest.fixture(scope="module")
 def smoke_run(tmp_path_factory):
-    """`digail run` on Circle-World with SMOKE settings plus the Circle-World preset's smoothing term (SMOKE has
-    none), so that the run also pre-trains the VAE without it for the side-by-side figure."""
+    """`digail run` on Circle-World with SMOKE settings plus a smoothing term (SMOKE has none), so that the run
+    also pre-trains the VAE without it for the side-by-side figure."""
     out = tmp_path_factory.mktemp("report") / "cw"
     smoke = config.PRESETS["smoke"]
-    weight = config.PRESETS["circle-world"].vae.smoothing_weight
+    weight = 0.1
     with pytest.MonkeyPatch.context() as mp:
         mp.setitem(config.PRESETS, "smoke", replace(smoke, vae=replace(smoke.vae, smoothing_weight=weight)))
         assert main(["run", "digail/CircleWorld-v0", "--preset", "smoke", "--episodes", "4", "--out", str(out)]) == 0

@@ -45,9 +45,10 @@ class RunArgs:
     """continue an interrupted run folder at the stage it stopped: finished stages are kept, the training goes on
     from its checkpoint (other flags are ignored)"""
     smoothing_pair: bool = True
-    """when the preset's VAE has a smoothing term (Circle-World), also pre-train a VAE without it (the same settings
-    and seed, no polish) into RUN/vae_unsmoothed, for the figure of the two segmentations side by side; it runs in a
-    second process beside the training, which uses one thread (--no-smoothing-pair skips it)"""
+    """when the preset's VAE has a smoothing term (no shipped preset has one now), also pre-train a VAE without it
+    (the same settings and seed, no polish) into RUN/vae_unsmoothed, for the figure of the two segmentations side
+    by side; it runs in a second process beside the training, which uses one thread (--no-smoothing-pair skips
+    it)"""
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
