@@ -204,10 +204,11 @@ def plan() -> list[str]:
 
 # --------------------------------------------------------------------------------------------- summary
 def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
-    """A trial's record from its run folder, else the committed table1.json's (folder on another machine)."""
+    """A trial's record from its run folder's evaluation, else the committed table1.json's (its folder was on
+    another machine, or it is being made again, e.g. a VAE pre-trained anew for a Directed-Info GAIL trial)."""
     run = ROOT / env / (f"vae_s{seed}" if method == "vae" else f"{method}_s{seed}")
     if not (run / "eval.json").exists():
-        return None if run.exists() else recorded(env, method, seed)
+        return recorded(env, method, seed)
     ev = json.loads((run / "eval.json").read_text())
     rows = _metrics(run)
     curve = [(r["step"], r["eval/normalized_return"]) for r in rows if "eval/normalized_return" in r]
