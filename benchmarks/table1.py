@@ -377,7 +377,7 @@ def publish() -> list[str]:
             rec = recs[(len(recs) - 1) // 2]
             src = ROOT.parent.parent / rec["run"]
             dest = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
-            if not (src / "model.pt").exists():  # the median's folder was on another machine
+            if not (src / "eval.json").exists():  # the median's evaluated folder was on another machine
                 if not dest.exists():
                     print(f"{env}:{method}: the median seed {rec['seed']} is neither here nor published; kept "
                           "the published folder", file=sys.stderr)
