@@ -363,6 +363,14 @@ PUBLISHED = HERE / "results" / "runs"
 PUBLISH_FILES = ("model.pt", "config.json", "eval.json", "metrics.csv", "segmentation.json")
 
 
+def median_record(env: str, method: str) -> dict[str, Any] | None:
+    """The record of the median seed by mean return among the evaluated ones (the lower middle of an even count;
+    None without any)."""
+    recs = sorted((r for s in SEEDS if (r := trial_record(env, method, s)) is not None),
+                  key=lambda r: r["mean_return"])
+    return recs[(len(recs) - 1) // 2] if recs else None
+
+
 def publish() -> list[str]:
     """Copy the median seed's run folder of every env and method with an evaluation into
     benchmarks/results/runs/<env>_<method>_s<seed>/ (small files only: no checkpoint, no TensorBoard), replacing
@@ -370,11 +378,9 @@ def publish() -> list[str]:
     done = []
     for env in ENVS:
         for method in METHODS:
-            recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
-            if not recs:
+            rec = median_record(env, method)
+            if rec is None:
                 continue
-            recs.sort(key=lambda r: r["mean_return"])
-            rec = recs[(len(recs) - 1) // 2]
             src = ROOT.parent.parent / rec["run"]
             dest = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
             if not (src / "eval.json").exists():  # the median's evaluated folder was on another machine
@@ -411,10 +417,8 @@ ROLLOUTS = 5  # closed-loop episodes drawn and scored per run (evaluation seeds 
 
 def _median_seed_run(env: str, method: str) -> Path | None:
     """The run folder of the median seed by normalised return (of those evaluated), else any trained one."""
-    recs = [r for s in SEEDS if (r := trial_record(env, method, s)) is not None]
-    if recs:
-        recs.sort(key=lambda r: r["mean_return"])
-        rec = recs[(len(recs) - 1) // 2]
+    rec = median_record(env, method)
+    if rec is not None:
         run = ROOT.parent.parent / rec["run"]
         published = PUBLISHED / f"{env}_{method}_s{rec['seed']}"
         return run if (run / "model.pt").exists() or not (published / "model.pt").exists() else published
