@@ -25,6 +25,7 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
         accurate (ties count)
     python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
         per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
+        (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion
 """
 
 from __future__ import annotations
@@ -94,6 +95,11 @@ def run_one(name: str, seed: int, runs: Path, data_root: Path, extra: list[str])
     return row
 
 
+def extra_flags(args: argparse.Namespace) -> list[str]:
+    """`--set FIELD=VALUE ...` as `digail pretrain` flags."""
+    return [part for item in args.set for part in (f"--{item.split('=', 1)[0]}", *item.split("=", 1)[1].split())]
+
+
 def summarize(rows: list[dict[str, Any]]) -> dict[str, float]:
     return {k: float(np.median([r[k] for r in rows])) for k in KEYS if all(k in r for r in rows)}
 
@@ -111,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
-    extra = [part for item in args.set for part in (f"--{item.split('=', 1)[0]}", *item.split("=", 1)[1].split())]
+    extra = extra_flags(args)
     if args.measure != "table":
         out = args.out.with_name(f"segmentation_{args.measure}.json") if args.out.name == "segmentation.json" \
             else args.out
@@ -163,16 +169,20 @@ def measure(args: argparse.Namespace, out: Path) -> None:
             if args.measure == "codes":
                 run = args.runs / f"{name}_auto_s{seed}"
                 cmd = ["pretrain", "--demos", demos, "--codes", "auto", "--seed", str(seed), "--out", str(run),
-                       "--force", *(["--preset", "default"] if shipped else [])]
+                       "--force", *(["--preset", "default"] if shipped else []), *extra_flags(args)]
                 print("$ digail " + shlex.join(cmd), flush=True)
                 t0 = time.perf_counter()
                 if digail(cmd) != 0:
                     raise SystemExit(f"digail pretrain --codes auto failed on {name} seed {seed}")
                 config = json.loads((run / "config.json").read_text())
                 chosen = int(config["vae"]["codes"])
-                rows.append({"seed": seed, "true_codes": codes, "chosen": chosen, "hit": chosen == codes,
-                             "curve": config["k_selection"], "time_s": round(time.perf_counter() - t0, 1)})
-                print(f"== {name} seed {seed}: K = {chosen} (true {codes})", flush=True)
+                # the truth is the number of distinct oracle labels (Four Rooms: 4 corridors and the apple,
+                # where the segmentation table runs K = 4)
+                truth = len(np.unique(np.concatenate([t.subtasks for t in load_dataset(demos).trajs])))
+                rows.append({"seed": seed, "true_codes": truth, "chosen": chosen, "hit": chosen == truth,
+                             "criterion": config["vae"]["k_criterion"], "curve": config["k_selection"],
+                             "time_s": round(time.perf_counter() - t0, 1)})
+                print(f"== {name} seed {seed}: K = {chosen} (true {truth})", flush=True)
             else:
                 ds = load_dataset(demos)
                 cfg = dataclasses.replace(VAEConfig(), codes=codes)

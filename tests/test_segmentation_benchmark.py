@@ -107,14 +107,27 @@ def test_restarts_keep_the_lowest_held_out_description_length(minari_root: Path)
     assert chosen == pytest.approx(min(r["dl_per_step"] for r in log))
 
 
-def test_codes_auto_finds_the_true_number_of_sub_tasks(minari_root: Path) -> None:
-    """On the shuttle (K = 2) the held-out description length is lowest at K = 2. q must have learnt to switch
-    for that: with 300 steps fitting it to the start, K = 2's q never switched and K = 4 won (measured)."""
+def test_codes_auto_scored_by_whole_vaes_finds_the_shuttles_two(minari_root: Path) -> None:
+    """`--vae.k-criterion vae`: on the shuttle (K = 2) the held-out description length is lowest at K = 2. q must
+    have learnt to switch for that: with 300 steps fitting it to the start, K = 2's q never switched and K = 4 won
+    (measured)."""
     ds = load_dataset(record_course("shuttle", minari_root, seed=0, episodes=8))
-    model, _, curve = select_codes(ds.trajs, dataclasses.replace(FAST, init_steps=1500), [2, 3], seed=0,
-                                   progress=False)
+    cfg = dataclasses.replace(FAST, init_steps=1500, k_criterion="vae")
+    model, _, curve = select_codes(ds.trajs, cfg, [2, 3], seed=0, progress=False)
     assert [c["codes"] for c in curve] == [2, 3]
-    assert model.codes == 2, curve
+    assert model.codes == 2 and [c["chosen"] for c in curve] == [True, False], curve
+
+
+def test_codes_auto_scored_by_linear_policies_finds_the_squares_four(minari_root: Path) -> None:
+    """The default criterion on the square (K = 4), where whole VAEs chose K = 2 (their network policy reads the
+    corner from the position): linear sub-task policies need one code per leg, and past 4 the curve is flat, so
+    the one-standard-error rule keeps 4."""
+    ds = load_dataset(record_course("square", minari_root, seed=0))
+    model, _, curve = select_codes(ds.trajs, dataclasses.replace(FAST, init_steps=300), [2, 3, 4, 5, 6], seed=0,
+                                   progress=False)
+    assert model.codes == 4, curve
+    dl = [c["dl_per_step"] for c in curve]
+    assert dl[2] < dl[1] - 1.0 and abs(dl[3] - dl[2]) < 0.05  # a clear knee at the truth, flat after it
 
 
 def test_the_vae_alone_needs_training_steps() -> None:
@@ -123,3 +136,17 @@ def test_the_vae_alone_needs_training_steps() -> None:
     with pytest.raises(UserError, match="--vae.steps"):
         VAEConfig(init="none")
     assert VAEConfig(init="none", steps=10).steps == 10
+
+
+def test_one_standard_error_rule_keeps_the_smallest_k_the_data_cannot_tell_from_the_best() -> None:
+    from digail.algos.model_selection import smallest_within_one_se
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(100.0, 10.0, 30)  # held-out episodes differ a lot; the models little
+    curve = [{"codes": 2, "episode_dl": base + 30.0},
+             {"codes": 3, "episode_dl": base - 0.05 + np.resize([1.0, -1.0], 30)},
+             {"codes": 4, "episode_dl": base - 0.1}, {"codes": 5, "episode_dl": base - 5.0}]
+    for c in curve:
+        c["dl_per_step"] = float(np.mean(c["episode_dl"]))
+    assert smallest_within_one_se(curve[:3]) == 1  # K = 3 is within noise of K = 4, the lowest
+    assert smallest_within_one_se(curve) == 3  # K = 5 is lower by far more than its standard error

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +83,10 @@ def load_weights(path: str | Path, what: str = "checkpoint", device: str | torch
     """
     path = Path(path)
     try:
-        return torch.load(path, map_location=device, weights_only=True)
+        with warnings.catch_warnings():
+            # torch warns about a foreign file's pickle protocol before failing on it: the sentence below says it
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            return torch.load(path, map_location=device, weights_only=True)
     except (PermissionError, IsADirectoryError) as exc:
         raise UserError(f"cannot read {what} {path} ({exc.strerror.lower() if exc.strerror else 'unreadable'}); "
                         "check its permissions.") from None

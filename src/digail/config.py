@@ -118,6 +118,11 @@ class VAEConfig:
     (`digail.algos.model_selection`: no labels needed)"""
     heldout_fraction: float = 0.2
     """share of the demonstrations held out to choose among restarts (and K with `--codes auto`)"""
+    k_criterion: Literal["linear", "vae"] = "linear"
+    """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under
+    the hard-EM start's linear sub-task policies (fast; the smallest K within one standard error of the best is
+    kept), or `vae`, that of a whole VAE trained per K (lowest wins). The VAE's network policies explain the actions
+    with too few codes where the state reveals the sub-task (docs/experiments.md)"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by

@@ -74,3 +74,22 @@ def description_length(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -
 def best_index(scores: Sequence[dict[str, Any]], key: str = "dl_per_step") -> int:
     """Index of the lowest `key` (the first on ties)."""
     return int(np.argmin([s[key] for s in scores]))
+
+
+def smallest_within_one_se(curve: Sequence[dict[str, Any]]) -> int:
+    """Index of the smallest K whose held-out description length is within one standard error of the lowest.
+
+    The curve's entries are in increasing K and carry `episode_dl` (nats per held-out episode, the same episodes
+    for every K). The standard error is that of the per-episode difference to the lowest K (paired: the episodes
+    differ far more from one another than the models do). Why not the lowest outright: past the true K the curve
+    is flat to within noise (extra codes split a sub-task where it costs nothing), and its lowest point there is
+    chance; the one-standard-error rule keeps the simplest model the data cannot tell from the best.
+    """
+    best = best_index(curve)
+    ref = np.asarray(curve[best]["episode_dl"], np.float64)
+    for i, entry in enumerate(curve):
+        diff = np.asarray(entry["episode_dl"], np.float64) - ref
+        se = diff.std(ddof=1) / math.sqrt(len(diff)) if len(diff) > 1 else 0.0
+        if diff.mean() <= se:
+            return i
+    return best

@@ -163,6 +163,59 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
     return best[1]
 
 
+def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
+                        discrete: bool, *, seed: int = 0, ridge: float = 1.0) -> list[dict[str, float]]:
+    """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
+    by the description length of its best (Viterbi) segmentation there, in nats per held-out step.
+
+    Why linear policies score K where the VAE's network cannot: a network sub-task policy sees enough of the state
+    to explain the actions with fewer codes than there are sub-tasks (the square: 2 instead of 4), so extra codes
+    buy it nothing; a linear policy per code needs one code per distinct behaviour. Each dict holds `codes`,
+    `dl_per_step` and `episode_dl` (the held-out episodes' own description lengths in nats, for
+    `model_selection.smallest_within_one_se`).
+    """
+    x_fit, a_fit, n_act, mean, std = _design(fit_on, discrete)
+    x_held, a_held, _, _, _ = _design(held, discrete, n_act, mean, std)
+    lengths = np.array([len(t) for t in held])
+    bounds = np.cumsum([0, *lengths])
+    mean_len = float(np.mean([len(t) for t in [*fit_on, *held]]))
+    curve = []
+    for k in candidates:
+        seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge) if k > 1
+               else [np.zeros(len(t), np.int64) for t in fit_on])
+        policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge)
+        policies.fit(x_fit, a_fit, np.concatenate(seg))
+        flat = policies.loglik(x_held, a_held)
+        padded = np.zeros((len(held), lengths.max(), k))
+        for i in range(len(held)):
+            padded[i, :lengths[i]] = flat[bounds[i]:bounds[i + 1]]
+        penalty = math.log(mean_len) + math.log(max(k - 1, 1))
+        codes = _viterbi(padded, lengths, penalty)
+        episode = np.array([-flat[bounds[i] + np.arange(lengths[i]), c].sum() + penalty * np.count_nonzero(np.diff(c))
+                            for i, c in enumerate(codes)])
+        curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
+                      "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
+                      "episode_dl": episode.tolist()})
+    return curve
+
+
+def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = None, mean: np.ndarray | None = None,
+            std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+    """Features [s_n, 1] and actions of all steps (normalised with `mean` and `std`, by default the demos' own),
+    the number of discrete actions (or action dimensions) and the normalisation."""
+    if mean is None or std is None:
+        obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
+        mean, std = obs.mean(0), obs.std(0) + 1e-6
+    x = np.concatenate(_features(trajs, mean, std))
+    if discrete:
+        a = np.concatenate([np.asarray(t.acts).astype(np.int64).reshape(-1) for t in trajs])
+        n = max(n_act or 0, int(a.max()) + 1)
+    else:
+        a = np.concatenate([np.asarray(t.acts, np.float64).reshape(len(t), -1) for t in trajs])
+        n = a.shape[1]
+    return x, a, n, mean, std
+
+
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
              rounds: int, chunks: bool = False, ridge: float = 1e-3,
              shared_variance: bool = True) -> tuple[float, list[np.ndarray]]:

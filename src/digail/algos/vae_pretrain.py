@@ -32,16 +32,17 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
 from digail.algos.gumbel import gumbel_softmax_chain
-from digail.algos.model_selection import description_length, heldout_split
+from digail.algos.model_selection import best_index, description_length, heldout_split, smallest_within_one_se
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
-from digail.algos.segment_init import hard_em_segmentation
+from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve
 from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -323,31 +324,45 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
 def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], *,
                  action_spec: ActionSpec | None = None, seed: int = 0, device: str | torch.device = "cpu",
                  progress: bool = True, log_dir: str | Path | None = None
-                 ) -> tuple[HierarchicalPolicy, dict[str, list[float]], list[dict[str, float]]]:
-    """Choose the number of codes K without labels: one VAE per K in `candidates` on the demonstrations less a
-    held-out share, scored by the description length of the held-out actions (`model_selection`); the lowest
-    wins and is polished on all demonstrations.
+                 ) -> tuple[HierarchicalPolicy, dict[str, list[float]], list[dict[str, Any]]]:
+    """Choose the number of codes K without labels: each K in `candidates` is fitted on the demonstrations less a
+    held-out share and scored by the description length of the held-out actions (`model_selection`), then the
+    chosen K is trained (and polished) on all demonstrations.
+
+    `cfg.k_criterion` says which model is scored: `linear`, the hard-EM start's switching linear policies (the
+    smallest K within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K
+    (the lowest; the chosen VAE is kept and only polished on all demonstrations).
 
     Returns:
         `(model, history, curve)`: the chosen model, its training history and one dict per candidate K
-        (`codes` and the held-out scores of `description_length`).
+        (`codes`, `dl_per_step`, ... and `chosen`, true for the K kept).
     """
+    _, action_spec = check_demos(trajs, action_spec)
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
-    curve: list[dict[str, float]] = []
-    best: tuple[float, HierarchicalPolicy, dict[str, list[float]]] | None = None
-    for k in candidates:
-        model, history = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0),
-                                  action_spec=action_spec, seed=seed, device=device, progress=progress)
-        score = description_length(model, held)
-        curve.append({"codes": k, **score})
-        if best is None or score["dl_per_step"] < best[0]:
-            best = (score["dl_per_step"], model, history)
-    assert best is not None
-    _, model, history = best
-    if cfg.polish_steps > 0:
-        polish(model, trajs, cfg, seed=seed, progress=progress)
-    if log_dir is not None:
-        write_losses_csv(Path(log_dir) / "losses.csv", history)
-        write_tensorboard(Path(log_dir), history)
+    curve: list[dict[str, Any]] = []
+    if cfg.k_criterion == "linear":
+        curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed)
+        pick = smallest_within_one_se(curve)
+        for entry in curve:
+            del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+        model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
+                                  action_spec=action_spec, seed=seed, device=device, progress=progress,
+                                  log_dir=log_dir)
+    else:
+        models = []
+        for k in candidates:
+            model, history = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0),
+                                      action_spec=action_spec, seed=seed, device=device, progress=progress)
+            curve.append({"codes": k, **description_length(model, held)})
+            models.append((model, history))
+        pick = best_index(curve)
+        model, history = models[pick]
+        if cfg.polish_steps > 0:
+            polish(model, trajs, cfg, seed=seed, progress=progress)
+        if log_dir is not None:
+            write_losses_csv(Path(log_dir) / "losses.csv", history)
+            write_tensorboard(Path(log_dir), history)
+    for i, entry in enumerate(curve):
+        entry["chosen"] = i == pick
     return model.eval(), history, curve
