@@ -54,6 +54,18 @@ def test_bonus_is_added_to_the_reward_the_policy_maximises(circle_demos):
     assert out["rollout/reward"] < out["rollout/disc_reward"]
 
 
+def test_bonus_code_entropy_adds_log_k_per_step(circle_demos):
+    """`bonus_code_entropy`: lambda_1 * (log q + log K), so an uninformative q's bonus is about 0, not a step cost
+    that pays for ending the episode (the InvertedPendulum preset)."""
+    cfg = replace(SMALL, bonus_weight=2.0, value_warmup=0, bonus_code_entropy=True)
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=_vae_model(circle_demos),
+                            seed=0, run_dir=None, progress=False)
+    out = trainer.iterate()
+    expected = out["rollout/disc_reward"] + 2.0 * (out["rollout/bonus"] + np.log(2))
+    assert out["rollout/reward"] == pytest.approx(expected, rel=1e-5)
+    assert abs(out["rollout/bonus"] + np.log(2)) < 0.3  # the untrained q is near uniform: the sum is near 0
+
+
 def test_gail_has_one_code_and_no_bonus(circle_demos):
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
                             seed=0, run_dir=None, progress=False)

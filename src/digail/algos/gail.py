@@ -214,6 +214,8 @@ class GAIL:
             logits = self.disc(flat_obs, act_in).reshape(T, N)
             disc_rew = self.reward_fn(logits, batch)
             bonus = self.cfg.bonus_weight * batch["bonus"]
+            if self.cfg.bonus_code_entropy and self.model.codes > 1:
+                bonus = bonus + self.cfg.bonus_weight * math.log(self.model.codes)
             rews = disc_rew + bonus
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
                                    batch["final_values"], batch["last_values"], self.cfg.ppo.gamma,
