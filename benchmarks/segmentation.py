@@ -204,7 +204,7 @@ def measure(args: argparse.Namespace, out: Path) -> None:
                 print(f"== {name} seed {seed}: chosen accuracy {restarts[pick]['accuracy']:.3f}, best {best:.3f}",
                       flush=True)
         result["tasks"][name] = {"codes": codes, "seeds": rows, "hits": sum(r["hit"] for r in rows),
-                                 "of": len(rows)}
+                                 "of": len(rows), "command": result["command"]}
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1) + "\n")
 
