@@ -216,13 +216,22 @@ def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = Non
     return x, a, n, mean, std
 
 
+def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
+                 rounds: int = 30, ridge: float = 1.0) -> tuple[float, list[np.ndarray]]:
+    """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
+    cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
+    the truth above what the search finds (`benchmarks/segmentation_oracle.py`)."""
+    return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
+                    start=[np.asarray(c, np.int64) for c in start])
+
+
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
              rounds: int, chunks: bool = False, ridge: float = 1e-3,
-             shared_variance: bool = True) -> tuple[float, list[np.ndarray]]:
+             shared_variance: bool = True, start: list[np.ndarray] | None = None) -> tuple[float, list[np.ndarray]]:
     """One hard-EM run: (description length in nats, codes per demonstration). It starts from k-means clusters
     of (action, state) pairs, or with `chunks` from every demonstration cut into K equal consecutive pieces
     (codes 0, 1, ..., K - 1 in time: near the truth when sub-tasks come in one order, where k-means of the
-    actions can settle on pieces of a curve instead)."""
+    actions can settle on pieces of a curve instead), or from `start` when given."""
     obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
     mean, std = obs.mean(0), obs.std(0) + 1e-6
     xs = _features(trajs, mean, std)
@@ -242,7 +251,9 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
     z = np.concatenate([np.c_[af, 0.5 * x[:, :-1]] for af, x in zip(a_feat, xs, strict=True)])
     bounds = np.cumsum([0, *[len(t) for t in trajs]])
-    if chunks:
+    if start is not None:
+        seg = list(start)
+    elif chunks:
         seg = [np.minimum(np.arange(len(t)) * codes // len(t), codes - 1) for t in trajs]
     else:
         labels = _kmeans(z, codes, rng)
