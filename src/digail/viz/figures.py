@@ -398,7 +398,8 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path | Mapping[str, np.nda
     if not keys:
         return None
     fig, axes = plt.subplots(1, len(keys), figsize=(3.6 * len(keys), 3.2), squeeze=False)
-    for ax, (k, label) in zip(axes[0], keys, strict=True):
+    drawn = np.zeros(len(keys), np.int64)  # seeds drawn per panel
+    for j, (ax, (k, label)) in enumerate(zip(axes[0], keys, strict=True)):
         for i, (method, ms) in enumerate(sorted(loaded.items())):
             curves = []
             for x in ms:
@@ -413,12 +414,15 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path | Mapping[str, np.nda
             ys = np.stack([np.interp(grid, s, v) for s, v in curves])
             colour = plt.get_cmap("tab10")(i % 10)
             seeds = f"{len(curves)} seed" + ("s" if len(curves) > 1 else "")
+            drawn[j] += len(curves)
             ax.plot(grid, ys.mean(0), color=colour, label=f"{method} ({seeds})")
             if len(curves) > 1:
                 ax.fill_between(grid, ys.min(0), ys.max(0), color=colour, alpha=0.2, linewidth=0)
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("env steps")
         ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
-    axes[0, 0].legend(fontsize=7)
+    # the legend's seed counts are per panel: show it where the most seeds are drawn (runs known only by their
+    # evaluations, from another machine, have no training scalars)
+    axes[0, int(np.argmax(drawn))].legend(fontsize=7)
     fig.tight_layout()
     return _save(fig, path)
