@@ -183,6 +183,18 @@ def _finished(run: Path, env: str) -> bool:
     return bool(rows) and rows[-1].get("iteration", 0) >= spec["budget"] // spec["batch"]
 
 
+def _iteration_seconds(rows: list[dict[str, float]]) -> float | None:
+    """Training wall time of a run from its metrics: each iteration's env steps over its logged steps per second
+    (`perf/sps` times the whole iteration: rollout, discriminator and PPO; the periodic evaluations and
+    checkpoints are left out). None without throughput rows."""
+    total, last_step = 0.0, 0.0
+    for r in rows:
+        if r.get("perf/sps", 0) > 0 and "step" in r:
+            total += (r["step"] - last_step) / r["perf/sps"]
+            last_step = r["step"]
+    return round(total, 1) if total > 0 else None
+
+
 def _metrics(run: Path) -> list[dict[str, float]]:
     path = run / "metrics.csv"
     if not path.exists():
@@ -208,7 +220,11 @@ def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
     another machine, or it is being made again, e.g. a VAE pre-trained anew for a Directed-Info GAIL trial)."""
     run = ROOT / env / (f"vae_s{seed}" if method == "vae" else f"{method}_s{seed}")
     if not (run / "eval.json").exists():
-        return recorded(env, method, seed)
+        rec = recorded(env, method, seed)
+        published = PUBLISHED / f"{env}_{method}_s{seed}"
+        if rec is not None and rec.get("wall_s") is None and (published / "metrics.csv").exists():
+            rec = {**rec, "wall_s": _iteration_seconds(_metrics(published))}
+        return rec
     ev = json.loads((run / "eval.json").read_text())
     rows = _metrics(run)
     curve = [(r["step"], r["eval/normalized_return"]) for r in rows if "eval/normalized_return" in r]
@@ -227,7 +243,7 @@ def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
         "expert_std_return": ev.get("expert", {}).get("std_return"),
         "episodes": ev["episodes"], "env_steps": steps, "steps_to_0.9": steps_to_09,
         "steps_to_0.9_after_step_0": trained_to_09,
-        "wall_s": cfg.get("train_time_s") or (rows[-1].get("perf/wall_s") if rows else None),
+        "wall_s": cfg.get("train_time_s") or _iteration_seconds(rows),
         "commands": commands,
     }
 
