@@ -186,17 +186,24 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
         policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge)
         policies.fit(x_fit, a_fit, np.concatenate(seg))
         flat = policies.loglik(x_held, a_held)
-        padded = np.zeros((len(held), lengths.max(), k))
-        for i in range(len(held)):
-            padded[i, :lengths[i]] = flat[bounds[i]:bounds[i + 1]]
         penalty = math.log(mean_len) + math.log(max(k - 1, 1))
-        codes = _viterbi(padded, lengths, penalty)
+        codes = _viterbi(_by_episode(flat, lengths), lengths, penalty)
         episode = np.array([-flat[bounds[i] + np.arange(lengths[i]), c].sum() + penalty * np.count_nonzero(np.diff(c))
                             for i, c in enumerate(codes)])
         curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
                       "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
                       "episode_dl": episode.tolist()})
     return curve
+
+
+def _by_episode(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(B, T_max, K) of the per-step rows `flat` (sum(lengths), K), one episode per row, zero past its end (what
+    `_viterbi` takes)."""
+    bounds = np.cumsum([0, *lengths])
+    out = np.zeros((len(lengths), int(lengths.max()), flat.shape[1]))
+    for i, n in enumerate(lengths):
+        out[i, :n] = flat[bounds[i]:bounds[i + 1]]
+    return out
 
 
 def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = None, mean: np.ndarray | None = None,
@@ -232,42 +239,23 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     of (action, state) pairs, or with `chunks` from every demonstration cut into K equal consecutive pieces
     (codes 0, 1, ..., K - 1 in time: near the truth when sub-tasks come in one order, where k-means of the
     actions can settle on pieces of a curve instead), or from `start` when given."""
-    obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
-    mean, std = obs.mean(0), obs.std(0) + 1e-6
-    xs = _features(trajs, mean, std)
-    acts = [np.asarray(t.acts) for t in trajs]
-    a_fit: list[np.ndarray]
-    a_feat: list[np.ndarray]
-    if discrete:
-        n_act = int(max(int(a.max()) for a in acts)) + 1
-        a_feat = [np.eye(n_act)[a.astype(np.int64).reshape(-1)] for a in acts]
-        a_fit = [a.astype(np.int64).reshape(-1) for a in acts]
-    else:
-        a_fit = [np.asarray(a, np.float64).reshape(len(a), -1) for a in acts]
-        flat = np.concatenate(a_fit)
-        a_feat = [(a - flat.mean(0)) / (flat.std(0) + 1e-6) for a in a_fit]
-        n_act = flat.shape[1]
-    x_all, a_all = np.concatenate(xs), np.concatenate(a_fit)
-    # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
-    z = np.concatenate([np.c_[af, 0.5 * x[:, :-1]] for af, x in zip(a_feat, xs, strict=True)])
-    bounds = np.cumsum([0, *[len(t) for t in trajs]])
+    x_all, a_all, n_act, _, _ = _design(trajs, discrete)
+    lengths = np.array([len(t) for t in trajs])
+    bounds = np.cumsum([0, *lengths])
     if start is not None:
         seg = list(start)
     elif chunks:
         seg = [np.minimum(np.arange(len(t)) * codes // len(t), codes - 1) for t in trajs]
     else:
-        labels = _kmeans(z, codes, rng)
+        # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
+        a_feat = np.eye(n_act)[a_all] if discrete else (a_all - a_all.mean(0)) / (a_all.std(0) + 1e-6)
+        labels = _kmeans(np.c_[a_feat, 0.5 * x_all[:, :-1]], codes, rng)
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
     policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge, shared_variance)
-    penalty = math.log(float(np.mean([len(t) for t in trajs]))) + math.log(max(codes - 1, 1))
-    lengths = np.array([len(t) for t in trajs])
+    penalty = math.log(float(np.mean(lengths))) + math.log(max(codes - 1, 1))
 
     def padded_loglik() -> np.ndarray:
-        flat = policies.loglik(x_all, a_all)
-        out = np.zeros((len(trajs), lengths.max(), codes))
-        for i in range(len(trajs)):
-            out[i, :lengths[i]] = flat[bounds[i]:bounds[i + 1]]
-        return out
+        return _by_episode(policies.loglik(x_all, a_all), lengths)
 
     for _ in range(rounds):
         policies.fit(x_all, a_all, np.concatenate(seg))

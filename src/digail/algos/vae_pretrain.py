@@ -350,14 +350,16 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
                                   log_dir=log_dir)
     else:
-        models = []
+        kept: tuple[HierarchicalPolicy, dict[str, list[float]]] | None = None
         for k in candidates:
-            model, history = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0),
-                                      action_spec=action_spec, seed=seed, device=device, progress=progress)
-            curve.append({"codes": k, **description_length(model, held)})
-            models.append((model, history))
+            fitted = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0), action_spec=action_spec,
+                              seed=seed, device=device, progress=progress)
+            curve.append({"codes": k, **description_length(fitted[0], held)})
+            if best_index(curve) == len(curve) - 1:  # only the best so far is kept in memory
+                kept = fitted
+        assert kept is not None
         pick = best_index(curve)
-        model, history = models[pick]
+        model, history = kept
         if cfg.polish_steps > 0:
             polish(model, trajs, cfg, seed=seed, progress=progress)
         if log_dir is not None:
