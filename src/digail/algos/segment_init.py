@@ -13,6 +13,23 @@ where it happens and to which code, log T + log(K - 1) (T: the mean episode leng
 `digail.algos.model_selection`, with no free parameter. Hard EM alternates the exact minimiser over
 segmentations (Viterbi) and the policies' refit, from k-means clusters of (action, state) pairs.
 
+Switch costs learned from the state (`switch_costs="learned"`, the default): each switch is charged
+-log p(c_t | c_{t-1}, s_t) under a macro-policy fitted to the current segmentation (a softmax-linear model per
+previous code), mixed half and half with the fixed model. A sub-task that ends where the state says so (a
+waypoint reached) then switches almost for free, so two short legs no longer pay 2 (log T + log(K - 1)) nats more
+than one merged code: on grid-six the fixed costs merge "right, then up" into one code (the start's accuracy
+0.61), the learned ones keep the legs apart (0.98). The mixture bounds what an unpredicted switch costs (at most
+log 2 nats more than the fixed model); an HMM's transition table, without the state or the mixture, let the codes
+flicker (grid-large 0.98 -> 0.49, docs/experiments.md). The price: a switch the state does not announce (after
+holding still in one place) now costs more than one it does, and the start may prefer the latter
+(docs/experiments.md has a synthetic case; `switch_costs="fixed"` keeps the old costs).
+
+Learned costs need a start near the sub-tasks. A macro-policy fitted to a flickering segmentation (k-means of
+grid-six's actions gives a code per random action) makes flickering cheap, so EM from k-means first converges
+with the fixed costs and only then learns them. The starts also include the ordered cut, every demonstration
+cut into K consecutive pieces where its actions change most (`_ordered_pieces`), from which EM learns the costs
+at once: on grid-six that start alone finds the legs.
+
 The variance is shared because the codes should differ in what the expert does, not in how precisely a linear
 policy predicts it: with a variance per code, a code that gathers the steps whose actions are nearly exactly
 predictable earns up to -0.5 log(floor) nats per dimension and step, and on deterministic experts that pays for
@@ -85,6 +102,61 @@ def _viterbi(loglik: np.ndarray, lengths: np.ndarray, penalty: float) -> list[np
     return [path[i, :n].copy() for i, n in enumerate(lengths)]
 
 
+def _viterbi_trans(loglik: np.ndarray, logtrans: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
+    """Per episode, the codes maximising sum_t loglik[t, c_t] + sum_{t>0} logtrans[t, c_{t-1}, c_t].
+
+    `loglik` is (B, T_max, K) and `logtrans` (B, T_max, K, K), both zero beyond each episode's length (so the
+    path past the end keeps its code, as in `_viterbi`)."""
+    B, T, K = loglik.shape
+    rows = np.arange(B)
+    score = loglik[:, 0].copy()
+    back = np.zeros((B, T, K), np.int64)
+    for t in range(1, T):
+        cand = score[:, :, None] + logtrans[:, t]  # (B, from, to)
+        back[:, t] = cand.argmax(1)
+        score = np.take_along_axis(cand, back[:, t][:, None, :], 1)[:, 0] + loglik[:, t]
+    path = np.empty((B, T), np.int64)
+    path[:, -1] = score.argmax(1)
+    for t in range(T - 1, 0, -1):
+        path[:, t - 1] = back[rows, t, path[:, t]]
+    return [path[i, :n].copy() for i, n in enumerate(lengths)]
+
+
+class _Transitions:
+    """The start's macro-policy p(c_t | c_{t-1}, s_t) (module docstring): per previous code a softmax-linear model
+    of the next code on x = [s_n, 1], mixed with weight `base` with the fixed model (switch with probability
+    1 / T, to any other code alike)."""
+
+    def __init__(self, k: int, dim_x: int, mean_len: float, ridge: float = 1e-3, base: float = 0.5) -> None:
+        self.k, self.base = k, base
+        # light ridge: a switch the state predicts should become cheap; the mixture, not the ridge, bounds the rest
+        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.w = np.zeros((k, dim_x, k))
+        p_switch = 1.0 / mean_len
+        self.fixed = np.full((k, k), math.log(p_switch / max(k - 1, 1)))
+        np.fill_diagonal(self.fixed, math.log(1.0 - p_switch))
+
+    def fit(self, x: np.ndarray, seg: Sequence[np.ndarray], bounds: np.ndarray) -> None:
+        prev, nxt, rows = _pairs(seg, bounds)
+        for j in range(self.k):
+            sel = prev == j
+            if sel.any():  # an unused code keeps its last model
+                self.w[j] = _softmax_regression(x[rows[sel]], nxt[sel], self.k, self.w[j], self.ridge)
+
+    def logprob(self, x: np.ndarray) -> np.ndarray:
+        """(T, K, K) log p(c_t = k | c_{t-1} = j, s_t) for the rows of `x`."""
+        z = np.einsum("td,jdk->tjk", x, self.w)
+        z = z - z.max(-1, keepdims=True)
+        learned = z - np.log(np.exp(z).sum(-1, keepdims=True))
+        return np.logaddexp(math.log(1 - self.base) + learned, math.log(self.base) + self.fixed[None])
+
+
+def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(c_{t-1}, c_t, row of step t) over every step but each episode's first."""
+    return (np.concatenate([c[:-1] for c in seg]), np.concatenate([c[1:] for c in seg]),
+            np.concatenate([np.arange(bounds[i] + 1, bounds[i + 1]) for i in range(len(seg))]))
+
+
 class _LinearPolicies:
     """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
 
@@ -147,16 +219,20 @@ def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ri
 
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
                          rounds: int = 30, starts: int = 4, ridge: float = 1.0,
-                         shared_variance: bool = True) -> list[np.ndarray]:
+                         shared_variance: bool = True, switch_costs: str = "learned") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
-    docstring): from each of `starts` k-means starts, up to `rounds` of Viterbi and refit (stopping when nothing
+    docstring): from K equal consecutive pieces, from the ordered cut (learned switch costs only) and from
+    `starts` - 1 k-means starts (`_hard_em`), up to `rounds` of Viterbi and refit each (stopping when nothing
     changes); the segmentation with the shortest description length wins. `shared_variance=False`: one action
-    variance per code (the first version, kept for the runs made with it)."""
+    variance per code (the first version, kept for the runs made with it); `switch_costs="fixed"`: log T +
+    log(K - 1) nats per switch throughout (also kept for the runs made with it)."""
     rng = np.random.default_rng(seed)
     best: tuple[float, list[np.ndarray]] | None = None
-    for start in range(starts):
-        cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, chunks=start == 0, ridge=ridge,
-                             shared_variance=shared_variance)
+    # fixed switch costs keep the starts their runs were made with
+    firsts = ["chunks", *(["ordered"] if switch_costs == "learned" else []), *["kmeans"] * (starts - 1)]
+    for first in firsts:
+        cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, first=first, ridge=ridge,
+                             shared_variance=shared_variance, switch_costs=switch_costs)
         if best is None or cost < best[0]:
             best = (cost, seg)
     assert best is not None
@@ -164,9 +240,11 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
-                        discrete: bool, *, seed: int = 0, ridge: float = 1.0) -> list[dict[str, float]]:
+                        discrete: bool, *, seed: int = 0, ridge: float = 1.0,
+                        switch_costs: str = "learned") -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
-    by the description length of its best (Viterbi) segmentation there, in nats per held-out step.
+    by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
+    switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
 
     Why linear policies score K where the VAE's network cannot: a network sub-task policy sees enough of the state
     to explain the actions with fewer codes than there are sub-tasks (the square: 2 instead of 4), so extra codes
@@ -178,18 +256,31 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     x_held, a_held, _, _, _ = _design(held, discrete, n_act, mean, std)
     lengths = np.array([len(t) for t in held])
     bounds = np.cumsum([0, *lengths])
+    fit_bounds = np.cumsum([0, *[len(t) for t in fit_on]])
     mean_len = float(np.mean([len(t) for t in [*fit_on, *held]]))
     curve = []
     for k in candidates:
-        seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge) if k > 1
+        seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs) if k > 1
                else [np.zeros(len(t), np.int64) for t in fit_on])
         policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge)
         policies.fit(x_fit, a_fit, np.concatenate(seg))
         flat = policies.loglik(x_held, a_held)
-        penalty = math.log(mean_len) + math.log(max(k - 1, 1))
-        codes = _viterbi(_by_episode(flat, lengths), lengths, penalty)
-        episode = np.array([-flat[bounds[i] + np.arange(lengths[i]), c].sum() + penalty * np.count_nonzero(np.diff(c))
-                            for i, c in enumerate(codes)])
+        if switch_costs == "learned":
+            trans = _Transitions(k, x_fit.shape[1], mean_len)
+            trans.fit(x_fit, seg, fit_bounds)
+            logtrans = trans.logprob(x_held)
+            codes = _viterbi_trans(_by_episode(flat, lengths), _by_episode(
+                logtrans.reshape(len(flat), -1), lengths).reshape(len(lengths), -1, k, k), lengths)
+            prev, nxt, rows = _pairs(codes, bounds)
+            switch_nats = -logtrans[rows, prev, nxt]
+            per_episode = np.bincount(np.repeat(np.arange(len(lengths)), lengths - 1), weights=switch_nats,
+                                      minlength=len(lengths))
+        else:
+            penalty = math.log(mean_len) + math.log(max(k - 1, 1))
+            codes = _viterbi(_by_episode(flat, lengths), lengths, penalty)
+            per_episode = np.array([penalty * np.count_nonzero(np.diff(c)) for c in codes])
+        episode = np.array([-flat[bounds[i] + np.arange(lengths[i]), c].sum() for i, c in enumerate(codes)])
+        episode = episode + per_episode
         curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
                       "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
                       "episode_dl": episode.tolist()})
@@ -224,47 +315,94 @@ def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = Non
 
 
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
-                 rounds: int = 30, ridge: float = 1.0) -> tuple[float, list[np.ndarray]]:
+                 rounds: int = 30, ridge: float = 1.0, switch_costs: str = "learned") -> tuple[float, list[np.ndarray]]:
     """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
     cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
     the truth above what the search finds (`benchmarks/segmentation_oracle.py`)."""
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
-                    start=[np.asarray(c, np.int64) for c in start])
+                    start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs)
+
+
+def _ordered_pieces(feat: np.ndarray, k: int) -> np.ndarray:
+    """Codes 0, 1, ..., k - 1 of the cut of one demonstration's (T, D) action features into k consecutive pieces
+    with the least summed squared deviation from each piece's mean (exact, by dynamic programming over the cuts)."""
+    n = len(feat)
+    k = min(k, n)
+    s1 = np.r_[np.zeros((1, feat.shape[1])), np.cumsum(feat, 0)]
+    s2 = np.r_[0.0, np.cumsum((feat ** 2).sum(1))]
+    i, j = np.triu_indices(n + 1, 1)
+    cost = np.full((n + 1, n + 1), np.inf)  # cost[i, j]: the piece of steps i .. j - 1
+    cost[i, j] = s2[j] - s2[i] - ((s1[j] - s1[i]) ** 2).sum(1) / (j - i)
+    best = cost[0].copy()  # best[j]: steps 0 .. j - 1 in m pieces
+    cuts = np.zeros((k, n + 1), np.int64)
+    for m in range(1, k):
+        total = best[:, None] + cost
+        cuts[m] = total.argmin(0)
+        best = total.min(0)
+    codes = np.empty(n, np.int64)
+    end = n
+    for m in range(k - 1, -1, -1):
+        begin = cuts[m, end] if m > 0 else 0
+        codes[begin:end] = m
+        end = begin
+    return codes
 
 
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
-             rounds: int, chunks: bool = False, ridge: float = 1e-3,
-             shared_variance: bool = True, start: list[np.ndarray] | None = None) -> tuple[float, list[np.ndarray]]:
-    """One hard-EM run: (description length in nats, codes per demonstration). It starts from k-means clusters
-    of (action, state) pairs, or with `chunks` from every demonstration cut into K equal consecutive pieces
-    (codes 0, 1, ..., K - 1 in time: near the truth when sub-tasks come in one order, where k-means of the
-    actions can settle on pieces of a curve instead), or from `start` when given."""
+             rounds: int, first: str = "kmeans", ridge: float = 1e-3, shared_variance: bool = True,
+             start: list[np.ndarray] | None = None, switch_costs: str = "learned") -> tuple[float, list[np.ndarray]]:
+    """One hard-EM run: (description length in nats, codes per demonstration). It starts from `start` when given,
+    else (`first`) from k-means clusters of (action, state) pairs, or from every demonstration cut into K
+    consecutive pieces with codes 0, 1, ..., K - 1 in time: `chunks` of equal length, or the `ordered` cut the
+    actions change most at (`_ordered_pieces`). The pieces are near the truth when sub-tasks come in one order,
+    where k-means of the actions can settle on pieces of a curve instead (Circle-World) or on flickering codes
+    (grid-six's random actions). With learned switch costs, EM from k-means or a given start runs with the fixed
+    costs until nothing changes and then on with the learned ones (a macro-policy fitted to a flickering start
+    would keep it flickering); from the pieces, which switch K - 1 times per demonstration, it learns at once. The
+    cost is then that of the learned model."""
     x_all, a_all, n_act, _, _ = _design(trajs, discrete)
     lengths = np.array([len(t) for t in trajs])
     bounds = np.cumsum([0, *lengths])
+    a_feat = np.eye(n_act)[a_all] if discrete else (a_all - a_all.mean(0)) / (a_all.std(0) + 1e-6)
     if start is not None:
         seg = list(start)
-    elif chunks:
+    elif first == "chunks":
         seg = [np.minimum(np.arange(len(t)) * codes // len(t), codes - 1) for t in trajs]
+    elif first == "ordered":
+        seg = [_ordered_pieces(a_feat[bounds[i]:bounds[i + 1]], codes) for i in range(len(trajs))]
     else:
         # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
-        a_feat = np.eye(n_act)[a_all] if discrete else (a_all - a_all.mean(0)) / (a_all.std(0) + 1e-6)
         labels = _kmeans(np.c_[a_feat, 0.5 * x_all[:, :-1]], codes, rng)
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
     policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge, shared_variance)
-    penalty = math.log(float(np.mean(lengths))) + math.log(max(codes - 1, 1))
+    mean_len = float(np.mean(lengths))
+    penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
+    trans = _Transitions(codes, x_all.shape[1], mean_len) if switch_costs == "learned" else None
+    learning = trans is not None and start is None and first != "kmeans"
 
     def padded_loglik() -> np.ndarray:
         return _by_episode(policies.loglik(x_all, a_all), lengths)
 
     for _ in range(rounds):
         policies.fit(x_all, a_all, np.concatenate(seg))
-        new = _viterbi(padded_loglik(), lengths, penalty)
+        if learning:
+            assert trans is not None
+            trans.fit(x_all, seg, bounds)
+            logtrans = trans.logprob(x_all).reshape(len(x_all), -1)
+            new = _viterbi_trans(padded_loglik(), _by_episode(logtrans, lengths).reshape(
+                len(lengths), -1, codes, codes), lengths)
+        else:
+            new = _viterbi(padded_loglik(), lengths, penalty)
         if all(np.array_equal(n, o) for n, o in zip(new, seg, strict=True)):
-            break
+            if trans is None or learning:
+                break
+            learning = True
         seg = new
     policies.fit(x_all, a_all, np.concatenate(seg))
     flat_codes = np.concatenate(seg)
     cost = -float(policies.loglik(x_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
-    cost += penalty * sum(int(np.count_nonzero(np.diff(c))) for c in seg)
-    return cost, seg
+    if trans is None:
+        return cost + penalty * sum(int(np.count_nonzero(np.diff(c))) for c in seg), seg
+    trans.fit(x_all, seg, bounds)
+    prev, nxt, rows = _pairs(seg, bounds)
+    return cost - float(trans.logprob(x_all)[rows, prev, nxt].sum()), seg

@@ -247,7 +247,8 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     model.to(dev).train()
     if cfg.init == "em" and cfg.codes > 1:
         first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed,
-                                     shared_variance=cfg.init_variance == "shared")
+                                     shared_variance=cfg.init_variance == "shared",
+                                     switch_costs=cfg.init_switch_costs)
         fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
         model.train()
     data = pad_demos(trajs, model, dev)
@@ -342,7 +343,8 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     curve: list[dict[str, Any]] = []
     if cfg.k_criterion == "linear":
-        curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed)
+        curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed,
+                                    switch_costs=cfg.init_switch_costs)
         pick = smallest_within_one_se(curve)
         for entry in curve:
             del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
