@@ -241,7 +241,7 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
-                        switch_costs: str = "learned") -> list[dict[str, float]]:
+                        switch_costs: str = "fixed") -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -356,10 +356,10 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     consecutive pieces with codes 0, 1, ..., K - 1 in time: `chunks` of equal length, or the `ordered` cut the
     actions change most at (`_ordered_pieces`). The pieces are near the truth when sub-tasks come in one order,
     where k-means of the actions can settle on pieces of a curve instead (Circle-World) or on flickering codes
-    (grid-six's random actions). With learned switch costs, EM from k-means or a given start runs with the fixed
-    costs until nothing changes and then on with the learned ones (a macro-policy fitted to a flickering start
-    would keep it flickering); from the pieces, which switch K - 1 times per demonstration, it learns at once. The
-    cost is then that of the learned model."""
+    (grid-six's random actions). With learned switch costs, EM from k-means runs with the fixed costs until
+    nothing changes and then on with the learned ones (a macro-policy fitted to a flickering start would keep it
+    flickering); from the pieces, which switch K - 1 times per demonstration, or from a given start it learns at
+    once. The cost is then that of the learned model."""
     x_all, a_all, n_act, _, _ = _design(trajs, discrete)
     lengths = np.array([len(t) for t in trajs])
     bounds = np.cumsum([0, *lengths])
@@ -378,7 +378,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     mean_len = float(np.mean(lengths))
     penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
     trans = _Transitions(codes, x_all.shape[1], mean_len) if switch_costs == "learned" else None
-    learning = trans is not None and start is None and first != "kmeans"
+    learning = trans is not None and (start is not None or first != "kmeans")
 
     def padded_loglik() -> np.ndarray:
         return _by_episode(policies.loglik(x_all, a_all), lengths)
