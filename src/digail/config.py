@@ -132,9 +132,10 @@ class VAEConfig:
     """`em` with continuous actions: one action variance per dimension shared by the codes, or one per code (the
     first version, which split Fetch's moving from holding still; `digail.algos.segment_init`)"""
     init_switch_costs: Literal["learned", "fixed"] = "learned"
-    """`em`: charge each switch by a macro-policy learned from the state once the fixed-cost EM has converged
-    (`learned`), or log T + log(K - 1) nats throughout (`fixed`, what the presets' runs used;
-    `digail.algos.segment_init`)"""
+    """`em`: charge each switch by a macro-policy learned from the state, and also start from every demonstration
+    cut into K pieces where its actions change (`learned`), or log T + log(K - 1) nats per switch and the earlier
+    starts (`fixed`, what the presets' runs used). Fixed when the expert waits in place before a switch
+    (`digail.algos.segment_init`, README)"""
     init_steps: int = 6000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0
