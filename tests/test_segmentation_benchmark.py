@@ -184,3 +184,15 @@ def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minar
     for name, spec in SHIPPED.items():
         ds = load_dataset(spec["demos"])
         assert len(np.unique(np.concatenate(_labels(ds.trajs)))) == spec["codes"], name
+
+
+def test_ordered_pieces_of_a_long_demonstration_cut_on_a_grid() -> None:
+    """A 30 000-step demonstration would need a 30 001 x 30 001 table for the exact cut: it is cut on a grid of
+    at most 1000 candidate positions instead, each within one grid step of the change."""
+    from digail.algos.segment_init import _ordered_pieces
+
+    truth = np.repeat([0, 1, 2], [10_000, 15_000, 5_000])
+    feat = np.array([[1.0], [-1.0], [3.0]])[truth]
+    codes = _ordered_pieces(feat, 3)
+    assert list(np.unique(codes)) == [0, 1, 2] and np.all(np.diff(codes) >= 0)
+    assert np.mean(codes == truth) > 0.998

@@ -323,27 +323,32 @@ def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs)
 
 
-def _ordered_pieces(feat: np.ndarray, k: int) -> np.ndarray:
+def _ordered_pieces(feat: np.ndarray, k: int, max_cuts: int = 1000) -> np.ndarray:
     """Codes 0, 1, ..., k - 1 of the cut of one demonstration's (T, D) action features into k consecutive pieces
-    with the least summed squared deviation from each piece's mean (exact, by dynamic programming over the cuts)."""
+    with the least summed squared deviation from each piece's mean (exact, by dynamic programming over the cuts).
+    Longer demonstrations are cut only at every ceil(T / `max_cuts`)-th step, which keeps the DP's (cuts x cuts)
+    table small."""
     n = len(feat)
     k = min(k, n)
-    s1 = np.r_[np.zeros((1, feat.shape[1])), np.cumsum(feat, 0)]
-    s2 = np.r_[0.0, np.cumsum((feat ** 2).sum(1))]
-    i, j = np.triu_indices(n + 1, 1)
-    cost = np.full((n + 1, n + 1), np.inf)  # cost[i, j]: the piece of steps i .. j - 1
-    cost[i, j] = s2[j] - s2[i] - ((s1[j] - s1[i]) ** 2).sum(1) / (j - i)
-    best = cost[0].copy()  # best[j]: steps 0 .. j - 1 in m pieces
-    cuts = np.zeros((k, n + 1), np.int64)
+    at = np.unique(np.r_[np.arange(0, n, math.ceil(n / max_cuts)), n])  # where a piece may begin or end
+    s1 = np.r_[np.zeros((1, feat.shape[1])), np.cumsum(feat, 0)][at]
+    s2 = np.r_[0.0, np.cumsum((feat ** 2).sum(1))][at]
+    m_at = len(at)
+    k = min(k, m_at - 1)
+    i, j = np.triu_indices(m_at, 1)
+    cost = np.full((m_at, m_at), np.inf)  # cost[i, j]: the piece of steps at[i] .. at[j] - 1
+    cost[i, j] = s2[j] - s2[i] - ((s1[j] - s1[i]) ** 2).sum(1) / (at[j] - at[i])
+    best = cost[0].copy()  # best[j]: steps 0 .. at[j] - 1 in m pieces
+    cuts = np.zeros((k, m_at), np.int64)
     for m in range(1, k):
         total = best[:, None] + cost
         cuts[m] = total.argmin(0)
         best = total.min(0)
     codes = np.empty(n, np.int64)
-    end = n
+    end = m_at - 1
     for m in range(k - 1, -1, -1):
         begin = cuts[m, end] if m > 0 else 0
-        codes[begin:end] = m
+        codes[at[begin]:at[end]] = m
         end = begin
     return codes
 
