@@ -23,6 +23,8 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
         per (task, seed): N restarts on the same split as `--vae.restarts N`, each one's held-out description
         length and accuracy on all demonstrations; a hit when the lowest description length is also the most
         accurate (ties count)
+    python benchmarks/segmentation.py --measure figure   -> results/figures/segmentation_benchmark.png (the runs
+        of the table's seed 0: oracle labels against the codes for three demonstrations per task)
     python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
         per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
         (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion
@@ -115,11 +117,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                         help="extra `digail pretrain` flags for every task, e.g. vae.smoothing-weight=0.3")
-    parser.add_argument("--measure", choices=["table", "restarts", "codes"], default="table")
+    parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure"], default="table")
     parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     extra = extra_flags(args)
+    if args.measure == "figure":
+        figure(args.out, args.runs, args.data, HERE / "results" / "figures" / "segmentation_benchmark.png")
+        return
     if args.measure != "table":
         out = args.out.with_name(f"segmentation_{args.measure}.json") if args.out.name == "segmentation.json" \
             else args.out
@@ -144,6 +149,54 @@ def main(argv: list[str] | None = None) -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
     print(table(result))
+
+
+def figure(results: Path, runs: Path, data_root: Path, out: Path, episodes: int = 3) -> None:
+    """One panel per task of `results`: for the first `episodes` demonstrations, the oracle labels (upper strip)
+    and the seed-0 run's codes (lower strip), each code drawn in the colour of the label it is matched to."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from digail.data.minari_io import load_dataset
+
+    tasks = json.loads(results.read_text())["tasks"]
+    cols = 2
+    rows = -(-len(tasks) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(12, 1.55 * rows), squeeze=False)
+    cmap = matplotlib.colormaps["tab10"]
+    for ax, (name, task) in zip(axes.flat, tasks.items(), strict=False):
+        demos, _, _, _ = task_data(name, data_root)
+        labels = [np.asarray(t.subtasks)[:len(t)] for t in load_dataset(demos).trajs[:episodes]]
+        run = runs / f"{name}_s0"
+        codes = np.load(run / "codes.npz")
+        mapping = {int(k): int(v) for k, v in json.loads((run / "segmentation.json").read_text())["mapping"].items()}
+        width = max(len(c) for c in labels)
+        strips = []
+        for i, truth in enumerate(labels):
+            found = np.array([mapping.get(int(c), 9) for c in codes[f"episode_{i:05d}"][:len(truth)]])
+            for row in (truth, found):
+                strips.append(np.r_[row, np.full(width - len(row), -1)].astype(float))
+            strips.append(np.full(width, -1.0))  # a gap between episodes
+        img = np.ma.masked_less(np.array(strips[:-1]), 0)
+        ax.imshow(img, aspect="auto", cmap=cmap, vmin=0, vmax=9, interpolation="nearest")
+        ax.set_yticks([3 * i + j for i in range(len(labels)) for j in (0, 1)],
+                      [f"ep {i} {what}" for i in range(len(labels)) for what in ("truth", "codes")], fontsize=7)
+        ax.tick_params(axis="x", labelsize=7)
+        med = task["median"]
+        ax.set_title(f"{name} (K = {task['codes']}): median accuracy {med['accuracy']:.3f}, "
+                     f"{med['switches_per_episode']:.2f} switches / episode (truth "
+                     f"{med['true_switches_per_episode']:.2f})", fontsize=8)
+    for ax in axes.flat[len(tasks):]:
+        ax.axis("off")
+    axes.flat[-1].set_xlabel("step", fontsize=7)
+    fig.suptitle("Segmentation benchmark with the defaults, seed 0: oracle labels against the codes (colour = the "
+                 "label a code is matched to)", fontsize=9)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
 
 
 def measure(args: argparse.Namespace, out: Path) -> None:
