@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from segmentation import task_data  # noqa: E402
 
-from digail.algos.segment_init import _design, _kmeans, hard_em_from, hard_em_segmentation  # noqa: E402
+from digail.algos.segment_init import _action_features, _design, _kmeans, hard_em_from, hard_em_segmentation  # noqa: E402
 from digail.data.minari_io import load_dataset  # noqa: E402
 from digail.eval.segmentation import segmentation_metrics  # noqa: E402
 from digail.nets.policy import ActionSpec  # noqa: E402
@@ -40,7 +40,7 @@ def split_merge(trajs: list, codes: int, discrete: bool, seg: list[np.ndarray], 
     """The search of the module docstring, from the segmentation `seg` of description length `cost`."""
     rng = np.random.default_rng(0)
     x, a, n_act, _, _ = _design(trajs, discrete)
-    feat = np.c_[np.eye(n_act)[a] if discrete else (a - a.mean(0)) / (a.std(0) + 1e-6), 0.5 * x[:, :-1]]
+    feat = np.c_[_action_features(a, n_act, discrete), 0.5 * x[:, :-1]]  # what the k-means start clusters
     bounds = np.cumsum([0, *[len(t) for t in trajs]])
     improved = True
     while improved:

@@ -95,11 +95,7 @@ def _viterbi(loglik: np.ndarray, lengths: np.ndarray, penalty: float) -> list[np
         stay = score >= switch[:, None]
         back[:, t] = np.where(stay, np.arange(K)[None], best_prev[:, None])
         score = np.where(stay, score, switch[:, None]) + loglik[:, t]
-    path = np.empty((B, T), np.int64)
-    path[:, -1] = score.argmax(1)
-    for t in range(T - 1, 0, -1):
-        path[:, t - 1] = back[rows, t, path[:, t]]
-    return [path[i, :n].copy() for i, n in enumerate(lengths)]
+    return _backtrack(score, back, lengths)
 
 
 def _viterbi_trans(loglik: np.ndarray, logtrans: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
@@ -108,13 +104,19 @@ def _viterbi_trans(loglik: np.ndarray, logtrans: np.ndarray, lengths: np.ndarray
     `loglik` is (B, T_max, K) and `logtrans` (B, T_max, K, K), both zero beyond each episode's length (so the
     path past the end keeps its code, as in `_viterbi`)."""
     B, T, K = loglik.shape
-    rows = np.arange(B)
     score = loglik[:, 0].copy()
     back = np.zeros((B, T, K), np.int64)
     for t in range(1, T):
         cand = score[:, :, None] + logtrans[:, t]  # (B, from, to)
         back[:, t] = cand.argmax(1)
         score = np.take_along_axis(cand, back[:, t][:, None, :], 1)[:, 0] + loglik[:, t]
+    return _backtrack(score, back, lengths)
+
+
+def _backtrack(score: np.ndarray, back: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
+    """The Viterbi path per episode from the final (B, K) scores and the (B, T, K) back-pointers."""
+    B, T, _ = back.shape
+    rows = np.arange(B)
     path = np.empty((B, T), np.int64)
     path[:, -1] = score.argmax(1)
     for t in range(T - 1, 0, -1):
@@ -269,8 +271,7 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
             trans = _Transitions(k, x_fit.shape[1], mean_len)
             trans.fit(x_fit, seg, fit_bounds)
             logtrans = trans.logprob(x_held)
-            codes = _viterbi_trans(_by_episode(flat, lengths), _by_episode(
-                logtrans.reshape(len(flat), -1), lengths).reshape(len(lengths), -1, k, k), lengths)
+            codes = _viterbi_trans(_by_episode(flat, lengths), _by_episode(logtrans, lengths), lengths)
             prev, nxt, rows = _pairs(codes, bounds)
             switch_nats = -logtrans[rows, prev, nxt]
             per_episode = np.bincount(np.repeat(np.arange(len(lengths)), lengths - 1), weights=switch_nats,
@@ -288,10 +289,10 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
 
 
 def _by_episode(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """(B, T_max, K) of the per-step rows `flat` (sum(lengths), K), one episode per row, zero past its end (what
-    `_viterbi` takes)."""
+    """(B, T_max, ...) of the per-step rows `flat` (sum(lengths), ...), one episode per row, zero past its end
+    (what `_viterbi` and `_viterbi_trans` take)."""
     bounds = np.cumsum([0, *lengths])
-    out = np.zeros((len(lengths), int(lengths.max()), flat.shape[1]))
+    out = np.zeros((len(lengths), int(lengths.max()), *flat.shape[1:]))
     for i, n in enumerate(lengths):
         out[i, :n] = flat[bounds[i]:bounds[i + 1]]
     return out
@@ -323,13 +324,17 @@ def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs)
 
 
+def _action_features(a: np.ndarray, n_act: int, discrete: bool) -> np.ndarray:
+    """The actions as the starts compare them: one-hot (discrete) or standardised per dimension (continuous)."""
+    return np.eye(n_act)[a] if discrete else (a - a.mean(0)) / (a.std(0) + 1e-6)
+
+
 def _ordered_pieces(feat: np.ndarray, k: int, max_cuts: int = 1000) -> np.ndarray:
     """Codes 0, 1, ..., k - 1 of the cut of one demonstration's (T, D) action features into k consecutive pieces
     with the least summed squared deviation from each piece's mean (exact, by dynamic programming over the cuts).
     Longer demonstrations are cut only at every ceil(T / `max_cuts`)-th step, which keeps the DP's (cuts x cuts)
     table small."""
     n = len(feat)
-    k = min(k, n)
     at = np.unique(np.r_[np.arange(0, n, math.ceil(n / max_cuts)), n])  # where a piece may begin or end
     s1 = np.r_[np.zeros((1, feat.shape[1])), np.cumsum(feat, 0)][at]
     s2 = np.r_[0.0, np.cumsum((feat ** 2).sum(1))][at]
@@ -368,7 +373,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     x_all, a_all, n_act, _, _ = _design(trajs, discrete)
     lengths = np.array([len(t) for t in trajs])
     bounds = np.cumsum([0, *lengths])
-    a_feat = np.eye(n_act)[a_all] if discrete else (a_all - a_all.mean(0)) / (a_all.std(0) + 1e-6)
+    a_feat = _action_features(a_all, n_act, discrete)
     if start is not None:
         seg = list(start)
     elif first == "chunks":
@@ -393,9 +398,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
         if learning:
             assert trans is not None
             trans.fit(x_all, seg, bounds)
-            logtrans = trans.logprob(x_all).reshape(len(x_all), -1)
-            new = _viterbi_trans(padded_loglik(), _by_episode(logtrans, lengths).reshape(
-                len(lengths), -1, codes, codes), lengths)
+            new = _viterbi_trans(padded_loglik(), _by_episode(trans.logprob(x_all), lengths), lengths)
         else:
             new = _viterbi(padded_loglik(), lengths, penalty)
         if all(np.array_equal(n, o) for n, o in zip(new, seg, strict=True)):
