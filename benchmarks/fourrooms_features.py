@@ -25,9 +25,15 @@ import sys
 
 import numpy as np
 
-from digail.algos.segment_init import _design, _kmeans, _LinearPolicies, hard_em_from, hard_em_segmentation
+from digail.algos.segment_init import (
+    _design,
+    _LinearPolicies,
+    hard_em_from,
+    hard_em_segmentation,
+    piece_em_segmentation,
+)
 from digail.data.minari_io import load_dataset
-from digail.envs.four_rooms import CORRIDORS, GRID_HEIGHT, GRID_WIDTH, decode_observations
+from digail.envs.four_rooms import GRID_HEIGHT, GRID_WIDTH, decode_observations, room_visits
 from digail.eval.segmentation import segmentation_metrics
 
 
@@ -43,67 +49,30 @@ def features(obs: np.ndarray, kind: str) -> np.ndarray:
     return np.c_[cells, np.eye(3)[sign[:, 0]], np.eye(3)[sign[:, 1]]].astype(np.float32)
 
 
-def room_visits(ds) -> np.ndarray:  # noqa: ANN001
-    """The room-visit piece of every step (indices over all demonstrations): a new piece where the agent steps
-    onto a corridor cell."""
-    out, offset = [], 0
-    for t in ds.trajs:
-        agent, _ = decode_observations(np.asarray(t.obs[:len(t)]))
-        on_corridor = np.array([tuple(c) in set(CORRIDORS) for c in agent])
-        piece = np.cumsum(np.r_[0, on_corridor[1:] & ~on_corridor[:-1]])
-        out.append(piece + offset)
-        offset += int(piece.max()) + 1
-    return np.concatenate(out)
-
-
-def piece_em(trajs: list, piece: np.ndarray, k: int, ridge: float, seed: int, starts: int = 8,
-             rounds: int = 30) -> tuple[float, np.ndarray]:
-    """(description length, code per step) of hard EM over pieces, from k-means of the states they end in."""
-    x, a, n, mean, std = _design(trajs, True)
-    nxt = np.concatenate([(np.asarray(t.obs[1:len(t) + 1], np.float64).reshape(len(t), -1) - mean) / std
-                          for t in trajs])
-    n_pieces = int(piece.max()) + 1
-    ends = np.zeros((n_pieces, nxt.shape[1]))
-    ends[piece] = nxt  # later steps overwrite earlier ones: each piece keeps its last step's next state
-    rng = np.random.default_rng(seed)
-    best: tuple[float, np.ndarray] | None = None
-    for _ in range(starts):
-        codes = _kmeans(ends, k, rng)
-        for _ in range(rounds):
-            policies = _LinearPolicies(k, x.shape[1], n, True, ridge)
-            policies.fit(x, a, codes[piece])
-            per_piece = np.zeros((n_pieces, k))
-            np.add.at(per_piece, piece, policies.loglik(x, a))
-            new = per_piece.argmax(1)
-            if np.array_equal(new, codes):
-                break
-            codes = new
-        cost = -float(per_piece[np.arange(n_pieces), codes].sum())
-        if best is None or cost < best[0]:
-            best = (cost, codes)
-    assert best is not None
-    return best[0], best[1][piece]
+def _policies(x: np.ndarray, a: np.ndarray, n: int, ridge: float, codes: np.ndarray) -> _LinearPolicies:
+    policies = _LinearPolicies(5, x.shape[1], n, True, ridge)
+    policies.fit(x, a, codes)
+    return policies
 
 
 def by_piece(ds) -> None:  # noqa: ANN001
     labels = [np.asarray(t.subtasks)[:len(t)] for t in ds.trajs]
     flat = np.concatenate(labels)
-    bounds = np.cumsum([0, *[len(t) for t in ds.trajs]])
-    piece = room_visits(ds)
-    print(f"room visits: {(int(piece.max()) + 1) / len(ds.trajs):.2f} pieces per episode; the label changes "
-          f"inside a piece on {np.mean([len(np.unique(flat[piece == p])) > 1 for p in np.unique(piece)]):.3f} "
-          "of them")
+    cuts = [room_visits(np.asarray(t.obs)[:len(t)]) for t in ds.trajs]
+    mixed = [len(np.unique(lab[c == p])) > 1 for c, lab in zip(cuts, labels, strict=True) for p in np.unique(c)]
+    print(f"room visits: {len(mixed) / len(ds.trajs):.2f} pieces per episode; the label changes inside a piece on "
+          f"{np.mean(mixed):.3f} of them")
     for kind in ("full", "agent", "agent+sign"):
         trajs = [dataclasses.replace(t, obs=features(t.obs, kind)) for t in ds.trajs]
         for ridge in (1.0, 0.01, 0.003):
             x, a, n, _, _ = _design(trajs, True)
-            oracle = _LinearPolicies(5, x.shape[1], n, True, ridge)
-            oracle.fit(x, a, flat)
-            oracle_cost = -float(oracle.loglik(x, a)[np.arange(len(flat)), flat].sum())
+            oracle_cost = -float(_policies(x, a, n, ridge, flat).loglik(x, a)[np.arange(len(flat)), flat].sum())
             rows, confusion = [], None
             for seed in (0, 1, 2):
-                cost, codes = piece_em(trajs, piece, 5, ridge, seed)
-                m = segmentation_metrics([codes[bounds[i]:bounds[i + 1]] for i in range(len(trajs))], labels)
+                seg = piece_em_segmentation(trajs, cuts, 5, True, seed=seed, ridge=ridge)
+                codes = np.concatenate(seg)
+                cost = -float(_policies(x, a, n, ridge, codes).loglik(x, a)[np.arange(len(codes)), codes].sum())
+                m = segmentation_metrics(seg, labels)
                 rows.append(f"{m['accuracy']:.3f} / {m['nmi']:.3f} ({cost:.1f} nats)")
                 if seed == 0:
                     confusion = np.zeros((5, 5), np.int64)

@@ -136,6 +136,16 @@ class VAEConfig:
     cut into K pieces where its actions change (`learned`), or log T + log(K - 1) nats per switch and the earlier
     starts (`fixed`, what the presets' runs used). Fixed when the expert waits in place before a switch
     (`digail.algos.segment_init`, README)"""
+    init_pieces: Literal["steps", "env"] = "steps"
+    """`em`: where the start's codes may change: at any step (`steps`, Viterbi over the switches), or only between
+    the pieces the environment cuts a demonstration into (`env`, one code per piece: Four Rooms' room visits,
+    `EnvSpec.init_pieces`; `segment_init.piece_em_segmentation`)"""
+    init_obs: tuple[int, int] | None = None
+    """`em`: observation features [start, stop) the start's linear sub-task policies see (None: all), e.g. (0, 26)
+    in Four Rooms, the agent's position, so that a code is a field over the cells"""
+    init_ridge: float = 1.0
+    """`em`: ridge on the state weights of the start's linear sub-task policies (large: about one constant action
+    per code, as a leg of a course is; small: state-dependent sub-tasks such as heading for a corridor)"""
     init_steps: int = 6000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0
@@ -156,7 +166,7 @@ class VAEConfig:
     def __post_init__(self) -> None:
         _check_numbers(self, "--vae.", dict(codes=1, steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
                                             q_anticipate=0, restarts=1, init_steps=0),
-                       ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr",
+                       ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr", "init_ridge",
                         "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction"))
         if self.epochs is not None:
             _require(isinstance(self.epochs, int) and self.epochs >= 0, "--vae.epochs", "at least 0", self.epochs)
@@ -172,6 +182,11 @@ class VAEConfig:
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
                  self.hidden)
+        _require(_finite(self.init_ridge) and self.init_ridge > 0, "--vae.init-ridge", "positive", self.init_ridge)
+        _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
+        if self.init_obs is not None:
+            lo, hi = self.init_obs
+            _require(0 <= lo < hi, "--vae.init-obs", "a range START STOP with 0 <= START < STOP", self.init_obs)
         if self.decoder_obs is not None:
             lo, hi = self.decoder_obs
             _require(0 <= lo < hi, "--vae.decoder-obs", "a range START STOP with 0 <= START < STOP",

@@ -241,6 +241,50 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
     return best[1]
 
 
+def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarray], codes: int, discrete: bool, *,
+                          seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30) -> list[np.ndarray]:
+    """Codes (one (T_i,) int64 array per demonstration) when every piece of a demonstration takes one code: hard EM
+    over the pieces (`pieces[i]` numbers demonstration i's steps by piece, e.g. Four Rooms' room visits, where an
+    environment knows where its sub-tasks can change). Each round gives every piece the code whose linear policy
+    explains its actions best (the summed log-likelihood) and refits the policies; the best of `starts` k-means
+    starts on the state each piece ends in (the next observation of its last step) wins.
+
+    Why the end state: a sub-task is where it leads (a corridor, the apple), and the pieces that reach one place
+    share its policy, where the actions alone (the same moves towards different corridors) do not group them."""
+    x, a, n_act, mean, std = _design(trajs, discrete)
+    ends = np.concatenate([(np.asarray(t.obs[1:len(t) + 1], np.float64).reshape(len(t), -1) - mean) / std
+                           for t in trajs])
+    local = [np.unique(np.asarray(p), return_inverse=True)[1].reshape(-1) for p in pieces]  # 0, 1, ... per demo
+    offsets = np.cumsum([0, *[int(p.max()) + 1 for p in local]])
+    piece = np.concatenate([p + offsets[i] for i, p in enumerate(local)])
+    n_pieces = int(offsets[-1])
+    end_of = np.zeros((n_pieces, ends.shape[1]))
+    end_of[piece] = ends  # later steps overwrite earlier ones: each piece keeps its last step's next state
+    used = np.unique(piece)
+    rng = np.random.default_rng(seed)
+    best: tuple[float, np.ndarray] | None = None
+    for _ in range(starts):
+        piece_codes = np.zeros(n_pieces, np.int64)
+        piece_codes[used] = _kmeans(end_of[used], codes, rng)
+        per_piece = np.zeros((n_pieces, codes))
+        for _ in range(rounds):
+            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge)
+            policies.fit(x, a, piece_codes[piece])
+            per_piece = np.zeros((n_pieces, codes))
+            np.add.at(per_piece, piece, policies.loglik(x, a))
+            new = per_piece.argmax(1)
+            if np.array_equal(new, piece_codes):
+                break
+            piece_codes = new
+        cost = -float(per_piece[used, piece_codes[used]].sum())
+        if best is None or cost < best[0]:
+            best = (cost, piece_codes)
+    assert best is not None
+    flat = best[1][piece]
+    bounds = np.cumsum([0, *[len(t) for t in trajs]])
+    return [flat[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
+
+
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
                         switch_costs: str = "fixed") -> list[dict[str, float]]:

@@ -42,7 +42,7 @@ from digail.algos.model_selection import best_index, description_length, heldout
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
-from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve
+from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve, piece_em_segmentation
 from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -163,7 +163,9 @@ class FusedVAEStep:
 def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: ActionSpec | None = None, seed: int = 0,
              device: str | torch.device = "cpu", progress: bool = True, log_dir: str | Path | None = None,
              before_polish: Callable[[HierarchicalPolicy], None] | None = None,
-             restart_log: list[dict[str, float]] | None = None) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
+             restart_log: list[dict[str, float]] | None = None,
+             pieces: Callable[[np.ndarray], np.ndarray] | None = None
+             ) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
     """Fit the hierarchical policy (q, p, pi and the observation normaliser) to demonstrations as a VAE, then
     `polish` it when `cfg.polish_steps` > 0.
 
@@ -184,6 +186,8 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
             visible there, since the polish refits q to it. It must not change the model or draw random numbers.
         restart_log: with `cfg.restarts` > 1, receives one dict per restart (its seed and held-out scores,
             `digail.algos.model_selection.description_length`); the lowest `dl_per_step` is kept.
+        pieces: with `cfg.init_pieces == "env"`, the environment's cut of a demonstration's (T, D) observations
+            into pieces that take one code each in the start (`digail.envs.registry.EnvSpec.init_pieces`).
 
     Returns:
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
@@ -196,13 +200,19 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     if cfg.decoder_obs is not None and not 0 <= cfg.decoder_obs[0] < cfg.decoder_obs[1] <= obs_dim:
         raise UserError(f"decoder_obs {cfg.decoder_obs} is not a feature range within the {obs_dim} observation "
                         "features; give (start, stop) with 0 <= start < stop <= obs size.")
+    if cfg.init_obs is not None and not cfg.init_obs[1] <= obs_dim:
+        raise UserError(f"--vae.init-obs {cfg.init_obs} is not a feature range within the {obs_dim} observation "
+                        "features; give START STOP with 0 <= START < STOP <= obs size.")
+    if cfg.init == "em" and cfg.init_pieces == "env" and pieces is None:
+        raise UserError("--vae.init-pieces env needs an environment that cuts its demonstrations into pieces "
+                        "(Four Rooms: its room visits) and this dataset's has none; use --vae.init-pieces steps.")
     if cfg.restarts > 1:
         # every restart trains on the same demonstrations and is scored on the same held-out ones
         train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
         fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
         best: tuple[float, HierarchicalPolicy, dict[str, list[float]]] | None = None
         for r in range(cfg.restarts):
-            model, history = _fit(fit_on, cfg, action_spec, obs_dim, seed + r, dev, progress)
+            model, history = _fit(fit_on, cfg, action_spec, obs_dim, seed + r, dev, progress, pieces)
             score = description_length(model, held)
             if restart_log is not None:
                 restart_log.append({"seed": seed + r, **score})
@@ -211,7 +221,7 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         assert best is not None
         _, model, history = best
     else:
-        model, history = _fit(trajs, cfg, action_spec, obs_dim, seed, dev, progress)
+        model, history = _fit(trajs, cfg, action_spec, obs_dim, seed, dev, progress, pieces)
     if before_polish is not None:
         model.eval()
         before_polish(model)
@@ -235,7 +245,8 @@ def auto_epochs(cfg: VAEConfig, n_demos: int) -> int:
 
 
 def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, obs_dim: int, seed: int,
-         dev: torch.device, progress: bool) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
+         dev: torch.device, progress: bool, pieces: Callable[[np.ndarray], np.ndarray] | None = None
+         ) -> tuple[HierarchicalPolicy, dict[str, list[float]]]:
     """One VAE training from the seed `seed` (`pretrain` without the restarts and the polish)."""
     seed_everything(seed)
     gen = torch.Generator(device=dev).manual_seed(seed)
@@ -246,9 +257,7 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
     if cfg.init == "em" and cfg.codes > 1:
-        first = hard_em_segmentation(trajs, cfg.codes, action_spec.discrete, seed=seed,
-                                     shared_variance=cfg.init_variance == "shared",
-                                     switch_costs=cfg.init_switch_costs)
+        first = _start(trajs, cfg, action_spec.discrete, seed, pieces)
         fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
         model.train()
     data = pad_demos(trajs, model, dev)
@@ -298,6 +307,21 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     if bar is not None:
         bar.close()
     return model.eval(), history
+
+
+def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: int,
+           pieces: Callable[[np.ndarray], np.ndarray] | None) -> list[np.ndarray]:
+    """The hard-EM segmentation the VAE starts from (`cfg.init == "em"`), on the features `cfg.init_obs`."""
+    seen = trajs
+    if cfg.init_obs is not None:
+        lo, hi = cfg.init_obs
+        seen = [dataclasses.replace(t, obs=np.asarray(t.obs).reshape(len(t.obs), -1)[:, lo:hi]) for t in trajs]
+    if cfg.init_pieces == "env":
+        assert pieces is not None  # `pretrain` checked
+        cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
+        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge)
+    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
+                                shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:

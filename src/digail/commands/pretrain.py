@@ -64,6 +64,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.checkpoint import run_config, save_model, write_run_config
     from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
+    from digail.envs.registry import init_pieces_fn
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
     from digail.utils import atomic_dir, set_torch_threads
@@ -102,7 +103,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
                   + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" for c in curve) + f" -> K = {model.codes}")
         else:
             model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
-                                log_dir=tmp, restart_log=restart_log)
+                                log_dir=tmp, restart_log=restart_log, pieces=init_pieces_fn(dataset.env_id))
         if restart_log:
             config["restarts"] = restart_log
             chosen = min(restart_log, key=lambda r: r["dl_per_step"])

@@ -100,7 +100,7 @@ def run_command(args: RunArgs) -> Path:
     from digail.config import to_dict
     from digail.data.validation import check_matches_env
     from digail.envs import make_env
-    from digail.envs.registry import env_spec, preset_for
+    from digail.envs.registry import env_spec, init_pieces_fn, preset_for
     from digail.eval.composition import compose, episode_limit, parse_schedule, schedule_in_codes
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import write_segmentation
@@ -147,8 +147,8 @@ def run_command(args: RunArgs) -> Path:
         vae_dir.mkdir()
         action = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
         vae_model, _ = pretrain(trajs, preset.vae, action_spec=action, seed=args.seed, device=str(device),
-                                log_dir=vae_dir, before_polish=_segment_into(run_dir / BEFORE_POLISH, trajs,
-                                                                             demos_ref))
+                                log_dir=vae_dir, pieces=init_pieces_fn(args.env),
+                                before_polish=_segment_into(run_dir / BEFORE_POLISH, trajs, demos_ref))
         vae_cfg = run_config(kind="vae", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                              device=args.device, vae=preset.vae, pipeline=True)
         vae_cfg["vae"]["epochs_run"] = auto_epochs(preset.vae, len(trajs))  # as `digail pretrain` records it

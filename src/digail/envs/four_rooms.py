@@ -192,6 +192,15 @@ def encode_observation(agent: tuple[int, int], apple: tuple[int, int]) -> np.nda
     return obs
 
 
+def room_visits(obs: np.ndarray) -> np.ndarray:
+    """The room visit of each of a demonstration's (T, 52) observations, numbered 0, 1, ... in time: a new visit
+    begins where the agent steps onto a corridor cell. The pieces `--vae.init-pieces env` gives one code each:
+    a sub-task of the paper's Four Rooms (heading for a corridor or for the apple) can only change there."""
+    agent, _ = decode_observations(obs)
+    on_corridor = np.array([(int(x), int(y)) in _CORRIDOR_LABEL for x, y in agent], dtype=bool)
+    return np.cumsum(np.r_[False, on_corridor[1:] & ~on_corridor[:-1]]).astype(np.int64)
+
+
 def decode_observations(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`encode_observation` undone for a batch: (T, 52) observations -> (T, 2) agent cells and (T, 2) apple cells,
     each (x, y) as int64."""

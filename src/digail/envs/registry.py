@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import importlib
 import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import gymnasium as gym
+import numpy as np
 
 from digail.config import Preset, TrainConfig, VAEConfig, get_preset
 from digail.errors import UserError
@@ -109,6 +112,9 @@ class EnvSpec:
     """Directed-Info GAIL's mean return and std in the paper (Table 1, 300 episodes; Fetch: Table 2, the dense
     return over 100 episodes), which reports print beside a run's; the paper used the -v0/-v2 versions of the
     MuJoCo envs (None: the paper has no number for it)"""
+    init_pieces: str | None = None
+    """`module:function` cutting a demonstration's observations into pieces that each take one code in the
+    hard-EM start (`--vae.init-pieces env`; `function(obs (T, D)) -> (T,) piece numbers`); None: no such cut"""
     batched: str | None = None
     """`module:Class` of an array implementation of N copies that the `sync` backend uses instead of stepping N
     envs in turn (`(env_id, num_envs, **kwargs)`; the same numbers, tested against `digail.envs.vector.VecEnv`)"""
@@ -133,7 +139,7 @@ _LOCOMOTION_PPO: dict[str, Any] = {
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
             auto_backend="sync", scripted_expert="digail.experts.scripted:four_rooms_expert", name="Four Rooms",
-            batched="digail.envs.four_rooms:FourRoomsVecEnv"),
+            batched="digail.envs.four_rooms:FourRoomsVecEnv", init_pieces="digail.envs.four_rooms:room_visits"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60)), auto_backend="sync",
@@ -177,6 +183,16 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
 def env_spec(env_id: str) -> EnvSpec | None:
     """The registry entry of `env_id`, or None for an environment digail has no entry for."""
     return ENV_SPECS.get(env_id)
+
+
+def init_pieces_fn(env_id: str | None) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The function `env_id`'s entry names to cut demonstrations into pieces (`EnvSpec.init_pieces`), or None."""
+    spec = ENV_SPECS.get(env_id or "")
+    if spec is None or spec.init_pieces is None:
+        return None
+    module, name = spec.init_pieces.split(":")
+    fn: Callable[[np.ndarray], np.ndarray] = getattr(importlib.import_module(module), name)
+    return fn
 
 
 def rl_expert_envs() -> list[str]:
