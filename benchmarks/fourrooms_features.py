@@ -16,12 +16,16 @@ policy, then the refit). The start is k-means of the state each piece ends in (t
 step): a sub-task as the subgoal it reaches, the corridor cell for a corridor piece, the apple for the last one.
 Per feature set and ridge (K = 5, seeds 0 1 2 of the k-means starts): accuracy, NMI, the pieces' description
 length and the oracle labels', and seed 0's confusion matrix (rows: labels 0-3 the corridors, 4 the apple).
+It also draws the fields of K = 4 codes (agent cells, ridge 0.01, seed 0: what `scripts/fourrooms_room_visits.sh`
+starts the VAE from), each code's most likely action per cell, into
+`benchmarks/results/figures/fourrooms_room_visit_codes.png`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -33,8 +37,16 @@ from digail.algos.segment_init import (
     piece_em_segmentation,
 )
 from digail.data.minari_io import load_dataset
-from digail.envs.four_rooms import GRID_HEIGHT, GRID_WIDTH, decode_observations, room_visits
+from digail.envs.four_rooms import (
+    FREE_CELLS,
+    GRID_HEIGHT,
+    GRID_WIDTH,
+    decode_observations,
+    encode_observation,
+    room_visits,
+)
 from digail.eval.segmentation import segmentation_metrics
+from digail.viz.figures import four_rooms_arrow_maps
 
 
 def features(obs: np.ndarray, kind: str) -> np.ndarray:
@@ -81,10 +93,28 @@ def by_piece(ds) -> None:  # noqa: ANN001
                   f"the oracle {oracle_cost:.1f} nats; seed 0 labels x codes {confusion.tolist()}", flush=True)
 
 
+def field_figure(ds, path: Path) -> None:  # noqa: ANN001
+    """The most likely action of each code's linear policy in every free cell (K = 4, agent cells, ridge 0.01)."""
+    trajs = [dataclasses.replace(t, obs=features(t.obs, "agent")) for t in ds.trajs]
+    cuts = [room_visits(np.asarray(t.obs)[:len(t)]) for t in ds.trajs]
+    codes = np.concatenate(piece_em_segmentation(trajs, cuts, 4, True, seed=0, ridge=0.01))
+    x, a, n, mean, std = _design(trajs, True)
+    policies = _LinearPolicies(4, x.shape[1], n, True, 0.01)
+    policies.fit(x, a, codes)
+    cells = np.array(FREE_CELLS)
+    obs = np.stack([encode_observation(tuple(c), (1, 1)) for c in cells])[:, :GRID_WIDTH + GRID_HEIGHT]
+    xc = np.c_[(obs - mean) / std, np.ones(len(cells))]
+    actions = np.einsum("td,kda->kta", xc, policies.w).argmax(-1)
+    four_rooms_arrow_maps(cells, actions, path, title="Four Rooms: the room-visit start's linear policy per code "
+                          "(agent cells only)")
+    print(f"wrote {path}")
+
+
 def main() -> None:
     ds = load_dataset("digail/fourrooms/expert-v0")
     if "--room-visits" in sys.argv[1:]:
         by_piece(ds)
+        field_figure(ds, Path(__file__).resolve().parent / "results" / "figures" / "fourrooms_room_visit_codes.png")
         return
     labels = [np.asarray(t.subtasks)[:len(t)] for t in ds.trajs]
     for kind in ("full", "agent", "agent+sign"):

@@ -109,15 +109,21 @@ def four_rooms_action_table(model: Any, apple: tuple[int, int]) -> tuple[np.ndar
 
 
 def four_rooms_code_maps(model: Any, path: Path, apple: tuple[int, int] = (12, 8)) -> Path:
-    """Paper Figure 3: one grid per code with an arrow for pi's most likely action in every free cell.
+    """Paper Figure 3: one grid per code with an arrow for pi's most likely action in every free cell; the apple
+    (red disc) is the same in every panel."""
+    cells, actions = four_rooms_action_table(model, apple)
+    return four_rooms_arrow_maps(cells, actions, path, apple=apple,
+                                 title=f"Four Rooms: sub-task policy per code, apple at {tuple(apple)}")
 
-    The apple (red disc) is the same in every panel. Panels two to a row, so that a phone shows each at half its
-    width rather than a quarter (K = 4): size 6.4 x (3 ceil(K / 2)) inches.
-    """
+
+def four_rooms_arrow_maps(cells: np.ndarray, actions: np.ndarray, path: Path, *, apple: tuple[int, int] | None = None,
+                          title: str = "") -> Path:
+    """One Four Rooms grid per code with an arrow for the action `actions[k, i]` (0 up, 1 right, 2 down, 3 left) in
+    cell `cells[i]` (x, y). Panels two to a row, so that a phone shows each at half its width rather than a
+    quarter (K = 4): size 6.4 x (3 ceil(K / 2)) inches."""
     from digail.envs.four_rooms import ACTION_DELTAS
 
-    cells, actions = four_rooms_action_table(model, apple)
-    K = model.codes
+    K = len(actions)
     cols, rows = 2, max(1, math.ceil(K / 2))
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.0 * rows), squeeze=False)
     deltas = np.array(ACTION_DELTAS, np.float64)
@@ -130,9 +136,11 @@ def four_rooms_code_maps(model: Any, path: Path, apple: tuple[int, int] = (12, 8
         d = deltas[actions[k]]
         ax.quiver(cells[:, 0] - 0.3 * d[:, 0], cells[:, 1] - 0.3 * d[:, 1], d[:, 0], d[:, 1], color=code_colour(k),
                   angles="xy", scale_units="xy", scale=1 / 0.6, width=0.012, headwidth=4)
-        ax.plot(*apple, "o", color="#d62020", ms=9)
+        if apple is not None:
+            ax.plot(*apple, "o", color="#d62020", ms=9)
         ax.set_title(f"code {k}: most likely action", fontsize=9)
-    fig.suptitle(f"Four Rooms: sub-task policy per code, apple at {tuple(apple)}", fontsize=10)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
