@@ -348,7 +348,8 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
 
 def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], *,
                  action_spec: ActionSpec | None = None, seed: int = 0, device: str | torch.device = "cpu",
-                 progress: bool = True, log_dir: str | Path | None = None
+                 progress: bool = True, log_dir: str | Path | None = None,
+                 pieces: Callable[[np.ndarray], np.ndarray] | None = None
                  ) -> tuple[HierarchicalPolicy, dict[str, list[float]], list[dict[str, Any]]]:
     """Choose the number of codes K without labels: each K in `candidates` is fitted on the demonstrations less a
     held-out share and scored by the description length of the held-out actions (`model_selection`), then the
@@ -357,6 +358,8 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     `cfg.k_criterion` says which model is scored: `linear`, the hard-EM start's switching linear policies (the
     smallest K within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K
     (the lowest; the chosen VAE is kept and only polished on all demonstrations).
+
+    The curve's linear policies cut at any step; `pieces` (`pretrain`'s) serves the VAEs' own start.
 
     Returns:
         `(model, history, curve)`: the chosen model, its training history and one dict per candidate K
@@ -375,12 +378,12 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
             del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
         model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
-                                  log_dir=log_dir)
+                                  log_dir=log_dir, pieces=pieces)
     else:
         kept: tuple[HierarchicalPolicy, dict[str, list[float]]] | None = None
         for k in candidates:
             fitted = pretrain(fit_on, dataclasses.replace(cfg, codes=k, polish_steps=0), action_spec=action_spec,
-                              seed=seed, device=device, progress=progress)
+                              seed=seed, device=device, progress=progress, pieces=pieces)
             curve.append({"codes": k, **description_length(fitted[0], held)})
             if best_index(curve) == len(curve) - 1:  # only the best so far is kept in memory
                 kept = fitted

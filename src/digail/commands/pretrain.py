@@ -96,7 +96,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
         restart_log: list[dict[str, float]] = []
         if candidates:
             model, _, curve = select_codes(dataset.trajs, cfg, candidates, action_spec=action_spec, seed=args.seed,
-                                           device=args.device, log_dir=tmp)
+                                           device=args.device, log_dir=tmp, pieces=init_pieces_fn(dataset.env_id))
             config["k_selection"] = curve
             config["vae"]["codes"] = model.codes
             print("K selection (held-out description length, nats per step; lower is better): "
