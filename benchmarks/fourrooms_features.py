@@ -93,8 +93,8 @@ def by_piece(ds) -> None:  # noqa: ANN001
                     confusion = np.zeros((5, 5), np.int64)
                     np.add.at(confusion, (flat, codes), 1)
             print(f"pieces {kind:10s} ridge {ridge:<5} K = 5, accuracy / NMI, seeds 0 1 2: {';  '.join(rows)}; "
-                  f"the oracle {oracle_cost:.1f} nats, with the pairs of doors merged {paired_cost:.1f}; seed 0 labels x "
-                  f"codes {confusion.tolist()}", flush=True)
+                  f"the oracle {oracle_cost:.1f} nats, with the pairs of doors merged {paired_cost:.1f}; "
+                  f"seed 0 labels x codes {confusion.tolist()}", flush=True)
 
 
 def field_figure(ds, path: Path) -> None:  # noqa: ANN001
