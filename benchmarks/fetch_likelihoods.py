@@ -7,11 +7,14 @@ On the shipped FetchPickAndPlace demonstrations, the start alone (`hard_em_segme
 switch costs) under four likelihoods of the action `[dx, dy, dz, grip]`, scored against the four phases (K = 4) and
 against pick / place (K = 2, phases 0 1 -> 0, 2 3 -> 1):
 
-- `gaussian`: the default, every dimension Gaussian around a linear policy per code, one variance per dimension;
+- `gaussian`: every dimension Gaussian around a linear policy per code, one variance per dimension (the default
+  before session 7);
+- `gaussian+capped`: the same with each dimension's cost capped, a mixture with 0.1% uniform over the range the
+  demonstrations span (`segment_init.OUTLIER_SHARE`, the default since session 7);
 - `logistic`: the two-valued finger command Bernoulli, its log-odds linear in the state per code (a code can then
   say "close once the gripper is at the object"), the motion as before;
-- `logistic+capped`: also the motion's per-dimension cost capped, a mixture with 1% uniform over the range the
-  demonstrations span, so a few steps no linear policy fits (the first carry step's jump) do not earn a code;
+- `logistic+capped`: also the motion's per-dimension cost capped, here with 1% uniform, so a few steps no linear
+  policy fits (the first carry step's jump) do not earn a code;
 - `constant+capped`: the finger command Bernoulli with one rate per code (Laplace-smoothed), the motion capped.
 
 Per variant, task and seed: accuracy and switches per episode (truth 3 and 1); per variant and task, seed 0's
@@ -83,8 +86,10 @@ def policies_class(fingers: str, capped: bool) -> type[_LinearPolicies]:
     return Policies
 
 
-VARIANTS = {"gaussian": None, "logistic": ("logistic", False), "logistic+capped": ("logistic", True),
-            "constant+capped": ("constant", True)}
+# name: (the finger command's model, None for the library's Gaussian; the library's outlier share)
+VARIANTS = {"gaussian": (None, 0.0), "gaussian+capped": (None, segment_init.OUTLIER_SHARE),
+            "logistic": (("logistic", False), 0.0), "logistic+capped": (("logistic", True), 0.0),
+            "constant+capped": (("constant", True), 0.0)}
 
 
 def main() -> None:
@@ -93,19 +98,19 @@ def main() -> None:
     phases = [np.asarray(t.subtasks)[:len(t)] for t in ds.trajs]
     tasks = {"K = 4 (phases)": (4, phases), "K = 2 (pick / place)": (2, [np.minimum(p // 2, 1) for p in phases])}
     original = segment_init._LinearPolicies
-    for name, spec in VARIANTS.items():
+    for name, (spec, share) in VARIANTS.items():
         segment_init._LinearPolicies = original if spec is None else policies_class(*spec)  # type: ignore[misc]
         try:
             for task, (k, labels) in tasks.items():
                 rows = []
                 for seed in (0, 1, 2):
-                    seg = segment_init.hard_em_segmentation(ds.trajs, k, False, seed=seed)
+                    seg = segment_init.hard_em_segmentation(ds.trajs, k, False, seed=seed, outlier_share=share)
                     m = segmentation_metrics(seg, labels)
                     rows.append(f"{m['accuracy']:.3f} ({m['switches_per_episode']:.2f})")
                     if seed == 0:
-                        found = segment_init.hard_em_from(ds.trajs, seg, k, False, rounds=0)[0]
-                oracle = segment_init.hard_em_from(ds.trajs, labels, k, False, rounds=0)[0]
-                drift_cost, drift = segment_init.hard_em_from(ds.trajs, labels, k, False)
+                        found = segment_init.hard_em_from(ds.trajs, seg, k, False, rounds=0, outlier_share=share)[0]
+                oracle = segment_init.hard_em_from(ds.trajs, labels, k, False, rounds=0, outlier_share=share)[0]
+                drift_cost, drift = segment_init.hard_em_from(ds.trajs, labels, k, False, outlier_share=share)
                 print(f"{name:16s} {task:21s} accuracy (switches/episode), seeds 0 1 2: {' / '.join(rows)}; "
                       f"nats: found {found:.1f}, oracle {oracle:.1f}, EM from the oracle {drift_cost:.1f} at "
                       f"{segmentation_metrics(drift, labels)['accuracy']:.3f}", flush=True)

@@ -146,6 +146,10 @@ class VAEConfig:
     init_ridge: float = 1.0
     """`em`: ridge on the state weights of the start's linear sub-task policies (large: about one constant action
     per code, as a leg of a course is; small: state-dependent sub-tasks such as heading for a corridor)"""
+    init_outlier_share: float = 1e-3
+    """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
+    which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: the plain
+    Gaussian the presets' runs used)"""
     init_steps: int = 6000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0
@@ -183,6 +187,8 @@ class VAEConfig:
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
                  self.hidden)
         _require(_finite(self.init_ridge) and self.init_ridge > 0, "--vae.init-ridge", "positive", self.init_ridge)
+        _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
+                 "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
         if self.init_obs is not None:
             lo, hi = self.init_obs
@@ -367,10 +373,11 @@ VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none")
 the segmentation benchmark (issue 14, `benchmarks/segmentation.py`): every environment preset pins them, so its
 runs stay what docs/experiments.md measured; the new defaults serve data without a preset"""
 
-EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed")
+EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed",
+                              init_outlier_share=0.0)
 """The VAE of Pendulum, Hopper, Walker2d and Fetch (docs/experiments.md, "Table 1: the VAE from the hard-EM
-segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed, as the runs
-were made), no ELBO epochs. The paper's 1000-2000
+segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed and its costs
+not capped, as the runs were made), no ELBO epochs. The paper's 1000-2000
 ELBO epochs let KL(q || p) fall to 0 there, from the EM start too: codes independent of the motion. The paper's
 VAE: `--vae.init none --vae.epochs 2000 --vae.tau-decay 3e-3` (1000 on Pendulum)"""
 
@@ -391,8 +398,9 @@ PRESETS: dict[str, Preset] = {
     "circle-world": _preset(
         # the default VAE (hard-EM start, no ELBO epochs) segments as the tuned ELBO VAE did, 2x sooner; the polish
         # with q noise and one step of anticipation lets the macro-policy switch when the agent passes near the
-        # origin, not only exactly on it (fixed switch costs: the committed runs' start)
-        dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed"),
+        # origin, not only exactly on it (fixed switch costs, costs not capped: the committed runs' start)
+        dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed",
+             init_outlier_share=0.0),
         # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
         dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
         dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),

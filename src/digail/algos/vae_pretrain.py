@@ -321,7 +321,8 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
         return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge)
     return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
-                                shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs)
+                                shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
+                                outlier_share=cfg.init_outlier_share)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
