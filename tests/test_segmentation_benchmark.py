@@ -201,8 +201,9 @@ def test_ordered_pieces_of_a_long_demonstration_cut_on_a_grid() -> None:
 def test_capped_costs_bound_what_one_unpredictable_step_costs() -> None:
     """With `outlier_share` eps, a continuous dimension's step costs at most -log(eps / range) nats however far it
     is from the policy's prediction; without it, a step 5 units off at the variance floor costs about 125 000."""
-    from digail.algos.segment_init import _LinearPolicies
+    from digail.algos.segment_init import OUTLIER_SHARE, _LinearPolicies
 
+    assert VAEConfig().init_outlier_share == OUTLIER_SHARE  # the flag's default is the library's
     rng = np.random.default_rng(0)
     x = np.c_[rng.normal(size=(200, 2)), np.ones(200)]
     a = x[:, :1] + 1e-3 * rng.normal(size=(200, 1))

@@ -265,7 +265,8 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 
 def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarray], codes: int, discrete: bool, *,
-                          seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30) -> list[np.ndarray]:
+                          seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30,
+                          outlier_share: float = OUTLIER_SHARE) -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) when every piece of a demonstration takes one code: hard EM
     over the pieces (`pieces[i]` numbers demonstration i's steps by piece, e.g. Four Rooms' room visits, where an
     environment knows where its sub-tasks can change). Each round gives every piece the code whose linear policy
@@ -291,7 +292,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
         piece_codes[used] = _kmeans(end_of[used], codes, rng)
         per_piece = np.zeros((n_pieces, codes))
         for _ in range(rounds):
-            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge)
+            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
             policies.fit(x, a, piece_codes[piece])
             per_piece = np.zeros((n_pieces, codes))
             np.add.at(per_piece, piece, policies.loglik(x, a))
