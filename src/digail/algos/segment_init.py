@@ -311,7 +311,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
 
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
-                        switch_costs: str = "fixed") -> list[dict[str, float]]:
+                        switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE) -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -330,10 +330,10 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     mean_len = float(np.mean([len(t) for t in [*fit_on, *held]]))
     curve = []
     for k in candidates:
-        # the plain Gaussian: the curve as it was measured (docs/experiments.md)
         seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs,
-                                    outlier_share=0.0) if k > 1 else [np.zeros(len(t), np.int64) for t in fit_on])
-        policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge)
+                                    outlier_share=outlier_share) if k > 1
+               else [np.zeros(len(t), np.int64) for t in fit_on])
+        policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
         policies.fit(x_fit, a_fit, np.concatenate(seg))
         flat = policies.loglik(x_held, a_held)
         if switch_costs == "learned":

@@ -374,7 +374,7 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     if cfg.k_criterion == "linear":
         # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
         curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed,
-                                    switch_costs="fixed")
+                                    switch_costs="fixed", outlier_share=cfg.init_outlier_share)
         pick = smallest_within_one_se(curve)
         for entry in curve:
             del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
