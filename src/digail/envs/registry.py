@@ -185,13 +185,19 @@ def env_spec(env_id: str) -> EnvSpec | None:
     return ENV_SPECS.get(env_id)
 
 
+def resolve(ref: str) -> Any:
+    """The object an entry names as `module:name` (imported only now: the entries name code above or beside the
+    registry, e.g. experts and array envs)."""
+    module, name = ref.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
 def init_pieces_fn(env_id: str | None) -> Callable[[np.ndarray], np.ndarray] | None:
     """The function `env_id`'s entry names to cut demonstrations into pieces (`EnvSpec.init_pieces`), or None."""
     spec = ENV_SPECS.get(env_id or "")
     if spec is None or spec.init_pieces is None:
         return None
-    module, name = spec.init_pieces.split(":")
-    fn: Callable[[np.ndarray], np.ndarray] = getattr(importlib.import_module(module), name)
+    fn: Callable[[np.ndarray], np.ndarray] = resolve(spec.init_pieces)
     return fn
 
 

@@ -7,7 +7,6 @@ deterministic, so demonstrations recorded from a seeded env are reproducible.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -16,7 +15,7 @@ import numpy as np
 
 from digail.envs.circle_world import CircleWorldEnv, reference_point
 from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
-from digail.envs.registry import env_spec
+from digail.envs.registry import env_spec, resolve
 
 
 def _unwrapped(env: gym.Env, cls: type) -> Any:
@@ -59,6 +58,5 @@ def get_scripted_expert(env_id: str) -> Callable[[gym.Env], Any] | None:
     spec = env_spec(env_id)
     if spec is None or spec.scripted_expert is None:
         return None
-    module, name = spec.scripted_expert.split(":")
-    expert: Callable[[gym.Env], Any] = getattr(importlib.import_module(module), name)
+    expert: Callable[[gym.Env], Any] = resolve(spec.scripted_expert)
     return expert
