@@ -26,7 +26,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +63,14 @@ class Imported:
     """the episodes, in stored order"""
     fmt: str
     """the layout they were read as (one of `FORMATS`)"""
+    observation_space: gym.Space
+    """their observation space: the environment's (`prepare_import` with an env) or the data's (`spaces_from_data`)"""
+    action_space: gym.Space
+    """their action space, likewise"""
+    source: str | None = None
+    """the file they were read from (None: a dict of arrays)"""
+    env_id: str | None = None
+    """the environment they were checked against (None: none; the spaces come from the data)"""
     notes: list[str] = field(default_factory=list)
     """what the reading had to give up, in sentences (e.g. last actions dropped for want of a next state)"""
 
@@ -233,7 +241,9 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
         raise UserError(f"{arrays.where} holds no episode with at least one step and the state after it; import "
                         "longer episodes.")
     _check_consistent(arrays.where, trajs)
-    return Imported(trajs=trajs, fmt=kind, notes=notes)
+    obs_space, act_space = spaces_from_data(trajs)
+    return Imported(trajs=trajs, fmt=kind, observation_space=obs_space, action_space=act_space,
+                    source=None if isinstance(source, Mapping) else os.fspath(source), notes=notes)
 
 
 def _rows(where: str, name: str, arr: np.ndarray, n: int, what: str) -> None:
@@ -528,6 +538,34 @@ def default_import_id(source: str | os.PathLike[str] | None) -> str:
     return f"imported/{name}-v0"
 
 
+def prepare_import(source: str | os.PathLike[str] | Mapping[str, Any], *, env_id: str | None = None,
+                   fmt: str = "auto") -> Imported:
+    """`read_demonstrations`, then fitted to `env_id`'s spaces when one is given (`fit_to_env`): everything that can
+    go wrong with the data, checked before anything is written."""
+    imported = read_demonstrations(source, fmt)
+    if not env_id:
+        return imported
+    trajs, obs_space, act_space = fit_to_env(imported.source or "the given arrays", imported.trajs, env_id)
+    return replace(imported, trajs=trajs, observation_space=obs_space, action_space=act_space, env_id=env_id)
+
+
+def write_imported(imported: Imported, out: str | os.PathLike[str], *, dataset_id: str | None = None,
+                   force: bool = False) -> Path:
+    """Write demonstrations from `prepare_import` as a Minari dataset folder at `out` (atomically); returns it."""
+    from digail.data.minari_write import write_dataset
+
+    trajs = imported.trajs
+    record = {"imported_from": None if imported.source is None else str(Path(imported.source).resolve()),
+              "format": imported.fmt, "notes": imported.notes, "episodes": len(trajs),
+              "steps": imported.num_steps}
+    env_words = f" recorded in {imported.env_id}" if imported.env_id else ""
+    description = f"{len(trajs)} demonstrations{env_words} imported by digail from the {imported.fmt} layout."
+    return write_dataset(trajs, out, imported.env_id, dataset_id or default_import_id(imported.source),
+                         force=force, description=description, algorithm_name=None,
+                         observation_space=imported.observation_space, action_space=imported.action_space,
+                         extra_metadata=record)
+
+
 def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], out: str | os.PathLike[str] | None
                           = None, *, env_id: str | None = None, fmt: str = "auto", dataset_id: str | None = None,
                           force: bool = False) -> tuple[Path, Imported]:
@@ -552,25 +590,10 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
             env id, an existing `out` without `force`.
     """
     from digail.data.minari_io import minari_root
-    from digail.data.minari_write import write_dataset
     from digail.utils import check_new_dir
 
-    src_name = None if isinstance(source, Mapping) else os.fspath(source)
-    dataset_id = dataset_id or default_import_id(src_name)
+    dataset_id = dataset_id or default_import_id(None if isinstance(source, Mapping) else os.fspath(source))
     path = Path(out) if out is not None else minari_root() / dataset_id
     check_new_dir(path, force)  # before reading a possibly large file
-    imported = read_demonstrations(source, fmt)
-    where = src_name or "the given arrays"
-    if env_id:
-        trajs, obs_space, act_space = fit_to_env(where, imported.trajs, env_id)
-    else:
-        trajs = imported.trajs
-        obs_space, act_space = spaces_from_data(trajs)
-    record = {"imported_from": None if src_name is None else str(Path(src_name).resolve()), "format": imported.fmt,
-              "notes": imported.notes, "episodes": len(trajs), "steps": sum(len(t) for t in trajs)}
-    env_words = f" recorded in {env_id}" if env_id else ""
-    description = f"{len(trajs)} demonstrations{env_words} imported by digail from the {imported.fmt} layout."
-    path = write_dataset(trajs, path, env_id, dataset_id, force=force, description=description,
-                         algorithm_name=None, observation_space=obs_space, action_space=act_space,
-                         extra_metadata=record)
-    return path, imported
+    imported = prepare_import(source, env_id=env_id, fmt=fmt)
+    return write_imported(imported, path, dataset_id=dataset_id, force=force), imported
