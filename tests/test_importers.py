@@ -154,19 +154,26 @@ def test_sb_expert_traj_discrete_with_next_obs(tmp_path: Path, cartpole_trajs: l
 
 
 def test_sb3_rollout_buffer_columns(tmp_path: Path, cartpole_trajs: list[Trajectory]) -> None:
-    """SB3's rollout buffer: (steps, envs) arrays, one stream per env; each column cut at its episode starts."""
+    """SB3's rollout buffer: (steps, envs) arrays, one stream per env, each cut at its episode starts; a column that
+    begins mid-episode (the buffer's first row continues the last rollout) starts a piece of its own."""
     a, b = cartpole_trajs[0], cartpole_trajs[1]
-    n = min(len(a), len(b)) - 1
-    col = [np.concatenate([a.obs[:-1], b.obs[:-1]])[:2 * n], np.concatenate([b.obs[:-1], a.obs[:-1]])[:2 * n]]
-    acts = [np.concatenate([a.acts, b.acts])[:2 * n], np.concatenate([b.acts, a.acts])[:2 * n]]
-    starts = [np.concatenate([np.arange(len(a)) == 0, np.arange(len(b)) == 0])[:2 * n],
-              np.concatenate([np.arange(len(b)) == 0, np.arange(len(a)) == 0])[:2 * n]]
-    np.savez(tmp_path / "buffer.npz", obs=np.stack(col, 1), actions=np.stack(acts, 1)[..., None],
-             episode_starts=np.stack(starts, 1).astype(np.float32))  # SB3 keeps the flags as floats
+
+    def column(first: Trajectory, skip: int, second: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        obs = np.concatenate([first.obs[skip:-1], second.obs[:-1]])
+        acts = np.concatenate([first.acts[skip:], second.acts])
+        starts = np.concatenate([np.arange(skip, len(first)) == 0, np.arange(len(second)) == 0])
+        return obs, acts, starts
+
+    n = min(len(a) + len(b), len(b) - 3 + len(a))
+    cols = [column(a, 0, b), column(b, 3, a)]
+    np.savez(tmp_path / "buffer.npz", obs=np.stack([c[0][:n] for c in cols], 1),
+             actions=np.stack([c[1][:n] for c in cols], 1)[..., None],
+             episode_starts=np.stack([c[2][:n] for c in cols], 1).astype(np.float32))  # SB3 keeps floats
     imported = read_demonstrations(tmp_path / "buffer.npz")
     lengths = [len(t) + 1 for t in imported.trajs]  # + the dropped last step of each piece
-    assert lengths == [len(a), 2 * n - len(a), len(b), 2 * n - len(b)]
-    np.testing.assert_array_equal(imported.trajs[2].obs, b.obs[:len(b)])
+    assert lengths == [len(a), n - len(a), len(b) - 3, n - (len(b) - 3)]
+    np.testing.assert_array_equal(imported.trajs[2].obs, b.obs[3:len(b)])
+    np.testing.assert_array_equal(imported.trajs[3].acts, a.acts[:len(imported.trajs[3])])
 
 
 def test_imitation_npz_never_unpickles_infos(tmp_path: Path, cartpole_trajs: list[Trajectory]) -> None:
