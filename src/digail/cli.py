@@ -42,7 +42,7 @@ Python keyword: `import_`)"""
 
 def _command(name: str) -> tuple[Any, Any, Any]:
     """The argument class, the function and the optional `defaults(argv)` of subcommand `name`."""
-    module = importlib.import_module(f"digail.commands.{name}_" if keyword.iskeyword(name) else f"digail.commands.{name}")
+    module = importlib.import_module(f"digail.commands.{name}{'_' if keyword.iskeyword(name) else ''}")
     args_cls, fn = COMMANDS[name]
     return getattr(module, args_cls), getattr(module, fn), getattr(module, "defaults", None)
 

@@ -312,10 +312,12 @@ def _read_sb3(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
                 raise UserError(f"{where} has '{name}' of shape {arr.shape} but 'episode_starts' of shape "
                                 f"{starts.shape}; a (steps, envs) buffer needs both leading axes in every array.")
 
-        def streams(arr: np.ndarray | None) -> np.ndarray | None:
-            return None if arr is None else np.concatenate([arr[:, j] for j in range(n_envs)])
+        def streams(arr: np.ndarray) -> np.ndarray:
+            return np.concatenate([arr[:, j] for j in range(n_envs)])
 
-        obs, acts, rews, next_obs = streams(obs), streams(acts), streams(rews), streams(next_obs)
+        obs, acts = streams(obs), streams(acts)
+        rews = None if rews is None else streams(rews)
+        next_obs = None if next_obs is None else streams(next_obs)
         starts = starts.T.copy()
         starts[:, 0] = True  # each env's column is its own stream
         starts = starts.reshape(-1)
