@@ -137,3 +137,12 @@ def test_select_codes_refuses_one_demonstration(pendulum: Path) -> None:
 
     with pytest.raises(UserError, match="K cannot be chosen from 1 demonstration"):
         select_codes(load_dataset(pendulum).trajs[:1], get_preset("smoke").vae, [2, 3], progress=False)
+
+
+def test_a_file_is_not_a_dataset(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An .npz given where a dataset is read points to `digail import` (not to recording demonstrations)."""
+    file = tmp_path / "mine.npz"
+    file.write_bytes(b"")
+    code, _, err = _cli(capsys, "pretrain", "--demos", str(file), "--out", str(tmp_path / "vae"))
+    _refused(code, err, "is a file, not a Minari dataset folder", f"digail import {file}")
+    assert not (tmp_path / "vae").exists()

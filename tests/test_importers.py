@@ -297,6 +297,10 @@ BROKEN = {  # layout -> how it is broken -> (change, phrases of the sentence)
     "d4rl ragged": (d4rl_arrays, lambda d: d.update(timeouts=d["timeouts"][1:]), ("rows of 'timeouts'",)),
     "d4rl nan": (d4rl_arrays, _nan("rewards"), ("NaN or inf", "'rewards'")),
     "d4rl flags": (d4rl_arrays, lambda d: d.update(terminals=d["terminals"] * 3), ("True/False",)),
+    "d4rl strings": (d4rl_arrays, lambda d: d.update(observations=d["observations"].astype(str)),
+                     ("'observations' of dtype",)),
+    "arrays ends dtype": (_arrays, lambda d: d.update(episode_ends=d["episode_ends"].astype(np.float32)),
+                          ("integer indices",)),
     "arrays missing": (_arrays, lambda d: d.pop("observations"), ("no 'observations' array",)),
     "arrays ends": (_arrays, lambda d: d.update(episode_ends=d["episode_ends"] - 1), ("episode_ends",)),
     "arrays ragged": (_arrays, lambda d: d.update(observations=d["observations"][:-2]), ("observations for",)),
@@ -314,6 +318,21 @@ def test_malformed_file(tmp_path: Path, cartpole_trajs: list[Trajectory], case: 
     with pytest.raises(UserError) as exc:
         read_demonstrations(file, case.split()[0] if "missing" in case and case != "sb3 missing" else "auto")
     assert_one_sentence(exc, str(file), *phrases)
+
+
+def test_malformed_d4rl_hdf5(tmp_path: Path, cartpole_trajs: list[Trajectory]) -> None:
+    data = d4rl_arrays(cartpole_trajs)
+    data["observations"][7, 2] = np.nan
+    save_like_d4rl_hdf5(tmp_path / "bad.hdf5", data)
+    with pytest.raises(UserError) as exc:
+        read_demonstrations(tmp_path / "bad.hdf5")
+    assert_one_sentence(exc, "bad.hdf5", "NaN or inf", "'observations'")
+    data["observations"][7, 2] = 0.0
+    del data["timeouts"], data["terminals"]
+    save_like_d4rl_hdf5(tmp_path / "bad.hdf5", data)
+    with pytest.raises(UserError) as exc:
+        read_demonstrations(tmp_path / "bad.hdf5", "d4rl")
+    assert_one_sentence(exc, "neither 'terminals' nor 'timeouts'")
 
 
 def test_unreadable_files(tmp_path: Path) -> None:

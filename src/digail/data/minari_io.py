@@ -120,6 +120,9 @@ def resolve_dataset(path_or_id: str | os.PathLike[str]) -> Path:
         data = _data_dir(folder)
         if data is not None:
             return data.parent
+    if Path(text).expanduser().is_file():
+        raise UserError(f"{text} is a file, not a Minari dataset folder; turn it into one with `digail import {text} "
+                        "--env ENV --out FOLDER`, or pass it to `digail run ENV --demos`.")
     if outside:
         raise UserError(f"dataset id {text!r} leads outside the Minari root {outside[-1]}; an id names a dataset "
                         "below the root, so pass a dataset folder path instead.")
