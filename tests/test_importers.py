@@ -387,6 +387,8 @@ def test_cli_import(tmp_path: Path, capsys: pytest.CaptureFixture[str], pendulum
     err = capsys.readouterr().err.strip()
     assert err.startswith("digail import: error:") and "NaN or inf" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "bad").exists()
+    assert main(["import", str(file), "--dataset-id", "../../escaped-v0"]) == 2
+    assert "invalid Minari dataset id" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------ the whole pipeline

@@ -591,10 +591,16 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
         UserError: a malformed source (see `read_demonstrations`), data that does not fit `env_id`, an unknown
             env id, an existing `out` without `force`.
     """
+    from minari.dataset.minari_dataset import parse_dataset_id
+
     from digail.data.minari_io import minari_root
     from digail.utils import check_new_dir
 
     dataset_id = dataset_id or default_import_id(None if isinstance(source, Mapping) else os.fspath(source))
+    try:  # before the id becomes a folder below the Minari root
+        parse_dataset_id(dataset_id)
+    except ValueError as exc:
+        raise UserError(f"invalid Minari dataset id {dataset_id!r}; use the form namespace/name-v0.") from exc
     path = Path(out) if out is not None else minari_root() / dataset_id
     check_new_dir(path, force)  # before reading a possibly large file
     imported = prepare_import(source, env_id=env_id, fmt=fmt)
