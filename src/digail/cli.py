@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import importlib
+import keyword
 import os
 import re
 import signal
@@ -23,6 +24,7 @@ from digail.errors import UserError
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "demos": ("DemosArgs", "demos_command"),
+    "import": ("ImportArgs", "import_command"),
     "pretrain": ("PretrainArgs", "pretrain_command"),
     "segment": ("SegmentArgs", "segment_command"),
     "train": ("TrainArgs", "train_command"),
@@ -34,12 +36,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": ("ReportArgs", "report_command"),
     "sweep": ("SweepArgs", "sweep_command"),
 }
-"""subcommand -> (argument dataclass, function) in the module `digail.commands.<subcommand>`"""
+"""subcommand -> (argument dataclass, function) in the module `digail.commands.<subcommand>` (`<subcommand>_` for a
+Python keyword: `import_`)"""
 
 
 def _command(name: str) -> tuple[Any, Any, Any]:
     """The argument class, the function and the optional `defaults(argv)` of subcommand `name`."""
-    module = importlib.import_module(f"digail.commands.{name}")
+    module = importlib.import_module(f"digail.commands.{name}{'_' if keyword.iskeyword(name) else ''}")
     args_cls, fn = COMMANDS[name]
     return getattr(module, args_cls), getattr(module, fn), getattr(module, "defaults", None)
 

@@ -25,8 +25,20 @@ import torch
 
 from digail.algos.decode import padded_obs, segment_many
 from digail.data.trajectory import Trajectory
+from digail.errors import UserError
 from digail.nets.mlp import one_hot
 from digail.nets.vae import HierarchicalPolicy
+
+
+def check_selectable(n: int) -> None:
+    """Refuse to choose K from fewer than two demonstrations: nothing would be held out to score the candidates on.
+
+    Raises:
+        UserError: when `n` < 2.
+    """
+    if n < 2:
+        raise UserError(f"K cannot be chosen from {n} demonstration: `--codes auto` scores each K on held-out "
+                        "demonstrations and needs at least two; pass --codes K.")
 
 
 def heldout_split(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

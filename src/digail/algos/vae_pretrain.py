@@ -38,7 +38,13 @@ import numpy as np
 import torch
 
 from digail.algos.gumbel import gumbel_softmax_chain
-from digail.algos.model_selection import best_index, description_length, heldout_split, smallest_within_one_se
+from digail.algos.model_selection import (
+    best_index,
+    check_selectable,
+    description_length,
+    heldout_split,
+    smallest_within_one_se,
+)
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
@@ -368,6 +374,7 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
         (`codes`, `dl_per_step`, ... and `chosen`, true for the K kept).
     """
     _, action_spec = check_demos(trajs, action_spec)
+    check_selectable(len(trajs))
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     curve: list[dict[str, Any]] = []

@@ -60,10 +60,12 @@ def pretrain_command(args: PretrainArgs) -> Path:
     settings with `demos`, `env_id`, `seed`), `losses.csv`, and the segmentation of the training demonstrations
     (`codes.npz`, `segmentation.json`, `figures/segmentation.png`).
     """
+    from digail.algos.model_selection import check_selectable
     from digail.algos.vae_pretrain import auto_epochs, pretrain, select_codes
     from digail.checkpoint import run_config, save_model, write_run_config
     from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
+    from digail.data.validation import check_dataset_env
     from digail.envs.registry import init_pieces_fn
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
@@ -73,6 +75,9 @@ def pretrain_command(args: PretrainArgs) -> Path:
     if not args.demos:
         raise UserError("the flag --demos is missing; pass a Minari dataset folder or id.")
     dataset = load_dataset(args.demos)
+    env_note = check_dataset_env(dataset)  # refuses data that does not fit its env, as `digail train` does
+    if args.codes == "auto":
+        check_selectable(len(dataset.trajs))
     env_id = dataset.env_id or "unknown-env"
     cfg = args.vae
     if args.preset is not None:
@@ -87,6 +92,8 @@ def pretrain_command(args: PretrainArgs) -> Path:
                         device=args.device, vae=cfg, args=args, dataset_id=dataset.dataset_id)
     demos_ref = config["demos"]
     candidates = list(range(2, args.max_codes + 1)) if args.codes == "auto" else None
+    if env_note is not None:
+        print(f"note: {env_note}")
     restarts = f", best of {cfg.restarts} restarts" if cfg.restarts > 1 else ""
     print(f"pre-training the VAE on {len(dataset.trajs)} demonstrations of {env_id} "
           f"(K = {'auto: ' + ', '.join(map(str, candidates)) if candidates else cfg.codes}, "

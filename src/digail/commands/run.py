@@ -29,6 +29,9 @@ class RunArgs:
 
     env: Annotated[str, tyro.conf.Positional] = "digail/CircleWorld-v0"
     """environment id"""
+    demos: str | None = None
+    """your own demonstrations: an .npz or HDF5 file in a layout `digail import` reads (imported into RUN/demos) or a
+    Minari dataset folder or id (default: the env's shipped dataset, else recorded with its expert)"""
     out: Path | None = None
     """run folder (default: runs/<env>__digail__s<seed>__<time>)"""
     preset: str | None = None
@@ -63,7 +66,11 @@ def run_command_line(args: RunArgs, run_dir: Path) -> str:
     """The `digail run` command line that remakes this run (recorded in config.json for the report)."""
     import shlex
 
+    from digail.checkpoint import path_ref
+
     parts = ["digail", "run", args.env, "--out", str(run_dir), "--seed", str(args.seed)]
+    if args.demos is not None:
+        parts += ["--demos", str(path_ref(args.demos))]
     if args.preset is not None:
         parts += ["--preset", args.preset]
     if args.episodes is not None:
@@ -75,11 +82,45 @@ def run_command_line(args: RunArgs, run_dir: Path) -> str:
     return shlex.join(parts)
 
 
-def _demonstrations(env_id: str, run_dir: Path, seed: int) -> tuple[Any, str]:
-    """The shipped dataset for `env_id` when there is one, else freshly recorded demonstrations."""
-    from digail.data.demos import default_dataset_id, record_demos
+def _check_demonstrations(env_id: str, demos: str | None) -> Any:
+    """Everything that can be wrong with the run's demonstrations, checked before the run folder is made: returns
+    the file's demonstrations fitted to the env (`prepare_import`), the Minari dataset checked against it, or None
+    (the shipped or recorded ones; refused for an env digail has no expert for)."""
+    from digail.data.demos import default_dataset_id
+    from digail.data.importers import is_import_source, prepare_import
     from digail.data.minari_io import load_dataset, shipped_dataset_ids
+    from digail.data.validation import check_matches_env
+    from digail.envs.registry import env_spec
 
+    if demos is None:
+        if default_dataset_id(env_id) not in shipped_dataset_ids() and env_spec(env_id) is None:
+            raise UserError(f"digail has no demonstrations or expert for {env_id}; pass your own with --demos (an SB3, "
+                            "imitation, D4RL or plain-array .npz / HDF5 file, or a Minari dataset).")
+        return None
+    if is_import_source(demos):
+        return prepare_import(demos, env_id=env_id)
+    dataset = load_dataset(demos)
+    check_matches_env(dataset, env_id)
+    return dataset
+
+
+def _demonstrations(env_id: str, run_dir: Path, seed: int, demos: str | None = None,
+                    checked: Any = None) -> tuple[Any, str]:
+    """The run's dataset and how config.json refers to it: `demos` (a file imported into RUN/demos, or a Minari
+    dataset), else the shipped dataset for `env_id` when there is one, else demonstrations recorded into RUN/demos.
+    `checked` is `_check_demonstrations`'s result, when it ran."""
+    from digail.data.demos import default_dataset_id, record_demos
+    from digail.data.importers import Imported, is_import_source, prepare_import, write_imported
+    from digail.data.minari_io import Dataset, load_dataset, shipped_dataset_ids
+
+    if demos is not None and is_import_source(demos):
+        path = run_dir / "demos"
+        if not path.is_dir():  # written atomically: a folder that exists is complete (kept when resuming)
+            imported = checked if isinstance(checked, Imported) else prepare_import(demos, env_id=env_id)
+            write_imported(imported, path)
+        return load_dataset(str(path)), str(path)
+    if demos is not None:
+        return (checked if isinstance(checked, Dataset) else load_dataset(demos)), demos
     dataset_id = default_dataset_id(env_id)
     if dataset_id in shipped_dataset_ids():
         return load_dataset(dataset_id), dataset_id
@@ -115,6 +156,7 @@ def run_command(args: RunArgs) -> Path:
     device = resolve_device(args.device)
     make_env(args.env).close()  # an unknown id fails here, before anything is written
     preset = preset_for(args.env, args.preset)
+    checked = None if resuming else _check_demonstrations(args.env, args.demos)
     if resuming:
         run_dir = Path(args.out or ".")
         check_writable(run_dir, "run folder")
@@ -124,7 +166,7 @@ def run_command(args: RunArgs) -> Path:
         fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
     cfg = replace(preset.train, method="digail")
     vae_dir = run_dir / "vae"
-    run_args = replace(args, out=run_dir.resolve(), resume=None, force=False)
+    run_args = replace(args, out=run_dir.resolve(), resume=None, force=False, demos=path_ref(args.demos))
     # written first, so that an interrupted run can be resumed from any stage
     write_run_config(run_dir, run_config(kind="digail", env_id=args.env, demos=None, seed=args.seed,
                                          preset=args.preset, device=args.device, vae=preset.vae, train=cfg,
@@ -132,7 +174,7 @@ def run_command(args: RunArgs) -> Path:
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    dataset, demos_ref = _demonstrations(args.env, run_dir, args.seed)
+    dataset, demos_ref = _demonstrations(args.env, run_dir, args.seed, args.demos, checked)
     check_matches_env(dataset, args.env)
     trajs = list(dataset.trajs)
     timings["demos_s"] = time.perf_counter() - t0

@@ -108,12 +108,24 @@ def resolve_dataset(path_or_id: str | os.PathLike[str]) -> Path:
     """
     text = os.fspath(path_or_id)
     candidates = [Path(text).expanduser()]
+    outside = []
     if not Path(text).is_absolute():
-        candidates += [SHIPPED_ROOT / text, minari_root() / text]
+        for root in (SHIPPED_ROOT, minari_root()):
+            # an id stays below its root: `..` must not reach datasets (or any folder) elsewhere on the machine
+            if os.path.normpath(root / text).startswith(os.path.join(os.path.normpath(root), "")):
+                candidates.append(root / text)
+            else:
+                outside.append(root)
     for folder in candidates:
         data = _data_dir(folder)
         if data is not None:
             return data.parent
+    if Path(text).expanduser().is_file():
+        raise UserError(f"{text} is a file, not a Minari dataset folder; turn it into one with `digail import {text} "
+                        "--env ENV --out FOLDER`, or pass it to `digail run ENV --demos`.")
+    if outside:
+        raise UserError(f"dataset id {text!r} leads outside the Minari root {outside[-1]}; an id names a dataset "
+                        "below the root, so pass a dataset folder path instead.")
     raise UserError(_missing_message(text))
 
 

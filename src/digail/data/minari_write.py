@@ -54,7 +54,7 @@ def _to_buffer(traj: Trajectory, episode_id: int, seed: int | None, act_space: g
                          truncations=last & (not traj.terminated), infos=infos)
 
 
-def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env_id: str, dataset_id: str, *,
+def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env_id: str | None, dataset_id: str, *,
                   force: bool = False, seeds: Sequence[int] | None = None, author: str | None = "digail",
                   description: str | None = None, algorithm_name: str | None = None,
                   observation_space: gym.Space | None = None, action_space: gym.Space | None = None,
@@ -68,7 +68,8 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
         trajs: the episodes; labels (if any) go to the episode infos under "subtask" (T + 1 entries).
         path: the dataset folder to create (it will hold `data/metadata.json` and `data/main_data.hdf5`).
         env_id: the environment the data comes from; its spec (id, entry point, kwargs, time limit) and spaces
-            are stored so readers can recreate the env and check a dataset against one.
+            are stored so readers can recreate the env and check a dataset against one. None: data without an
+            environment (imported demonstrations); then both spaces must be given and no env spec is stored.
         dataset_id: Minari id stored in the metadata, e.g. "digail/circleworld/expert-v0".
         force: replace an existing folder at `path`.
         seeds: reset seed of each episode, stored per episode (Minari's `seed` attribute).
@@ -104,13 +105,18 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
     labelled = [t.subtasks is not None for t in trajs]
     if any(labelled) and not all(labelled):
         raise UserError(f"{sum(labelled)} of {len(trajs)} episodes have sub-task labels; label all or none.")
-    env = make_env(env_id)
-    try:
-        spec = env.spec
-        obs_space = observation_space or env.observation_space
-        act_space = action_space or env.action_space
-    finally:
-        env.close()
+    if env_id is None:
+        if observation_space is None or action_space is None:
+            raise UserError("data without an environment needs its observation and action spaces; pass both.")
+        spec, obs_space, act_space = None, observation_space, action_space
+    else:
+        env = make_env(env_id)
+        try:
+            spec = env.spec
+            obs_space = observation_space or env.observation_space
+            act_space = action_space or env.action_space
+        finally:
+            env.close()
     for i, traj in enumerate(trajs):
         validate_for_space(f"episode {i}", traj, obs_space, act_space)
     buffers = [_to_buffer(t, i, None if seeds is None else int(seeds[i]), act_space)

@@ -67,7 +67,14 @@ def check_matches_env(dataset: Dataset, env_id: str, **env_kwargs: Any) -> None:
     Raises:
         UserError: naming both spaces and the fix when they differ, or when `env_id` is unknown.
     """
-    env = make_env(env_id, **env_kwargs)
+    try:
+        env = make_env(env_id, **env_kwargs)
+    except UserError as exc:
+        if env_id != dataset.env_id:
+            raise
+        raise UserError(f"dataset {dataset.dataset_id} was recorded in {env_id}, which {_cannot_make(exc)}; training "
+                        "and evaluation need that environment (install what registers it), while `digail pretrain` "
+                        "and `digail segment` work from the dataset alone.") from exc
     try:
         env_obs, env_act = env.observation_space, env.action_space
     finally:
@@ -82,6 +89,34 @@ def check_matches_env(dataset: Dataset, env_id: str, **env_kwargs: Any) -> None:
     if not same_action_space(dataset.action_space, env_act):
         raise UserError(f"dataset {dataset.dataset_id}{recorded} has action space {dataset.action_space} but "
                         f"{env_id} has {env_act}; {fix}.")
+
+
+def _cannot_make(exc: UserError) -> str:
+    """Why an env cannot be made, from `make_env`'s sentence: its first clause (no list of known ids)."""
+    return "cannot be made here (" + str(exc).split(";")[0].rstrip(".") + ")"
+
+
+def check_dataset_env(dataset: Dataset) -> str | None:
+    """Check a dataset against the environment its metadata names, where that environment can be made.
+
+    Returns:
+        None when the dataset fits its environment; a sentence saying what will not work when the dataset names
+        no environment or one that cannot be made here (its spaces then come from the dataset: pre-training and
+        segmentation work, training and evaluation do not).
+
+    Raises:
+        UserError: the environment can be made and its spaces do not fit the data (`check_matches_env`).
+    """
+    after = ("the VAE takes its spaces from the dataset, so pre-training and `digail segment` work, but `digail "
+             "train`, `evaluate` and `run` need an environment")
+    if dataset.env_id is None:
+        return f"dataset {dataset.dataset_id} names no environment; {after} (pass it to `digail train --env`)."
+    try:
+        make_env(dataset.env_id).close()
+    except UserError as exc:
+        return f"dataset {dataset.dataset_id} was recorded in {dataset.env_id}, which {_cannot_make(exc)}; {after}."
+    check_matches_env(dataset, dataset.env_id)
+    return None
 
 
 def same_action_space(a: gym.Space, b: gym.Space) -> bool:

@@ -1,0 +1,607 @@
+"""Demonstrations in the formats other tools write, read into `Trajectory` lists and written as Minari datasets.
+
+The layouts (`FORMATS`), each a `.npz` file, an HDF5 file or a dict of arrays:
+
+- `sb3`: rollouts as Stable-Baselines' `generate_expert_traj` and SB3's `RolloutBuffer` store them: `obs` and
+  `actions` with one row per step, `episode_starts` (True where a row is the first of an episode; a 2-D
+  `(steps, envs)` array holds one stream per env, as the rollout buffer does), optional `rewards` and `next_obs`.
+- `imitation`: a list of imitation's `Trajectory` / `TrajectoryWithRew` saved as arrays: `obs` (each trajectory's
+  T + 1 observations, one trajectory after another), `acts`, `indices` (where each trajectory's actions start,
+  after the first: the cumulative lengths), `terminal` (one flag per trajectory), optional `rews`. The `infos`
+  array imitation also writes holds pickled Python objects and is never read.
+- `d4rl`: D4RL's flat transitions: `observations`, `actions`, `terminals` and/or `timeouts` (an episode ends after
+  a step flagged by either: termination or time limit), optional `rewards` and `next_observations`.
+- `arrays`: plain arrays with episode ends: `observations` (or `obs`), `actions` (or `acts`), `episode_ends` (one
+  past each episode's last step: the cumulative lengths, the last equal to the number of steps), optional
+  `rewards` and `terminated` (one flag per episode).
+
+The state after an episode's last action: imitation stores it, D4RL and SB3 only with `next_observations` /
+`next_obs`, plain arrays when `observations` has one row more per episode than the steps. Where a file does not
+store it, that last action is dropped (a transition without its next state is no demonstration step) and the
+episode is kept as truncated; `Imported.notes` says so. Pickled arrays are never loaded.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from digail.data.trajectory import Trajectory
+from digail.errors import UserError
+from digail.utils import one_line
+
+FORMATS = ("sb3", "imitation", "d4rl", "arrays")
+"""the layouts `read_demonstrations` understands (see the module docstring)"""
+
+FILE_SUFFIXES = (".npz", ".hdf5", ".h5")
+"""files `read_demonstrations` opens (anything else is taken for a Minari dataset by the commands)"""
+
+_LAYOUTS = ("SB3 rollouts (obs, actions, episode_starts), imitation trajectories (obs, acts, indices, terminal), "
+            "D4RL arrays (observations, actions, terminals, timeouts) or plain arrays (observations, actions, "
+            "episode_ends)")
+
+_REQUIRED = {
+    "sb3": ("obs", "actions", "episode_starts"),
+    "imitation": ("obs", "acts", "indices", "terminal"),
+    "d4rl": ("observations", "actions"),
+    "arrays": ("actions|acts", "observations|obs", "episode_ends"),
+}
+
+
+@dataclass(frozen=True)
+class Imported:
+    """Demonstrations read from another tool's layout."""
+
+    trajs: list[Trajectory]
+    """the episodes, in stored order"""
+    fmt: str
+    """the layout they were read as (one of `FORMATS`)"""
+    observation_space: gym.Space
+    """their observation space: the environment's (`prepare_import` with an env) or the data's (`spaces_from_data`)"""
+    action_space: gym.Space
+    """their action space, likewise"""
+    source: str | None = None
+    """the file they were read from (None: a dict of arrays)"""
+    env_id: str | None = None
+    """the environment they were checked against (None: none; the spaces come from the data)"""
+    notes: list[str] = field(default_factory=list)
+    """what the reading had to give up, in sentences (e.g. last actions dropped for want of a next state)"""
+
+    @property
+    def num_steps(self) -> int:
+        """Transitions over all episodes."""
+        return sum(len(t) for t in self.trajs)
+
+
+def is_import_source(text: str | os.PathLike[str]) -> bool:
+    """Whether `text` names a file `read_demonstrations` opens (rather than a Minari dataset folder or id)."""
+    path = Path(text)
+    return path.suffix.lower() in FILE_SUFFIXES and not path.is_dir()
+
+
+# ------------------------------------------------------------------------------------------------ reading
+class _Arrays:
+    """Named arrays of one source, checked as they are taken: numeric, finite, no pickled objects."""
+
+    def __init__(self, where: str, data: Mapping[str, Any]) -> None:
+        self.where, self.data = where, data
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.data
+
+    def keys(self) -> list[str]:
+        return sorted(self.data)
+
+    def get(self, key: str, *, kind: str = "number") -> np.ndarray:
+        """Array `key`; `kind` "number" (finite numbers), "flag" (bools or 0/1) or "index" (integers)."""
+        try:
+            arr = np.asarray(self.data[key])
+        except KeyError:
+            raise UserError(f"{self.where} has no '{key}' array; {self._hint()}.") from None
+        except ValueError as exc:  # NpzFile refuses object arrays without pickle
+            raise UserError(f"{self.where} stores '{key}' as pickled Python objects ({one_line(exc)}), which digail "
+                            "never loads; save it as a numeric array.") from None
+        if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
+            raise UserError(f"{self.where} has '{key}' of dtype {arr.dtype}; it must be a numeric array.")
+        if kind == "number" and np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+            raise UserError(f"{self.where} has NaN or inf values in '{key}'; drop or repair those steps before "
+                            "importing.")
+        if kind == "flag":
+            if arr.dtype != np.bool_ and not np.isin(arr, (0, 1)).all():
+                raise UserError(f"{self.where} has '{key}' values other than True/False (or 0/1); it must hold "
+                                "one flag per row.")
+            arr = arr.astype(bool)
+        if kind == "index" and not np.issubdtype(arr.dtype, np.integer):
+            raise UserError(f"{self.where} has '{key}' of dtype {arr.dtype}; it must hold integer indices.")
+        return arr
+
+    def optional(self, key: str, kind: str = "number") -> np.ndarray | None:
+        return self.get(key, kind=kind) if key in self.data else None
+
+    def first(self, *keys: str) -> np.ndarray:
+        for key in keys:
+            if key in self.data:
+                return self.get(key)
+        raise UserError(f"{self.where} has no '{keys[0]}' array; {self._hint()}.")
+
+    def _hint(self) -> str:
+        return f"it holds {', '.join(self.keys()) or 'no arrays'}, expected {_LAYOUTS}"
+
+
+def _open(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[_Arrays, Any]:
+    """The arrays of a file or dict, and the open file to close (or None)."""
+    if isinstance(source, Mapping):
+        return _Arrays("the given arrays", source), None
+    path = Path(source)
+    where = str(path)
+    if path.is_dir():
+        raise UserError(f"{where} is a folder; pass an .npz or HDF5 file (a Minari dataset folder needs no "
+                        "import).")
+    if not path.is_file():
+        raise UserError(f"no file at {where}; pass the path of an .npz or HDF5 file of demonstrations.")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        try:
+            npz = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
+            raise UserError(f"cannot read {where} as an .npz file ({one_line(exc)}); the file is damaged or not "
+                            "written by numpy.savez.") from exc
+        if not hasattr(npz, "files"):
+            raise UserError(f"{where} holds a single array, not named arrays; save them with numpy.savez(path, "
+                            "obs=..., actions=..., ...).")
+        return _Arrays(where, {k: _LazyNpz(npz, k) for k in npz.files}), npz
+    if suffix in (".hdf5", ".h5"):
+        import h5py
+
+        try:
+            h5 = h5py.File(path, "r")
+        except OSError as exc:
+            raise UserError(f"cannot read {where} as an HDF5 file ({one_line(exc)}); the file is damaged or not "
+                            "HDF5.") from exc
+        arrays = {k: _LazyH5(h5, k, where) for k, v in h5.items() if isinstance(v, h5py.Dataset)}
+        return _Arrays(where, arrays), h5
+    raise UserError(f"{where} is neither an .npz nor an HDF5 file; save the demonstrations with numpy.savez or "
+                    "h5py.")
+
+
+class _LazyNpz:
+    """An npz member read only when used (so that an unused pickled `infos` costs nothing and loads nothing)."""
+
+    def __init__(self, npz: Any, key: str) -> None:
+        self.npz, self.key = npz, key
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        arr = self.npz[self.key]
+        return arr if dtype is None else arr.astype(dtype)
+
+
+class _LazyH5:
+    def __init__(self, h5: Any, key: str, where: str) -> None:
+        self.h5, self.key, self.where = h5, key, where
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        try:
+            arr = np.asarray(self.h5[self.key][()])
+        except (OSError, KeyError) as exc:
+            raise UserError(f"cannot read '{self.key}' from {self.where} ({one_line(exc)}); the file is damaged.") \
+                from exc
+        return arr if dtype is None else arr.astype(dtype)
+
+
+def _class_of(arrays: _Arrays) -> str:
+    if "indices" in arrays and "acts" in arrays:
+        return "imitation"
+    if "episode_starts" in arrays:
+        return "sb3"
+    if "episode_ends" in arrays:
+        return "arrays"
+    if "terminals" in arrays or "timeouts" in arrays:
+        return "d4rl"
+    raise UserError(f"{arrays.where} holds {', '.join(arrays.keys()) or 'no arrays'}, which is none of the layouts "
+                    f"digail reads: {_LAYOUTS}.")
+
+
+def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt: str = "auto") -> Imported:
+    """Read demonstrations from an `.npz` file, an HDF5 file or a dict of arrays in one of `FORMATS`.
+
+    Args:
+        source: the file, or a dict of arrays (e.g. what D4RL's `env.get_dataset()` returns).
+        fmt: one of `FORMATS`, or "auto" to tell the layout from the array names.
+
+    Returns:
+        The episodes as validated `Trajectory` objects (float32 observations; int64 actions when the file's are
+        integers, else float32), with notes on anything given up.
+
+    Raises:
+        UserError: one sentence naming the file and the problem: missing arrays, lengths that do not add up,
+            NaN or inf values, non-numeric or pickled arrays, episode marks that make no episode.
+    """
+    if fmt != "auto" and fmt not in FORMATS:
+        raise UserError(f"unknown demonstration format {fmt!r}; choose auto or one of {', '.join(FORMATS)}.")
+    arrays, handle = _open(source)
+    try:
+        kind = _class_of(arrays) if fmt == "auto" else fmt
+        for key in _REQUIRED[kind]:
+            if not any(k in arrays for k in key.split("|")):
+                raise UserError(f"{arrays.where} has no '{key.split('|')[0]}' array, which the {kind} layout needs; "
+                                f"{arrays._hint()}.")
+        reader = {"sb3": _read_sb3, "imitation": _read_imitation, "d4rl": _read_d4rl, "arrays": _read_arrays}[kind]
+        trajs, notes = reader(arrays)
+    finally:
+        if handle is not None:
+            handle.close()
+    if not trajs:
+        raise UserError(f"{arrays.where} holds no episode with at least one step and the state after it; import "
+                        "longer episodes.")
+    _check_consistent(arrays.where, trajs)
+    obs_space, act_space = spaces_from_data(trajs)
+    return Imported(trajs=trajs, fmt=kind, observation_space=obs_space, action_space=act_space,
+                    source=None if isinstance(source, Mapping) else os.fspath(source), notes=notes)
+
+
+def _rows(where: str, name: str, arr: np.ndarray, n: int, what: str) -> None:
+    if arr.ndim < 1 or len(arr) != n:
+        got = len(arr) if arr.ndim >= 1 else "a scalar"
+        raise UserError(f"{where} has {got} rows of '{name}' but {n} {what}; the arrays must have matching "
+                        "lengths.")
+
+
+def _actions(where: str, name: str, acts: np.ndarray) -> np.ndarray:
+    """int64 indices (integer actions, a trailing axis of 1 dropped as SB3 stores Discrete) or float32 rows."""
+    if np.issubdtype(acts.dtype, np.integer) or acts.dtype == np.bool_:
+        if acts.ndim == 2 and acts.shape[1] == 1:
+            acts = acts[:, 0]
+        if acts.ndim != 1:
+            raise UserError(f"{where} has integer '{name}' of shape {acts.shape[1:]} per step; discrete actions must "
+                            "be one index per step (save continuous actions as floats).")
+        if acts.size and acts.min() < 0:
+            raise UserError(f"{where} has negative integer '{name}'; discrete actions must be indices 0..n-1.")
+        return acts.astype(np.int64)
+    acts = acts.astype(np.float32)
+    return acts[:, None] if acts.ndim == 1 else acts
+
+
+def _traj(where: str, obs: np.ndarray, acts: np.ndarray, rews: np.ndarray | None, terminated: bool) -> Trajectory:
+    try:
+        return Trajectory(obs=obs.astype(np.float32), acts=acts,
+                          rews=None if rews is None else rews.astype(np.float32).reshape(-1), terminated=terminated)
+    except ValueError as exc:  # the checks above should leave nothing for these; named all the same
+        raise UserError(f"{where} gives an invalid episode ({one_line(exc)}).") from exc
+
+
+def _split_rows(where: str, obs: np.ndarray, acts: np.ndarray, rews: np.ndarray | None, next_obs: np.ndarray | None,
+                bounds: Sequence[tuple[int, int]], terminal: Sequence[bool]) -> tuple[list[Trajectory], int]:
+    """Episodes of rows [a, b) with one observation per step: the last row's next state from `next_obs`, else
+    that last step dropped (returned: how many were)."""
+    trajs: list[Trajectory] = []
+    dropped = 0
+    for (a, b), term in zip(bounds, terminal, strict=True):
+        if next_obs is not None:
+            trajs.append(_traj(where, np.concatenate([obs[a:b], next_obs[b - 1:b]]), acts[a:b],
+                               None if rews is None else rews[a:b], bool(term)))
+            continue
+        dropped += 1
+        if b - a >= 2:
+            trajs.append(_traj(where, obs[a:b], acts[a:b - 1], None if rews is None else rews[a:b - 1], False))
+    return trajs, dropped
+
+
+def _dropped_note(dropped: int, next_name: str) -> list[str]:
+    if not dropped:
+        return []
+    return [f"the file stores no state after an episode's last action (no '{next_name}'), so the last action of "
+            f"each of {dropped} episodes was dropped and the episodes kept as truncated"]
+
+
+def _read_sb3(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
+    where = arrays.where
+    starts = arrays.get("episode_starts", kind="flag")
+    obs, acts = arrays.get("obs"), arrays.get("actions")
+    rews, next_obs = arrays.optional("rewards"), arrays.optional("next_obs")
+    if starts.ndim == 2:  # SB3's rollout buffer: (steps, envs), one stream per env column
+        n_steps, n_envs = starts.shape
+        for name, arr in (("obs", obs), ("actions", acts), ("rewards", rews), ("next_obs", next_obs)):
+            if arr is not None and arr.shape[:2] != (n_steps, n_envs):
+                raise UserError(f"{where} has '{name}' of shape {arr.shape} but 'episode_starts' of shape "
+                                f"{starts.shape}; a (steps, envs) buffer needs both leading axes in every array.")
+
+        def streams(arr: np.ndarray) -> np.ndarray:
+            return np.concatenate([arr[:, j] for j in range(n_envs)])
+
+        obs, acts = streams(obs), streams(acts)
+        rews = None if rews is None else streams(rews)
+        next_obs = None if next_obs is None else streams(next_obs)
+        starts = starts.T.copy()
+        starts[:, 0] = True  # each env's column is its own stream
+        starts = starts.reshape(-1)
+    elif starts.ndim != 1:
+        raise UserError(f"{where} has 'episode_starts' of shape {starts.shape}; it must be one flag per step, or "
+                        "(steps, envs) as in SB3's rollout buffer.")
+    n = len(starts)
+    _rows(where, "obs", obs, n, "episode_starts flags")
+    _rows(where, "actions", acts, n, "episode_starts flags")
+    if rews is not None:
+        _rows(where, "rewards", rews, n, "episode_starts flags")
+    if next_obs is not None:
+        _rows(where, "next_obs", next_obs, n, "episode_starts flags")
+        if next_obs.shape[1:] != obs.shape[1:]:
+            raise UserError(f"{where} has 'next_obs' of shape {next_obs.shape[1:]} per step but 'obs' of "
+                            f"{obs.shape[1:]}; they must match.")
+    acts = _actions(where, "actions", acts)
+    first = np.flatnonzero(starts).tolist()
+    if not first or first[0] != 0:
+        first = [0, *first]  # rows before the first flagged start: the tail of an episode begun earlier
+    bounds = list(zip(first, [*first[1:], n], strict=True))
+    trajs, dropped = _split_rows(where, obs, acts, rews, next_obs, bounds, [False] * len(bounds))
+    return trajs, _dropped_note(dropped, "next_obs")
+
+
+def _read_imitation(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
+    where = arrays.where
+    obs, acts = arrays.get("obs"), arrays.get("acts")
+    indices, terminal = arrays.get("indices", kind="index"), arrays.get("terminal", kind="flag")
+    rews = arrays.optional("rews")
+    if indices.ndim != 1:
+        raise UserError(f"{where} has 'indices' of shape {indices.shape}; it must be a 1-D array of split points.")
+    n_trajs = len(indices) + 1
+    if terminal.shape != (n_trajs,):
+        raise UserError(f"{where} has {terminal.size} 'terminal' flags for {n_trajs} trajectories (one more than "
+                        "'indices'); the arrays do not fit together.")
+    if acts.ndim < 1 or len(obs) != len(acts) + n_trajs:
+        raise UserError(f"{where} has {len(obs)} observations for {len(acts)} actions in {n_trajs} trajectories; "
+                        "imitation stores one more observation than actions per trajectory.")
+    if rews is not None:
+        _rows(where, "rews", rews, len(acts), "actions")
+    if np.any(np.diff(np.concatenate([[0], indices, [len(acts)]])) <= 0):
+        raise UserError(f"{where} has 'indices' that are not strictly increasing within 1..{len(acts) - 1}; every "
+                        "trajectory needs at least one action.")
+    acts = _actions(where, "acts", acts)
+    act_splits = np.split(acts, indices)
+    obs_splits = np.split(obs, indices + np.arange(1, n_trajs))
+    rew_splits = np.split(rews, indices) if rews is not None else [None] * n_trajs
+    trajs = [_traj(where, o, a, r, bool(t))
+             for o, a, r, t in zip(obs_splits, act_splits, rew_splits, terminal, strict=True)]
+    return trajs, []
+
+
+def trajectories_from_objects(items: Sequence[Any]) -> list[Trajectory]:
+    """Episodes from objects with imitation's trajectory fields: `obs` (T + 1 rows), `acts` (T rows), `terminal`,
+    and `rews` where present (imitation's `Trajectory` / `TrajectoryWithRew`, or anything shaped like them).
+
+    Raises:
+        UserError: an object lacks a field, or its arrays are not a valid episode.
+    """
+    trajs = []
+    for i, item in enumerate(items):
+        where = f"trajectory {i}"
+        try:
+            fields = {"obs": item.obs, "acts": item.acts, "terminal": item.terminal}
+        except AttributeError as exc:
+            raise UserError(f"{where} has no {exc.name!r} field; pass objects with obs, acts and terminal (imitation's "
+                            "trajectory types).") from None
+        arrays = _Arrays(where, {**fields, "rews": getattr(item, "rews", None)} if getattr(item, "rews", None)
+                         is not None else fields)
+        obs, acts = arrays.get("obs"), arrays.get("acts")
+        rews = arrays.optional("rews")
+        if acts.ndim < 1 or obs.ndim < 1 or len(obs) != len(acts) + 1:
+            raise UserError(f"{where} has {len(obs)} observations for {len(acts)} actions; a trajectory holds one "
+                            "more observation than actions.")
+        if rews is not None:
+            _rows(where, "rews", rews, len(acts), "actions")
+        trajs.append(_traj(where, obs, _actions(where, "acts", acts), rews, bool(fields["terminal"])))
+    if not trajs:
+        raise UserError("no trajectories were given; pass at least one.")
+    _check_consistent("the trajectories", trajs)
+    return trajs
+
+
+def _read_d4rl(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
+    where = arrays.where
+    obs, acts = arrays.get("observations"), arrays.get("actions")
+    n = len(obs) if obs.ndim >= 1 else 0
+    _rows(where, "actions", acts, n, "observations")
+    terminals, timeouts = arrays.optional("terminals", "flag"), arrays.optional("timeouts", "flag")
+    if terminals is None and timeouts is None:
+        raise UserError(f"{where} has neither 'terminals' nor 'timeouts', so its episodes cannot be told apart; add "
+                        "the flags that end each episode.")
+    terminals = np.zeros(n, bool) if terminals is None else terminals
+    timeouts = np.zeros(n, bool) if timeouts is None else timeouts
+    _rows(where, "terminals", terminals, n, "observations")
+    _rows(where, "timeouts", timeouts, n, "observations")
+    rews, next_obs = arrays.optional("rewards"), arrays.optional("next_observations")
+    if rews is not None:
+        _rows(where, "rewards", rews, n, "observations")
+    if next_obs is not None:
+        _rows(where, "next_observations", next_obs, n, "observations")
+        if next_obs.shape[1:] != obs.shape[1:]:
+            raise UserError(f"{where} has 'next_observations' of shape {next_obs.shape[1:]} per step but "
+                            f"'observations' of {obs.shape[1:]}; they must match.")
+    acts = _actions(where, "actions", acts)
+    ends = (np.flatnonzero(terminals | timeouts) + 1).tolist()
+    notes = []
+    if not ends or ends[-1] != n:
+        notes.append(f"the last {n - (ends[-1] if ends else 0)} steps end neither in a terminal nor a timeout and "
+                     "were kept as a truncated episode")
+        ends.append(n)
+    starts = [0, *ends[:-1]]
+    bounds = list(zip(starts, ends, strict=True))
+    terminal = [bool(terminals[b - 1]) for _, b in bounds]
+    trajs, dropped = _split_rows(where, obs, acts, rews, next_obs, bounds, terminal)
+    return trajs, _dropped_note(dropped, "next_observations") + notes
+
+
+def _read_arrays(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
+    where = arrays.where
+    obs, acts = arrays.first("observations", "obs"), arrays.first("actions", "acts")
+    ends = arrays.get("episode_ends", kind="index")
+    rews = arrays.optional("rewards")
+    terminated = arrays.optional("terminated", "flag")
+    n = len(acts) if acts.ndim >= 1 else 0
+    if ends.ndim != 1 or len(ends) == 0 or np.any(np.diff(np.concatenate([[0], ends])) <= 0) or ends[-1] != n:
+        raise UserError(f"{where} has 'episode_ends' that are not strictly increasing positive step counts ending at "
+                        f"the number of actions ({n}); each entry is one past an episode's last step.")
+    if rews is not None:
+        _rows(where, "rewards", rews, n, "actions")
+    if terminated is not None and terminated.shape != ends.shape:
+        raise UserError(f"{where} has {terminated.size} 'terminated' flags for {len(ends)} episodes; give one per "
+                        "episode.")
+    terminal = [False] * len(ends) if terminated is None else terminated.tolist()
+    acts = _actions(where, "actions", acts)
+    starts = np.concatenate([[0], ends[:-1]])
+    if len(obs) == n + len(ends):  # each episode's T + 1 observations
+        trajs = [_traj(where, obs[a + i:b + i + 1], acts[a:b], None if rews is None else rews[a:b], bool(t))
+                 for i, (a, b, t) in enumerate(zip(starts, ends, terminal, strict=True))]
+        return trajs, []
+    if len(obs) != n:
+        raise UserError(f"{where} has {len(obs)} observations for {n} actions in {len(ends)} episodes; give one "
+                        "observation per action, or one more per episode (the state after its last action).")
+    trajs, dropped = _split_rows(where, obs, acts, rews, None, list(zip(starts, ends, strict=True)), terminal)
+    return trajs, [f"'observations' has one row per action, so the state after each episode's last action is "
+                   f"missing: the last action of each of {dropped} episodes was dropped and the episodes kept as "
+                   "truncated"]
+
+
+def _check_consistent(where: str, trajs: Sequence[Trajectory]) -> None:
+    shapes = {t.obs.shape[1:] for t in trajs}
+    if len(shapes) != 1:
+        raise UserError(f"{where} has episodes with observations of shapes {sorted(shapes)}; all episodes must "
+                        "come from one environment.")
+
+
+# ------------------------------------------------------------------------------------------------ spaces
+def spaces_from_data(trajs: Sequence[Trajectory]) -> tuple[gym.spaces.Box, gym.Space]:
+    """Observation and action spaces the data itself implies, for demonstrations without an environment.
+
+    Observations: an unbounded float32 Box of their shape. Actions: Discrete(largest index + 1) for integer
+    actions (an action the demonstrations never take is not counted), else an unbounded float32 Box (the bounds are
+    not in the data).
+    """
+    obs_space = gym.spaces.Box(-np.inf, np.inf, shape=trajs[0].obs.shape[1:], dtype=np.float32)
+    if trajs[0].discrete:
+        n = int(max(int(t.acts.max()) for t in trajs)) + 1
+        return obs_space, gym.spaces.Discrete(n)
+    return obs_space, gym.spaces.Box(-np.inf, np.inf, shape=trajs[0].acts.shape[1:], dtype=np.float32)
+
+
+def fit_to_env(where: str, trajs: list[Trajectory], env_id: str) -> tuple[list[Trajectory], gym.Space, gym.Space]:
+    """The episodes shaped as `env_id`'s spaces need (flat action rows reshaped, integer-valued float actions of a
+    Discrete env as indices) and the env's spaces (Dict observations flattened); one sentence when they do not fit.
+    """
+    from digail.envs.registry import make_env
+
+    env = make_env(env_id)
+    try:
+        obs_space, act_space = env.observation_space, env.action_space
+    finally:
+        env.close()
+    if isinstance(obs_space, gym.spaces.Dict):
+        obs_space = gym.spaces.flatten_space(obs_space)
+    fix = f"import demonstrations recorded in {env_id}, or pass the --env they were recorded in"
+    got = trajs[0].obs.shape[1:]
+    if not isinstance(obs_space, gym.spaces.Box) or int(np.prod(got)) != int(np.prod(obs_space.shape)):
+        raise UserError(f"{where} has observations of shape {got} but {env_id} has {obs_space}; {fix}.")
+    out = []
+    for t in trajs:
+        acts = t.acts
+        if isinstance(act_space, gym.spaces.Discrete):
+            if not t.discrete:
+                if acts.shape[1:] != (1,) or not np.all(acts == np.round(acts)):
+                    raise UserError(f"{where} has continuous actions of shape {acts.shape[1:]} but {env_id} has "
+                                    f"{act_space}; {fix}.")
+                acts = acts[:, 0].astype(np.int64)
+            acts = acts - int(act_space.start)
+            if acts.min() < 0 or acts.max() >= act_space.n:
+                raise UserError(f"{where} has actions outside {env_id}'s {act_space}; {fix}.")
+        elif isinstance(act_space, gym.spaces.Box):
+            if t.discrete or int(np.prod(acts.shape[1:])) != int(np.prod(act_space.shape)):
+                raise UserError(f"{where} has {'integer' if t.discrete else 'float'} actions of shape "
+                                f"{acts.shape[1:]} but {env_id} has {act_space}; {fix}.")
+            acts = acts.reshape(len(acts), *act_space.shape)
+        else:
+            raise UserError(f"{env_id} has action space {act_space}; only Box and Discrete actions are supported.")
+        out.append(Trajectory(obs=t.obs.reshape(len(t.obs), *obs_space.shape), acts=acts, rews=t.rews,
+                              subtasks=t.subtasks, terminated=t.terminated))
+    return out, obs_space, act_space
+
+
+# ------------------------------------------------------------------------------------------------ writing
+def default_import_id(source: str | os.PathLike[str] | None) -> str:
+    """Minari id for imported demonstrations, from the file's name: `mine.npz` -> `imported/mine-v0`."""
+    stem = Path(source).stem if source is not None else "demos"
+    name = re.sub(r"[^a-z0-9_-]", "", stem.lower().replace(".", "-").replace(" ", "-")) or "demos"
+    name = re.sub(r"-v\d+$", "", name) or "demos"
+    return f"imported/{name}-v0"
+
+
+def prepare_import(source: str | os.PathLike[str] | Mapping[str, Any], *, env_id: str | None = None,
+                   fmt: str = "auto") -> Imported:
+    """`read_demonstrations`, then fitted to `env_id`'s spaces when one is given (`fit_to_env`): everything that can
+    go wrong with the data, checked before anything is written."""
+    imported = read_demonstrations(source, fmt)
+    if not env_id:
+        return imported
+    trajs, obs_space, act_space = fit_to_env(imported.source or "the given arrays", imported.trajs, env_id)
+    return replace(imported, trajs=trajs, observation_space=obs_space, action_space=act_space, env_id=env_id)
+
+
+def write_imported(imported: Imported, out: str | os.PathLike[str], *, dataset_id: str | None = None,
+                   force: bool = False) -> Path:
+    """Write demonstrations from `prepare_import` as a Minari dataset folder at `out` (atomically); returns it."""
+    from digail.data.minari_write import write_dataset
+
+    trajs = imported.trajs
+    record = {"imported_from": None if imported.source is None else str(Path(imported.source).resolve()),
+              "format": imported.fmt, "notes": imported.notes, "episodes": len(trajs),
+              "steps": imported.num_steps}
+    env_words = f" recorded in {imported.env_id}" if imported.env_id else ""
+    description = f"{len(trajs)} demonstrations{env_words} imported by digail from the {imported.fmt} layout."
+    return write_dataset(trajs, out, imported.env_id, dataset_id or default_import_id(imported.source),
+                         force=force, description=description, algorithm_name=None,
+                         observation_space=imported.observation_space, action_space=imported.action_space,
+                         extra_metadata=record)
+
+
+def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], out: str | os.PathLike[str] | None
+                          = None, *, env_id: str | None = None, fmt: str = "auto", dataset_id: str | None = None,
+                          force: bool = False) -> tuple[Path, Imported]:
+    """Read demonstrations in another tool's layout and write them as a Minari dataset; returns its folder.
+
+    Args:
+        source: an `.npz` or HDF5 file, or a dict of arrays (see `read_demonstrations`).
+        out: the dataset folder (default: the Minari root, `$MINARI_DATASETS_PATH` or `~/.minari/datasets`, then
+            the dataset id, so that the id resolves there).
+        env_id: the environment the data was recorded in: checked against its spaces, and stored so that training
+            and evaluation can make it. None: the spaces come from the data (`spaces_from_data`) and the dataset
+            names no environment (it can be pre-trained on and segmented, not trained in an env).
+        fmt: one of `FORMATS`, or "auto".
+        dataset_id: the Minari id stored in the metadata (default: `default_import_id`).
+        force: replace an existing dataset folder.
+
+    Returns:
+        The dataset folder and what was read (`Imported`, with its notes).
+
+    Raises:
+        UserError: a malformed source (see `read_demonstrations`), data that does not fit `env_id`, an unknown
+            env id, an existing `out` without `force`.
+    """
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    from digail.data.minari_io import minari_root
+    from digail.utils import check_new_dir
+
+    dataset_id = dataset_id or default_import_id(None if isinstance(source, Mapping) else os.fspath(source))
+    try:  # before the id becomes a folder below the Minari root
+        parse_dataset_id(dataset_id)
+    except ValueError as exc:
+        raise UserError(f"invalid Minari dataset id {dataset_id!r}; use the form namespace/name-v0.") from exc
+    path = Path(out) if out is not None else minari_root() / dataset_id
+    check_new_dir(path, force)  # before reading a possibly large file
+    imported = prepare_import(source, env_id=env_id, fmt=fmt)
+    return write_imported(imported, path, dataset_id=dataset_id, force=force), imported
