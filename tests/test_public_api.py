@@ -1,0 +1,39 @@
+"""The public API at the package top level: every name resolves to its home module's object, lazily."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import digail
+
+
+def test_top_level_names_are_the_deep_objects():
+    public = {"Trajectory", "UserError", "__version__", *digail._PUBLIC}
+    assert set(digail.__all__) == public
+    for name, module in digail._PUBLIC.items():
+        assert getattr(digail, name) is getattr(importlib.import_module(module), name), name
+    assert set(digail._PUBLIC) <= set(dir(digail))
+
+
+def test_unknown_name_is_an_attribute_error():
+    try:
+        digail.no_such_name  # noqa: B018
+    except AttributeError as err:
+        assert "no_such_name" in str(err)
+    else:
+        raise AssertionError("digail.no_such_name resolved")
+
+
+def test_import_digail_leaves_the_training_code_unimported():
+    """`import digail` registers the envs and nothing more; the first use of a name imports its module."""
+    code = ("import sys, digail\n"
+            "heavy = [m for m in ('digail.algos.vae_pretrain', 'digail.algos.directed_info_gail', 'digail.eval.returns',"
+            " 'digail.data.minari_io', 'minari', 'sklearn') if m in sys.modules]\n"
+            "assert not heavy, heavy\n"
+            "import gymnasium\n"
+            "assert 'digail/CircleWorld-v0' in gymnasium.registry\n"
+            "digail.pretrain\n"
+            "assert 'digail.algos.vae_pretrain' in sys.modules\n")
+    subprocess.run([sys.executable, "-c", code], check=True)
