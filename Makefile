@@ -45,7 +45,7 @@ lint: venv
 
 # the documentation site into site/; --strict turns a broken link, anchor or API reference into an error
 docs: venv
-	$(BIN)/mkdocs build --strict
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 clean:
 	rm -rf $(VENV) build site *.egg-info

@@ -63,7 +63,8 @@ def blocks(page: Path) -> list[Block]:
 def bash_lines(code: str) -> list[str]:
     """The commands of a bash block: continuation lines joined, comments and blank lines dropped."""
     joined = code.replace("\\\n", " ")
-    return [ln.split(" #", 1)[0].strip() for ln in joined.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    lines = [ln for ln in joined.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    return [ln.split(" #", 1)[0].strip() for ln in lines]
 
 
 def run_block(block: Block, namespace: dict) -> None:

@@ -30,8 +30,8 @@ def test_import_digail_leaves_the_training_code_unimported():
     """`import digail` registers the envs and nothing more (not even torch); the first use of a name imports its
     module."""
     code = ("import sys, digail\n"
-            "heavy = [m for m in ('digail.algos.vae_pretrain', 'digail.algos.directed_info_gail', 'digail.eval.returns',"
-            " 'digail.data.minari_io', 'minari', 'sklearn', 'torch') if m in sys.modules]\n"
+            "heavy = [m for m in ('digail.algos.vae_pretrain', 'digail.algos.directed_info_gail',"
+            " 'digail.eval.returns', 'digail.data.minari_io', 'minari', 'sklearn', 'torch') if m in sys.modules]\n"
             "assert not heavy, heavy\n"
             "import gymnasium\n"
             "assert 'digail/CircleWorld-v0' in gymnasium.registry\n"
