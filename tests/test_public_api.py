@@ -38,3 +38,23 @@ def test_import_digail_leaves_the_training_code_unimported():
             "digail.pretrain\n"
             "assert 'digail.algos.vae_pretrain' in sys.modules\n")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_train_copies_the_vae_and_picks_the_method_from_it(monkeypatch):
+    """`digail.train` leaves the VAE it is given as it was, and with no settings runs the env's preset as
+    Directed-Info GAIL when given a VAE, as GAIL (one code) without one."""
+    import torch
+
+    from digail.config import VAEConfig, get_preset
+    from digail.data.minari_io import load_dataset
+    from digail.envs import registry
+
+    monkeypatch.setattr(registry, "preset_for", lambda env_id, name=None: get_preset("smoke"))
+    env_id, trajs = "digail/CircleWorld-v0", load_dataset("digail/circleworld/expert-v0").trajs[:4]
+    vae, _ = digail.pretrain(trajs, VAEConfig(codes=2, init_steps=50, polish_steps=0), seed=0, progress=False)
+    before = {k: v.clone() for k, v in vae.state_dict().items()}
+    policy = digail.train(env_id, trajs, vae, seed=0, progress=False)
+    assert policy is not vae and policy.codes == 2
+    assert all(torch.equal(before[k], v) for k, v in vae.state_dict().items())
+    assert any(not torch.equal(before[k], v) for k, v in policy.state_dict().items() if k.startswith("pi."))
+    assert digail.train(env_id, trajs, seed=0, progress=False).codes == 1
