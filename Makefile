@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 TORCH := torch==2.13.0
 PINS := "gymnasium[mujoco,classic-control]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
 
-.PHONY: demo test test-slow test-all bench lint venv clean
+.PHONY: demo test test-slow test-all bench lint docs venv clean
 
 $(BIN)/activate:
 	$(PY) -m venv $(VENV)
@@ -43,5 +43,9 @@ lint: venv
 	$(BIN)/mypy src
 	$(BIN)/lint-imports
 
+# the documentation site into site/; --strict turns a broken link, anchor or API reference into an error
+docs: venv
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build site *.egg-info

@@ -10,8 +10,8 @@ The same trials as a sweep spec, on Ray (local or a cluster): `digail sweep --sp
     python benchmarks/table1.py progress                 -> benchmarks/results/table1_progress.json: the
                                                          eval/* learning curve of every started trial so far
     python benchmarks/table1.py run hopper vae-k8 0      the appendix's K = 8 VAE on Hopper (for its PCA figure)
-    python benchmarks/table1.py markdown                 the README table from table1.json, the paper's beside ours
-    python benchmarks/table1.py readme                   the same table into README.md (between its table1 markers)
+    python benchmarks/table1.py markdown                 the results table from table1.json, the paper's beside ours
+    python benchmarks/table1.py readme                   the same table into docs/results.md (between its markers)
     python benchmarks/table1.py publish                  the median seed's run folder per env and method (model,
                                                          config, eval, curves, figures) -> benchmarks/results/runs/
     python benchmarks/table1.py figures                  -> benchmarks/results/figures/table1/ (learning curves,
@@ -359,17 +359,17 @@ def markdown(table: dict[str, Any] | None = None) -> str:
     return "\n".join(lines)
 
 
-README = HERE.parent / "README.md"
+README = HERE.parent / "docs" / "results.md"  # the page that publishes the tables
 MARKERS = ("<!-- table1:start (python benchmarks/table1.py readme) -->", "<!-- table1:end -->")
 
 
 def readme() -> None:
-    """Replace the table between the README's table1 markers with `markdown()` of table1.json."""
+    """Replace the table between the results page's table1 markers with `markdown()` of table1.json."""
     replace_in_readme(MARKERS, markdown())
 
 
 def replace_in_readme(markers: tuple[str, str], text: str) -> None:
-    """Put `text` between the README's two `markers` (shared with table2.py)."""
+    """Put `text` between the results page's two `markers` (shared with table2.py)."""
     page = README.read_text()
     start, end = page.index(markers[0]) + len(markers[0]), page.index(markers[1])
     README.write_text(page[:start] + "\n" + text + "\n" + page[end:])

@@ -6,8 +6,8 @@
 writes benchmarks/results/table2.json (per method and seed: the paper's dense return, the sparse return, success,
 grasp and lift rates, env steps, wall time, the exact commands; medians; the issue's targets), copies the median
 seed's run folder of every method to benchmarks/results/runs/fetch_<method>_s<seed>/ and puts the Markdown table
-into README.md between its table2 markers. The sweep's own results.json / results.md go to
-benchmarks/results/sweeps/table2/ as for the other README tables.
+into docs/results.md between its table2 markers. The sweep's own results.json / results.md go to
+benchmarks/results/sweeps/table2/ as for the other published tables.
 """
 
 from __future__ import annotations

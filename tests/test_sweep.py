@@ -263,16 +263,16 @@ def test_local_sweep_survives_a_killed_worker_and_reports_a_failure(ray_local, t
     assert len(load_plan(sweep)[1]) == 7
 
 
-def test_readme_sweep_commands_parse_and_plan():
-    """Every `digail sweep` line of the README's Sweeps section parses and plans (nothing runs)."""
+def test_documented_sweep_commands_parse_and_plan():
+    """Every `digail sweep` line of the README and the docs parses and plans (nothing runs)."""
     import shlex
 
     import tyro
 
     from digail.commands.sweep import SweepArgs
 
-    section = (ROOT / "README.md").read_text().split("## Sweeps", 1)[1].split("\n## ", 1)[0]
-    text = section.replace("\\\n", " ")
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    text = "\n".join(page.read_text() for page in pages).replace("\\\n", " ")
     lines = [ln.split("#", 1)[0] for ln in text.splitlines() if ln.strip().startswith("digail sweep")]
     assert len(lines) >= 6
     for line in lines:

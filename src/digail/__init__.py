@@ -2,13 +2,69 @@
 
 Learns, from unsegmented expert demonstrations, a segmentation into sub-tasks, one policy per sub-task and a
 macro-policy that switches between them. Importing the package registers its Gymnasium environments.
+
+The public API lives at the top level (`digail.pretrain`, `digail.segment`, `digail.train`, `digail.evaluate`,
+`digail.load_dataset`, `digail.Trajectory`, ...). Each name is the object of its home module (listed in
+`_PUBLIC`), imported on first use, so `import digail` does not pay for the training code; the deep paths such as
+`digail.algos.vae_pretrain.pretrain` keep working and are the same objects.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from digail.data.trajectory import Trajectory
 from digail.envs import register_envs as _register_envs
 from digail.errors import UserError
 from digail.version import __version__
 
+if TYPE_CHECKING:  # what the lazy names below resolve to, for type checkers and editors
+    from digail.algos.decode import segment
+    from digail.algos.directed_info_gail import train
+    from digail.algos.vae_pretrain import pretrain
+    from digail.checkpoint import load_model, save_model
+    from digail.config import TrainConfig, VAEConfig, get_preset
+    from digail.data.minari_io import Dataset, load_dataset
+    from digail.eval.composition import compose
+    from digail.eval.returns import evaluate
+    from digail.eval.segmentation import segmentation_metrics
+    from digail.nets.vae import HierarchicalPolicy
+
 _register_envs()
 
-__all__ = ["Trajectory", "UserError", "__version__"]
+# public name -> the module that defines it (imported when the name is first looked up)
+_PUBLIC: dict[str, str] = {
+    "load_dataset": "digail.data.minari_io",
+    "Dataset": "digail.data.minari_io",
+    "VAEConfig": "digail.config",
+    "TrainConfig": "digail.config",
+    "get_preset": "digail.config",
+    "pretrain": "digail.algos.vae_pretrain",
+    "segment": "digail.algos.decode",
+    "train": "digail.algos.directed_info_gail",
+    "evaluate": "digail.eval.returns",
+    "compose": "digail.eval.composition",
+    "segmentation_metrics": "digail.eval.segmentation",
+    "HierarchicalPolicy": "digail.nets.vae",
+    "save_model": "digail.checkpoint",
+    "load_model": "digail.checkpoint",
+}
+
+__all__ = [
+    "Dataset", "HierarchicalPolicy", "TrainConfig", "Trajectory", "UserError", "VAEConfig", "__version__", "compose",
+    "evaluate", "get_preset", "load_dataset", "load_model", "pretrain", "save_model", "segment",
+    "segmentation_metrics", "train",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'digail' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_PUBLIC[name]), name)
+    globals()[name] = value  # looked up once; later accesses skip __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

@@ -12,29 +12,37 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from digail.errors import UserError
+
+if TYPE_CHECKING:
+    import torch
 
 
 def seed_everything(seed: int) -> np.random.Generator:
     """Seed Python, NumPy and torch; return a fresh NumPy generator for the caller's own draws."""
     random.seed(seed)
     np.random.seed(seed % 2**32)
+    import torch  # here, not at the top: `import digail` reaches this module and should not pay for torch
+
     torch.manual_seed(seed)
     return np.random.default_rng(seed)
 
 
 def set_torch_threads(n: int = 1) -> None:
     """2x64 nets gain nothing from a second thread and get much noisier under load; default to one."""
+    import torch
+
     torch.set_num_threads(n)
 
 
 def resolve_device(device: str) -> torch.device:
     """`auto` picks CUDA when present, else CPU; an unavailable explicit device is a user error."""
+    import torch
+
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if device.startswith("cuda") and not torch.cuda.is_available():

@@ -29,7 +29,7 @@ class DirectedInfoGAIL(GAIL):
     lambda_1 * log q. As a reward, log q(c_t | s_t, c_{t-1}) scores the state s_t, so it is credited to the
     transition (s_{t-1}, a_{t-1}) that produced s_t. The authors' released code subtracted it; we do not.
 
-    Code sources per env (DESIGN.md): the first `round(replay_fraction * N)` envs replay q's causal segmentation
+    Code sources per env (docs/design.md): the first `round(replay_fraction * N)` envs replay q's causal segmentation
     of a random expert demonstration (samples of p(c^{1:t})), continued closed-loop past its end; the others
     sample c_t ~ q(. | s_t, c_{t-1}) on their own states.
     """
@@ -109,3 +109,41 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
     model.normalizer.fit(np.concatenate([np.asarray(t.obs) for t in demos]))
     return GAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device, progress=progress,
                 reward_fn=reward_fn)
+
+
+def train(env_id: str, demos: list[Trajectory], vae_model: HierarchicalPolicy | None = None,
+          cfg: TrainConfig | None = None, *, seed: int = 0, run_dir: str | Path | None = None,
+          device: str | torch.device = "cpu", progress: bool = True) -> HierarchicalPolicy:
+    """Train a hierarchical policy on `env_id` from demonstrations: the library form of `digail train`.
+
+    Args:
+        env_id: the Gymnasium id to roll out in (the demonstrations' environment).
+        demos: the expert demonstrations the discriminator compares against.
+        vae_model: a pre-trained VAE (`digail.pretrain`): Directed-Info GAIL freezes its q and starts pi from its
+            decoder. It is copied, not changed.
+        cfg: trainer settings; None takes the env's preset (`digail.envs.registry.preset_for`), run as
+            Directed-Info GAIL when `vae_model` is given and as plain GAIL (one code, fresh policy) otherwise.
+        seed: seeds the initial weights, the envs and the batches; the same seed gives the same numbers on CPU.
+        run_dir: when given, the trainer writes `metrics.csv`, TensorBoard events and checkpoints there.
+        device: torch device of the updates.
+        progress: show a progress bar.
+
+    Returns:
+        The trained policy (q, prior, pi and the observation normaliser) in eval mode.
+    """
+    import copy
+
+    if cfg is None:
+        from dataclasses import replace
+
+        from digail.envs.registry import preset_for
+
+        cfg = replace(preset_for(env_id).train, method="gail" if vae_model is None else "digail")
+    model = copy.deepcopy(vae_model) if vae_model is not None else None
+    trainer = build_trainer(env_id, list(demos), cfg, vae_model=model, seed=seed,
+                            run_dir=None if run_dir is None else Path(run_dir), device=device, progress=progress)
+    try:
+        trainer.train()
+    finally:
+        trainer.close()
+    return trainer.model.eval()

@@ -73,8 +73,11 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
         dataset_id: Minari id stored in the metadata, e.g. "digail/circleworld/expert-v0".
         force: replace an existing folder at `path`.
         seeds: reset seed of each episode, stored per episode (Minari's `seed` attribute).
-        author, description, algorithm_name: Minari metadata.
-        observation_space, action_space: override the env's spaces (e.g. a flattened dict observation space).
+        author: Minari metadata: who made the data.
+        description: Minari metadata: what the data is.
+        algorithm_name: Minari metadata: what produced the data.
+        observation_space: overrides the env's observation space (e.g. a flattened dict observation space).
+        action_space: overrides the env's action space.
         extra_metadata: JSON-serialisable record stored under the metadata key "digail" (digail adds
             `rewards_recorded`).
         compact: rewrite Minari's chunked HDF5 file with contiguous arrays (about 4x smaller for short

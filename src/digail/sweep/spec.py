@@ -297,12 +297,13 @@ def build_spec(*, envs: tuple[str, ...] = (), methods: tuple[str, ...] = (), see
         spec = load_spec(spec_file)
         grids = []
         for g in spec.grids:
-            g = replace(g, envs=tuple(e for e in g.envs if not envs or e in envs),
-                        methods=tuple(m for m in g.methods if not methods or m in methods),
-                        seeds=tuple(s for s in g.seeds if not seeds or s in seeds))
-            if not (g.envs and g.methods and g.seeds):
-                continue
-            g = replace(g, preset=preset or g.preset, episodes=episodes or g.episodes)
+            kept_envs = tuple(e for e in g.envs if not envs or e in envs)
+            kept_methods = tuple(m for m in g.methods if not methods or m in methods)
+            kept_seeds = tuple(s for s in g.seeds if not seeds or s in seeds)
+            if not (kept_envs and kept_methods and kept_seeds):
+                continue  # a grid the flags empty is dropped (an empty Grid is refused on construction)
+            g = replace(g, envs=kept_envs, methods=kept_methods, seeds=kept_seeds, preset=preset or g.preset,
+                        episodes=episodes or g.episodes)
             grids.append(merge_overrides(g, extra))
         if not grids:
             raise UserError(f"--envs / --methods / --seeds leave no trial of {spec_file}; check the names.")
