@@ -59,6 +59,45 @@ shutil.rmtree(folder, ignore_errors=True)
 """
 
 
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_caught: list[int] = []
+"""signals that arrived while a sweep held Ray (newest last)"""
+
+
+def _remember_signals() -> dict[int, Any]:
+    """Wrap SIGINT's and SIGTERM's handlers so that the signal's number is kept: Ray's blocking calls turn
+    whatever the handler raised into a bare KeyboardInterrupt, and `reraise_signal` restores it."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    old = {s: signal.getsignal(s) for s in _SIGNALS}
+
+    def remember(signum: int, frame: Any) -> None:
+        _caught.append(signum)
+        handler = old[signum]
+        if callable(handler):
+            handler(signum, frame)
+        elif signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        else:
+            raise SystemExit(128 + signum)
+
+    for s in _SIGNALS:
+        signal.signal(s, remember)
+    return old
+
+
+def reraise_signal(exc: KeyboardInterrupt) -> None:
+    """Raise again what the original handler of the signal behind `exc` raises (e.g. the CLI's SIGTERM exit), when
+    Ray replaced it with a bare KeyboardInterrupt; else re-raise `exc`."""
+    handlers = _handlers[-1] if _handlers else {}
+    if type(exc) is KeyboardInterrupt and _caught and callable(handlers.get(_caught[-1])):
+        handlers[_caught[-1]](_caught[-1], None)
+    raise exc
+
+
+_handlers: list[dict[int, Any]] = []
+
+
 @dataclass
 class RaySession:
     """A connection to Ray made by `start_ray`; `stop_ray` ends what it started."""
@@ -192,6 +231,8 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, dashboard
     finally:
         if old_term is not None:  # Ray replaces SIGTERM's handler with a bare exit; the caller's stays in force
             signal.signal(signal.SIGTERM, old_term)
+    _handlers.append(_remember_signals())
+    session.extra["signals"] = True
     return session
 
 
@@ -218,6 +259,8 @@ def _connect(address: str, cpus: float, gpus: float, resources: dict[str, float]
         ray.shutdown()
         raise
     session.extra["connected"] = True
+    _handlers.append(_remember_signals())
+    session.extra["signals"] = True
     return session
 
 
@@ -225,6 +268,9 @@ def stop_ray(session: RaySession) -> None:
     """Shut down what `start_ray` started (or disconnect), then let the reaper clean up and wait for it."""
     import ray
 
+    if session.extra.pop("signals", False) and _handlers:
+        for s, handler in _handlers.pop().items():
+            signal.signal(s, handler)
     if session.started or session.extra.get("connected"):
         ray.shutdown()
     if session.reaper is not None:

@@ -415,12 +415,14 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
                 schedule()
                 summary(force=True)
             summary()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        from digail.sweep.cluster import reraise_signal
+
         for ref in running:
             with contextlib.suppress(Exception):
                 ray.cancel(ref, force=True)
         out("[sweep] interrupted: the running stages were stopped; run the same command again to resume.")
-        raise
+        reraise_signal(exc)
     for job in waiting:  # only when a dependency never finished (cannot happen, kept for safety)
         states[job.id] = {"status": "failed", "error": "not run: its dependencies did not finish"}
     return {jid: states.get(jid, {"status": "pending"}) for jid in by_id}
