@@ -162,11 +162,15 @@ set = { "train.reward" = "bogus" }
 
 @pytest.fixture(scope="module")
 def ray_local():
+    """A local Ray as `digail sweep` starts it: on 127.0.0.1, its session folder removed at the end."""
     ray = pytest.importorskip("ray")
+    from digail.sweep import start_ray, stop_ray
+
     os.environ.setdefault("MUJOCO_GL", "egl")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=100 * 1024**2)
+    session = start_ray(num_cpus=2)
     yield ray
-    ray.shutdown()
+    stop_ray(session)
+    assert session.folder is not None and not Path(session.folder).exists()
 
 
 def _procs() -> list[tuple[int, int, list[str], str]]:
