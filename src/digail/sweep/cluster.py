@@ -171,7 +171,7 @@ def check_fits(nodes: list[dict[str, float]], cpus: float, gpus: float, resource
                     "lower --cpus-per-trial (or the spec's resources_per_trial) or use a larger node.")
 
 
-def _loopback_only() -> None:
+def loopback_only() -> None:
     """Make a Ray started from this process take 127.0.0.1 as its node address (every server binds it).
 
     Ray binds its servers to the node address; on Linux it picks the machine's outward address unless clusters are
@@ -216,7 +216,7 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, dashboard
     gpus = local_gpus()
     check_fits([{"CPU": float(cpus), "GPU": float(gpus)}], cpus_per_trial, gpus_per_trial, resources,
                "this machine's Ray" if num_cpus is None else f"a local Ray of --num-cpus {num_cpus}")
-    _loopback_only()
+    loopback_only()
     folder = tempfile.mkdtemp(prefix="digail-ray-")
     os.environ[SESSION_ENV] = folder  # inherited by every process of this Ray: how the reaper knows them
     reaper = _start_reaper(folder)

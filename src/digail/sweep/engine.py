@@ -202,7 +202,7 @@ def _run_stages(job: Job, root: Path, token: str, node: str | None, where: str,
     state["host"] = os.uname().nodename
     state["node"] = node
     state.setdefault("nodes", []).append(node)
-    state["workdir"] = where
+    state["workdir"] = f"{where} {root}"
     write_state(root, job, state)
     if on_change is not None:
         on_change()
@@ -297,19 +297,21 @@ def _running_sps(sweep: Path, jobs: list[Job]) -> float:
 
 def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0, gpus: float = 0.0,
             resources: dict[str, float] | None = None, shared_fs: bool = False, client: bool = False,
-            summary_every: float = 30.0, log: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
+            summary_every: float = 30.0, log: Callable[[str], None] | None = None,
+            task: Callable[..., dict[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
     """Run `jobs` on the initialised Ray (dependencies first); returns every job's final state by id.
 
     A job whose dependency failed is reported failed without running. Ctrl-C cancels the running tasks (their
     stages die with them) and re-raises; the next call resumes. Trials on other nodes than the driver's get and
-    return their folders through Ray unless `shared_fs`; `client`: the driver is a Ray Client, on no node."""
+    return their folders through Ray unless `shared_fs`; `client`: the driver is a Ray Client, on no node.
+    `task` is what a job's Ray task runs (`run_job`, with its arguments; the driver benchmark passes a stand-in)."""
     import ray
 
     from digail.sweep import transfer as tr
 
     out = log or (lambda msg: print(msg, flush=True))
     sweep = Path(sweep)
-    remote = ray.remote(run_job).options(num_cpus=cpus, num_gpus=gpus, resources=resources or None, max_retries=0)
+    remote = ray.remote(task or run_job).options(num_cpus=cpus, num_gpus=gpus, resources=resources or None, max_retries=0)
     driver_node = None if client else _node_id()
     mailbox = None if shared_fs else tr.mailbox_actor(driver_node)
     by_id = {j.id: j for j in jobs}
