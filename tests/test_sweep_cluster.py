@@ -154,7 +154,7 @@ def test_sweep_on_a_cluster_without_shared_folder_survives_a_lost_node_and_match
     first, second = ran_on[KILLED]
     assert first == removed[0] and second != first
     # scratch folders go with their attempt; only the attempt killed with its node left one (on that node's disk)
-    left = {str(w): [p.name for p in w.iterdir()] for w in workdirs}
+    left = {str(w): [p.name for p in w.glob("digail-trial-*")] for w in workdirs}
     lost = workdirs[[n.node_id for n in nodes].index(first)]
     assert sorted(len(v) for v in left.values()) == [0, 1] and len(left[str(lost)]) == 1, left
     killed = read_state(sweep, next(j for j in load_plan(sweep)[1] if j.id == KILLED))
