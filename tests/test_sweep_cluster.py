@@ -5,6 +5,7 @@ results.json equals the same sweep run on one machine."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -24,7 +25,7 @@ SPEC = {
     "name": "cluster",
     "envs": ["digail/CircleWorld-v0"],
     "methods": ["vae", "digail"],
-    "seeds": [0, 1],
+    "seeds": [0],
     "preset": "smoke",
     "episodes": 3,
     "retries": 1,
@@ -85,18 +86,12 @@ def cluster():
         deadline = time.time() + 15
         while _marked(root) and time.time() < deadline:
             for pid in _marked(root):
-                with_suppress_kill(pid)
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
             time.sleep(0.5)
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
-
-
-def with_suppress_kill(pid: int) -> None:
-    try:
-        os.kill(pid, signal.SIGKILL)
-    except OSError:
-        pass
 
 
 def _remove_mid_training(c, nodes, sweep: Path, done: threading.Event, removed: list[str]) -> None:
@@ -113,7 +108,7 @@ def _remove_mid_training(c, nodes, sweep: Path, done: threading.Event, removed: 
         time.sleep(0.2)
 
 
-@pytest.mark.slow  # three Ray nodes, six smoke stages twice (on the cluster and on one machine): a few minutes
+@pytest.mark.slow  # three Ray nodes, four smoke stages twice (on the cluster and on one machine): a few minutes
 def test_sweep_on_a_cluster_without_shared_folder_survives_a_lost_node_and_matches_one_machine(cluster, tmp_path):
     c, nodes, workdirs = cluster
     spec = spec_from_dict(SPEC)
@@ -136,7 +131,7 @@ def test_sweep_on_a_cluster_without_shared_folder_survives_a_lost_node_and_match
         done.set()
     assert removed, "the trial finished before its node could be removed"
 
-    assert result["failed"] == [] and result["done"] == result["trials"] == 4
+    assert result["failed"] == [] and result["done"] == result["trials"] == 2
     worker_ids = {n.node_id for n in nodes}
     ran_on: dict[str, list[str]] = {}
     for job in load_plan(sweep)[1]:

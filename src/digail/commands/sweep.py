@@ -47,8 +47,8 @@ class SweepArgs:
     gpus_per_trial: float | None = None
     """GPUs each trial declares to Ray (default: 0); above 0 the trial's VAE and trainer run on cuda"""
     shared_fs: bool = False
-    """the sweep folder is at the same path on every node of the cluster: trials work in it directly (by default
-    a trial on another node than this one gets and returns its folders through Ray)"""
+    """the sweep folder is at the same path on every node of the cluster, so trials work in it directly; without
+    it a trial on another node gets and returns its folders through Ray"""
     dashboard: bool = False
     """start Ray's dashboard (on 127.0.0.1) with the local Ray"""
     search: Literal["optuna"] | None = None

@@ -69,7 +69,7 @@ def _remember_signals() -> dict[int, Any]:
     whatever the handler raised into a bare KeyboardInterrupt, and `reraise_signal` restores it."""
     if threading.current_thread() is not threading.main_thread():
         return {}
-    old = {s: signal.getsignal(s) for s in _SIGNALS}
+    old: dict[int, Any] = {int(s): signal.getsignal(s) for s in _SIGNALS}
 
     def remember(signum: int, frame: Any) -> None:
         _caught.append(signum)

@@ -311,7 +311,8 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
 
     out = log or (lambda msg: print(msg, flush=True))
     sweep = Path(sweep)
-    remote = ray.remote(task or run_job).options(num_cpus=cpus, num_gpus=gpus, resources=resources or None, max_retries=0)
+    remote = ray.remote(task or run_job).options(num_cpus=cpus, num_gpus=gpus, resources=resources or None,
+                                                 max_retries=0)
     driver_node = None if client else _node_id()
     mailbox = None if shared_fs else tr.mailbox_actor(driver_node)
     by_id = {j.id: j for j in jobs}
