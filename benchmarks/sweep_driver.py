@@ -1,6 +1,6 @@
 """How many trials one `digail sweep` driver moves through Ray per second when the trials themselves cost nothing.
 
-    python benchmarks/sweep_driver.py [--trials 200] [--cpus 2] [--remote] [--out benchmarks/sweep_driver.json]
+    python benchmarks/sweep_driver.py [--trials 200] [--cpus 2] [--remote] [--out benchmarks/results/sweep_driver.json]
 
 Plans a sweep of `--trials` VAE-baseline trials (CircleWorld, one seed each, so `--trials` VAE jobs and as many
 evaluations), and runs it with the real driver (`digail.sweep.engine.execute`: scheduling, dependencies, state
@@ -38,7 +38,7 @@ def stand_in(job_dict: dict[str, Any], sweep: str, token: str = "",
         assert transfer is not None
         tr.unpack(ray.get(transfer["inputs"]) if isinstance(transfer["inputs"], ray.ObjectRef)
                   else transfer["inputs"], root)
-    state = {"status": "done", "token": token, "commands": [], "error": None,
+    state = {"status": "done", "token": token, "commands": [], "error": None, "todo": [s.name for s in job.stages],
              "stages": {s.name: {"argv": list(s.argv), "rc": 0, "wall_s": 0.0} for s in job.stages}}
     (root / job.run).mkdir(parents=True, exist_ok=True)
     if job.kind == "trial":
@@ -55,7 +55,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--cpus", type=int, default=2)
     parser.add_argument("--remote", action="store_true")
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "sweep_driver.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "sweep_driver.json")
     args = parser.parse_args()
 
     from digail.sweep import save_plan, start_ray, stop_ray, summarize_sweep
