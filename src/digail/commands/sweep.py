@@ -6,6 +6,7 @@ Optuna search); this module is its flags.
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,6 +83,9 @@ def sweep_command(args: SweepArgs) -> dict[str, Any]:
                           cpus_per_trial=args.cpus_per_trial, gpus_per_trial=args.gpus_per_trial,
                           search=args.search, trials=args.trials, metric=args.metric, mode=args.mode)
         check_spec(spec, plan(spec) if spec.search is None else [])
+        if spec.search is not None and (args.address or os.environ.get("RAY_ADDRESS")) and not args.shared_fs:
+            raise UserError("a search on a Ray cluster runs its trials in the sweep folder itself; put --out on a "
+                            "filesystem every node sees and pass --shared-fs.")
         result = run_sweep(spec, args.out, address=args.address, num_cpus=args.num_cpus, dashboard=args.dashboard,
                            shared_fs=args.shared_fs)
     tables = Path(result["sweep"]) / "results.md"
