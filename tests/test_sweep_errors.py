@@ -26,6 +26,8 @@ SPECS = {
     "search_key.toml": f'envs = ["{CW}"]\nset = {{ "train.bonus_weight" = "0.01..0.1" }}\n[search]\nbudget = 3\n',
     "retries.toml": f'envs = ["{CW}"]\nretries = -1\n',
     "episodes.toml": f'envs = ["{CW}"]\nepisodes = 0\n',
+    "no_demos.toml": f'envs = ["{CW}"]\ndemos = "nope/nothing-v0"\n',
+    "other_demos.toml": f'envs = ["{CW}"]\ndemos = "digail/fourrooms/expert-v0"\n',
     "bad_set.toml": f'envs = ["{CW}"]\nmethods = ["vae"]\nset = {{ "train.no_such_field" = 1 }}\n',
 }
 
@@ -39,6 +41,8 @@ def _free_port() -> int:
 # argv (OUT / SPEC / FILE replaced) -> a fragment of the one sentence
 CASES: list[tuple[str, str]] = [
     ("--spec SPEC/unknown_env.toml --out OUT", "unknown environment id 'digail/NoSuchEnv-v0'"),
+    ("--spec SPEC/no_demos.toml --out OUT", "its demonstrations 'nope/nothing-v0' cannot be read"),
+    ("--spec SPEC/other_demos.toml --out OUT", "were recorded in digail/FourRooms-v0"),
     (f"--envs {CW} --set train.no_such_field=1 --out OUT", "has no option --train.no-such-field"),
     (f"--envs {CW} --methods vae --set train.no_such_field=1 --out OUT", "has no option --train.no-such-field"),
     (f"--envs {CW} --methods vae --set vae.no_such_field=1 --out OUT", "`digail pretrain` has no option"),

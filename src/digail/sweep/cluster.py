@@ -17,7 +17,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from digail.errors import UserError
@@ -62,6 +62,8 @@ shutil.rmtree(folder, ignore_errors=True)
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _caught: list[int] = []
 """signals that arrived while a sweep held Ray (newest last)"""
+_handlers: list[dict[int, Any]] = []
+"""the handlers `_remember_signals` wrapped, one dict per session holding Ray"""
 
 
 def _remember_signals() -> dict[int, Any]:
@@ -69,6 +71,7 @@ def _remember_signals() -> dict[int, Any]:
     whatever the handler raised into a bare KeyboardInterrupt, and `reraise_signal` restores it."""
     if threading.current_thread() is not threading.main_thread():
         return {}
+    _caught.clear()
     old: dict[int, Any] = {int(s): signal.getsignal(s) for s in _SIGNALS}
 
     def remember(signum: int, frame: Any) -> None:
@@ -95,9 +98,6 @@ def reraise_signal(exc: KeyboardInterrupt) -> None:
     raise exc
 
 
-_handlers: list[dict[int, Any]] = []
-
-
 @dataclass
 class RaySession:
     """A connection to Ray made by `start_ray`; `stop_ray` ends what it started."""
@@ -110,7 +110,10 @@ class RaySession:
     """the process that cleans up after the driver"""
     client: bool = False
     """whether the driver is a Ray Client (ray://): it is then on no node of the cluster"""
-    extra: dict[str, Any] = field(default_factory=dict)
+    connected: bool = False
+    """whether this process connected to a running cluster (and so disconnects)"""
+    signals: bool = False
+    """whether SIGINT's and SIGTERM's handlers were wrapped (and so are restored)"""
 
 
 def _host_port(address: str) -> tuple[str, int] | None:
@@ -232,7 +235,7 @@ def start_ray(address: str | None = None, num_cpus: int | None = None, dashboard
         if old_term is not None:  # Ray replaces SIGTERM's handler with a bare exit; the caller's stays in force
             signal.signal(signal.SIGTERM, old_term)
     _handlers.append(_remember_signals())
-    session.extra["signals"] = True
+    session.signals = True
     return session
 
 
@@ -258,9 +261,9 @@ def _connect(address: str, cpus: float, gpus: float, resources: dict[str, float]
     except BaseException:
         ray.shutdown()
         raise
-    session.extra["connected"] = True
+    session.connected = True
     _handlers.append(_remember_signals())
-    session.extra["signals"] = True
+    session.signals = True
     return session
 
 
@@ -268,10 +271,11 @@ def stop_ray(session: RaySession) -> None:
     """Shut down what `start_ray` started (or disconnect), then let the reaper clean up and wait for it."""
     import ray
 
-    if session.extra.pop("signals", False) and _handlers:
+    if session.signals and _handlers:
+        session.signals = False
         for s, handler in _handlers.pop().items():
             signal.signal(s, handler)
-    if session.started or session.extra.get("connected"):
+    if session.started or session.connected:
         ray.shutdown()
     if session.reaper is not None:
         if session.reaper.stdin is not None:
