@@ -50,6 +50,36 @@ def test_plan_shares_vaes_names_runs_and_writes_cli_flags():
     assert len(jobs) == 2 + 2 * (1 + 2 * 3)
 
 
+def test_gpu_trials_run_their_vae_and_trainer_on_cuda():
+    spec = build_spec(envs=(CW,), methods=("vae", "digail", "gail"), preset="smoke", gpus_per_trial=0.5)
+    stages = [s for j in plan(spec) for s in j.stages]
+    heavy = [s for s in stages if s.name in ("pretrain", "train")]
+    assert len(heavy) == 3 and all(s.argv[s.argv.index("--device") + 1] == "cuda" for s in heavy)
+    assert not any("--device" in s.argv for s in stages if s.name not in ("pretrain", "train"))
+    cpu_only = [s for j in plan(build_spec(envs=(CW,), preset="smoke")) for s in j.stages]
+    assert not any("--device" in s.argv for s in cpu_only)  # CPU sweeps keep their commands (and resume)
+
+
+def test_packs_carry_folders_and_replace_them_whole(tmp_path):
+    from digail.sweep.transfer import pack, unpack
+
+    src, dst = tmp_path / "src", tmp_path / "dst"
+    (src / "env" / "run").mkdir(parents=True)
+    (src / "env" / "run" / "checkpoint.pt").write_bytes(b"weights")
+    (src / "trials").mkdir()
+    (src / "trials" / "run.json").write_text("{}")
+    (dst / "env" / "run").mkdir(parents=True)
+    (dst / "env" / "run" / "stale.txt").write_text("from an earlier attempt")
+    (dst / "env" / "other").mkdir()
+    got = unpack(pack(src, ["env/run", "trials/run.json", "logs/missing.log"]), dst)
+    assert got == ["env/run", "trials/run.json"]
+    assert (dst / "env" / "run" / "checkpoint.pt").read_bytes() == b"weights"
+    assert not (dst / "env" / "run" / "stale.txt").exists() and (dst / "env" / "other").is_dir()
+    assert sorted(p.name for p in dst.iterdir()) == ["env", "trials"]  # no staging folder left
+    with pytest.raises(ValueError, match="leaves the sweep folder"):
+        pack(src, ["../outside"])
+
+
 def test_bad_sweeps_are_user_errors(tmp_path):
     with pytest.raises(UserError, match="unknown method"):
         build_spec(envs=(CW,), methods=("ppo",))
@@ -162,11 +192,15 @@ set = { "train.reward" = "bogus" }
 
 @pytest.fixture(scope="module")
 def ray_local():
+    """A local Ray as `digail sweep` starts it: on 127.0.0.1, its session folder removed at the end."""
     ray = pytest.importorskip("ray")
+    from digail.sweep import start_ray, stop_ray
+
     os.environ.setdefault("MUJOCO_GL", "egl")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, object_store_memory=100 * 1024**2)
+    session = start_ray(num_cpus=2)
     yield ray
-    ray.shutdown()
+    stop_ray(session)
+    assert session.folder is not None and not Path(session.folder).exists()
 
 
 def _procs() -> list[tuple[int, int, list[str], str]]:

@@ -270,3 +270,19 @@ def _known_ids_hint(env_id: str) -> str:
     if close:
         return "did you mean " + " or ".join(close)
     return "known ids include digail/FourRooms-v0, digail/CircleWorld-v0, Pendulum-v1 and Hopper-v5"
+
+
+def check_env_id(env_id: str) -> None:
+    """Raise a UserError unless `env_id` is an env digail has an entry for or Gymnasium can make (the env is not
+    built: cheap enough to check many ids before long work starts)."""
+    if env_id in ENV_SPECS:
+        return
+    register_envs()
+    for attempt in range(2):
+        try:
+            gym.spec(env_id)
+            return
+        except gym.error.Error:
+            if attempt == 0 and _register_robotics():
+                continue
+    raise UserError(f"unknown environment id {env_id!r}; {_known_ids_hint(env_id)}.")

@@ -17,13 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
-from digail.sweep.engine import check_consistent, execute, init_ray, job_done, job_from_dict, job_to_dict
+from digail.sweep.cluster import start_ray, stop_ray
+from digail.sweep.engine import check_consistent, execute, job_done, job_from_dict, job_to_dict, read_json
 from digail.sweep.plan import Job, plan
 from digail.sweep.spec import Grid, Range, SearchSpec, SweepSpec, load_spec, parse_set
 from digail.sweep.summary import write_results
 
-__all__ = ["Grid", "Range", "SearchSpec", "SweepSpec", "load_spec", "parse_set", "plan", "run_sweep",
-           "summarize_sweep"]
+__all__ = ["Grid", "Range", "SearchSpec", "SweepSpec", "load_spec", "parse_set", "plan", "run_sweep", "start_ray",
+           "stop_ray", "summarize_sweep"]
 
 PLAN_FILE = "sweep.json"
 
@@ -49,16 +50,30 @@ def load_plan(out: Path) -> tuple[str, list[Job]]:
     path = Path(out) / PLAN_FILE
     if not path.exists():
         raise UserError(f"{out} is not a sweep folder (no {PLAN_FILE}); pass the --out of a `digail sweep`.")
-    data = json.loads(path.read_text())
-    return data.get("name", ""), [job_from_dict(j) for j in data["jobs"]]
+    data = read_json(path, "the sweep's plan; run the `digail sweep` command again to rewrite it")
+    try:
+        return data.get("name", ""), [job_from_dict(j) for j in data["jobs"]]
+    except (AttributeError, KeyError, TypeError) as exc:
+        raise UserError(f"{path} does not hold a sweep's plan ({type(exc).__name__}: {exc}); run the `digail sweep` "
+                        "command again to rewrite it.") from None
+
+
+def check_out(out: Path) -> None:
+    """Refuse a sweep folder that is a file (or under one)."""
+    for parent in (out, *out.parents):
+        if parent.exists() and not parent.is_dir():
+            raise UserError(f"{parent} is a file, not a folder; pass a folder (new or a sweep's) to --out.")
 
 
 def run_sweep(spec: SweepSpec, out: Path | str, *, address: str | None = None, num_cpus: int | None = None,
-              dashboard: bool = False, summary_every: float = 30.0) -> dict[str, Any]:
+              dashboard: bool = False, shared_fs: bool = False, summary_every: float = 30.0) -> dict[str, Any]:
     """Run every unfinished trial of `spec` into the sweep folder `out` on Ray, then write and return the tables.
 
-    A search spec (`spec.search`) runs `digail.sweep.search.run_search` instead."""
+    Everything is checked before Ray starts or a file is written. A search spec (`spec.search`) runs
+    `digail.sweep.search.run_search` instead. `shared_fs`: `out` is at the same path on every node of the cluster,
+    so trials work in it instead of receiving and returning their folders through Ray."""
     out = Path(out).resolve()
+    check_out(out)
     if spec.search is not None:
         from digail.sweep.search import run_search
 
@@ -66,19 +81,19 @@ def run_sweep(spec: SweepSpec, out: Path | str, *, address: str | None = None, n
     jobs = plan(spec)
     check_consistent(out, jobs)
     _require_ray()
-    save_plan(out, spec, jobs)
     if all(job_done(out, j) for j in jobs):  # nothing to run: no Ray to start
+        save_plan(out, spec, jobs)
         print(f"[sweep] {len(jobs)} jobs: all finished before", flush=True)
         return summarize_sweep(out)
-    started = init_ray(address, num_cpus, dashboard)
+    session = start_ray(address, num_cpus, dashboard, cpus_per_trial=spec.cpus_per_trial,
+                        gpus_per_trial=spec.gpus_per_trial, resources_per_trial=dict(spec.resources_per_trial))
     try:
+        save_plan(out, spec, jobs)
         execute(jobs, out, retries=spec.retries, cpus=spec.cpus_per_trial, gpus=spec.gpus_per_trial,
+                resources=dict(spec.resources_per_trial), shared_fs=shared_fs, client=session.client,
                 summary_every=summary_every)
     finally:
-        if started:
-            import ray
-
-            ray.shutdown()
+        stop_ray(session)
     return summarize_sweep(out)
 
 
@@ -89,7 +104,7 @@ def summarize_sweep(out: Path | str) -> dict[str, Any]:
     result = write_results(out, jobs, name)
     search_file = out / "search.json"
     if search_file.exists():
-        result["search"] = search = json.loads(search_file.read_text())
+        result["search"] = search = read_json(search_file, "the search's samples")
         (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
         scored = sorted((s for s in search["samples"] if s["metric"] is not None), key=lambda s: s["metric"],
                         reverse=search["mode"] == "max")

@@ -8,8 +8,10 @@ stage whose folder holds a checkpoint continues with `digail train --resume`. Ev
 `trials/<job>.json` by the task itself, so whatever is killed (the stage, the Ray worker, the node, the driver), the
 next attempt or the next `digail sweep` call picks up from there.
 
-On a cluster the sweep folder must be on a filesystem every node sees (as Ray Tune's storage path), and digail must
-be installed on every node.
+On a cluster, digail (with its demonstrations) must be installed on every node; the sweep folder need not be
+shared. A trial on another node than the driver's works in a scratch folder of its own, receiving and returning
+its folders through Ray (`digail.sweep.transfer`); with `shared_fs` (the sweep folder is at the same path on every
+node) it works in the sweep folder itself, as a trial on the driver's node always does.
 """
 
 from __future__ import annotations
@@ -47,7 +49,16 @@ def read_state(sweep: Path, job: Job | str) -> dict[str, Any]:
     path = state_path(sweep, job)
     if not path.exists():
         return {"status": "pending", "attempts": 0, "stages": {}, "commands": [], "error": None}
-    return json.loads(path.read_text())
+    return read_json(path, "the trial's state; delete it to run that trial again")
+
+
+def read_json(path: Path, what: str) -> Any:
+    """A JSON file of the sweep folder, or a UserError naming it when it is cut short or corrupt."""
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path} is not valid JSON ({exc.__class__.__name__} at {getattr(exc, 'pos', '?')}); it "
+                        f"holds {what}.") from None
 
 
 def write_state(sweep: Path, job: Job, state: dict[str, Any]) -> None:
@@ -118,13 +129,68 @@ def _newline_if_needed(log: Path) -> str:
         return "" if f.read(1) == b"\n" else "\n"
 
 
-def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, Any]:
+def run_job(job_dict: dict[str, Any], sweep: str, token: str = "",
+            transfer: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run a job's unfinished stages one after another; returns its state. Raises RuntimeError on a failed stage.
 
     `token` names this attempt: written into the state as the task starts, it tells the driver the task left
-    Ray's queue (no clocks compared across nodes)."""
+    Ray's queue (no clocks compared across nodes). `transfer` (from the driver) carries the job's input folders
+    packed and the mailbox: used when this task runs on another node than the driver's, where it works in a
+    scratch folder and sends its folders back (see `digail.sweep.transfer`); the result then carries the final
+    pack under `"pack"`."""
     job = job_from_dict(job_dict)
-    root = Path(sweep)
+    node = _node_id()
+    remote = transfer is not None and not transfer.get("shared_fs") and node != transfer.get("driver_node")
+    if not remote:
+        return _run_stages(job, Path(sweep), token, node, "sweep folder")
+    assert transfer is not None
+    import ray
+
+    from digail.sweep import transfer as tr
+
+    work = tr.scratch_dir()
+    try:
+        tr.unpack(ray.get(transfer["inputs"]) if isinstance(transfer["inputs"], ray.ObjectRef)
+                  else transfer["inputs"], work)
+        outputs = job_outputs(job)
+        mailbox = transfer["mailbox"]
+
+        def send() -> None:
+            ray.get(mailbox.put.remote(job.id, tr.pack(work, outputs)))
+
+        try:
+            state = _run_stages(job, work, token, node, "scratch folder", on_change=send)
+        finally:
+            with contextlib.suppress(Exception):
+                send()  # the last state (and the failed stage's log) reach the driver too
+        return {**state, "pack": tr.pack(work, outputs)}
+    finally:
+        tr.remove(work)
+
+
+def job_inputs(job: Job, by_id: dict[str, Job]) -> list[str]:
+    """Paths (relative to the sweep folder) a job's task reads: its outputs and its dependencies' run folders."""
+    paths = job_outputs(job) + [by_id[d].run for d in job.deps if d in by_id]
+    paths += [s.mapping_from for s in job.stages if s.mapping_from]
+    return list(dict.fromkeys(paths))
+
+
+def job_outputs(job: Job) -> list[str]:
+    """Paths a job's task writes: its run folder, state and log."""
+    return [job.run, f"{STATE_DIR}/{job.file_id}.json", f"{LOG_DIR}/{job.file_id}.log"]
+
+
+def _node_id() -> str | None:
+    with contextlib.suppress(Exception):
+        import ray
+
+        if ray.is_initialized():
+            return str(ray.get_runtime_context().get_node_id())
+    return None
+
+
+def _run_stages(job: Job, root: Path, token: str, node: str | None, where: str,
+                on_change: Callable[[], None] | None = None) -> dict[str, Any]:
     log = root / LOG_DIR / f"{job.file_id}.log"
     log.parent.mkdir(parents=True, exist_ok=True)
     state = read_state(root, job)
@@ -134,7 +200,12 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
     state["todo"] = [s.name for s in job.stages if not stage_done(state, s)]
     state["resuming"] = next((s for s in state["todo"] if s in state.get("started", [])), None)
     state["host"] = os.uname().nodename
+    state["node"] = node
+    state.setdefault("nodes", []).append(node)
+    state["workdir"] = f"{where} {root}"
     write_state(root, job, state)
+    if on_change is not None:
+        on_change()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the digail CLI picks MUJOCO_GL itself when it is unset
     for stage in job.stages:
         if stage_done(state, stage):
@@ -155,8 +226,9 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
             start = f.tell()
             f.write(f"{_newline_if_needed(log)}$ {line}\n".encode())  # a killed progress bar left none
             f.flush()
-            rc = subprocess.call([sys.executable, "-m", "digail.cli", *actual], cwd=root, env=env, stdout=f,
-                                 stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+            proc = subprocess.Popen([sys.executable, "-m", "digail.cli", *actual], cwd=root, env=env, stdout=f,
+                                    stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+            rc = _wait(proc, run_dir / "checkpoint.pt", on_change)
         wall = time.time() - t0
         prev = state["stages"].get(stage.name, {})
         rec = {"argv": list(argv), "rc": rc, "wall_s": prev.get("wall_s", 0.0) + wall, "resumed": resumed}
@@ -168,9 +240,29 @@ def run_job(job_dict: dict[str, Any], sweep: str, token: str = "") -> dict[str, 
             raise RuntimeError(state["error"])
         state["error"] = None
         write_state(root, job, state)
+        if on_change is not None:
+            on_change()
     state["status"] = "done"
     write_state(root, job, state)
     return state
+
+
+def _wait(proc: subprocess.Popen[bytes], checkpoint: Path, on_change: Callable[[], None] | None,
+          every: float = 2.0) -> int:
+    """Wait for a stage's process; while it runs, call `on_change` whenever its checkpoint is rewritten."""
+    if on_change is None:
+        return proc.wait()
+    seen = None
+    while True:
+        try:
+            return proc.wait(timeout=every)
+        except subprocess.TimeoutExpired:
+            pass
+        with contextlib.suppress(OSError):
+            stamp = checkpoint.stat().st_mtime_ns
+            if stamp != seen:
+                seen = stamp
+                on_change()
 
 
 def job_to_dict(job: Job) -> dict[str, Any]:
@@ -186,25 +278,6 @@ def job_from_dict(data: dict[str, Any]) -> Job:
 
 
 # ------------------------------------------------------------------------------------------------ Ray
-def init_ray(address: str | None = None, num_cpus: int | None = None, dashboard: bool = False) -> bool:
-    """Connect to Ray: `address` (or RAY_ADDRESS) for a running cluster, else a local one sized to this machine.
-
-    Returns whether this call started it (and so should shut it down). A Ray already initialised in this process
-    (e.g. by a test) is used as it is."""
-    import ray
-
-    if ray.is_initialized():
-        return False
-    address = address or os.environ.get("RAY_ADDRESS") or None
-    if address:
-        ray.init(address=address, log_to_driver=False)
-    else:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-        ray.init(num_cpus=num_cpus or cores, include_dashboard=dashboard, log_to_driver=False,
-                 object_store_memory=200 * 1024**2)
-    return True
-
-
 def _running_sps(sweep: Path, jobs: list[Job]) -> float:
     """Environment steps per second of the running trainings: their latest `perf/sps`."""
     total = 0.0
@@ -223,16 +296,25 @@ def _running_sps(sweep: Path, jobs: list[Job]) -> float:
 
 
 def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0, gpus: float = 0.0,
-            summary_every: float = 30.0, log: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
+            resources: dict[str, float] | None = None, shared_fs: bool = False, client: bool = False,
+            summary_every: float = 30.0, log: Callable[[str], None] | None = None,
+            task: Callable[..., dict[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
     """Run `jobs` on the initialised Ray (dependencies first); returns every job's final state by id.
 
     A job whose dependency failed is reported failed without running. Ctrl-C cancels the running tasks (their
-    stages die with them) and re-raises; the next call resumes."""
+    stages die with them) and re-raises; the next call resumes. Trials on other nodes than the driver's get and
+    return their folders through Ray unless `shared_fs`; `client`: the driver is a Ray Client, on no node.
+    `task` is what a job's Ray task runs (`run_job`, with its arguments; the driver benchmark passes a stand-in)."""
     import ray
+
+    from digail.sweep import transfer as tr
 
     out = log or (lambda msg: print(msg, flush=True))
     sweep = Path(sweep)
-    remote = ray.remote(run_job).options(num_cpus=cpus, num_gpus=gpus, max_retries=0)
+    remote = ray.remote(task or run_job).options(num_cpus=cpus, num_gpus=gpus, resources=resources or None,
+                                                 max_retries=0)
+    driver_node = None if client else _node_id()
+    mailbox = None if shared_fs else tr.mailbox_actor(driver_node)
     by_id = {j.id: j for j in jobs}
     states: dict[str, dict[str, Any]] = {}
     waiting: list[Job] = []
@@ -274,7 +356,10 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
     def submit(job: Job) -> None:
         attempts[job.id] = attempts.get(job.id, 0) + 1
         tokens[job.id] = f"{os.getpid()}-{time.time()}-{attempts[job.id]}"
-        ref = remote.remote(job_to_dict(job), str(sweep), tokens[job.id])
+        transfer = {"shared_fs": True} if mailbox is None else {
+            "driver_node": driver_node, "mailbox": mailbox,
+            "inputs": ray.put(tr.check_pack_size(tr.pack(sweep, job_inputs(job, by_id)), job.id))}
+        ref = remote.remote(job_to_dict(job), str(sweep), tokens[job.id], transfer)
         running[ref] = (job, time.time())
         started.discard(job.id)
         states[job.id] = {"status": "queued"}
@@ -294,15 +379,25 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
                 waiting.remove(job)
                 submit(job)
 
+    def collect() -> None:
+        """Unpack what trials on other nodes sent since the last call (before their results are read, which are
+        newer)."""
+        if mailbox is not None:
+            for data in ray.get(mailbox.take.remote()).values():
+                tr.unpack(data, sweep)
+
     try:
         schedule()
         while running:
-            ready, _ = ray.wait(list(running), num_returns=1, timeout=min(summary_every, 5.0))
+            ready, _ = ray.wait(list(running), num_returns=1, timeout=min(summary_every, 2.0))
+            collect()
             poll_started()
             for ref in ready:
                 job, _ = running.pop(ref)
                 try:
                     state = ray.get(ref)
+                    if "pack" in state:
+                        tr.unpack(state.pop("pack"), sweep)
                 except Exception as exc:  # a failed stage, a lost worker or node: retried alike
                     err = read_state(sweep, job).get("error") or _one_line(exc)
                     if attempts[job.id] <= retries:
@@ -323,12 +418,14 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
                 schedule()
                 summary(force=True)
             summary()
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        from digail.sweep.cluster import reraise_signal
+
         for ref in running:
             with contextlib.suppress(Exception):
                 ray.cancel(ref, force=True)
         out("[sweep] interrupted: the running stages were stopped; run the same command again to resume.")
-        raise
+        reraise_signal(exc)
     for job in waiting:  # only when a dependency never finished (cannot happen, kept for safety)
         states[job.id] = {"status": "failed", "error": "not run: its dependencies did not finish"}
     return {jid: states.get(jid, {"status": "pending"}) for jid in by_id}

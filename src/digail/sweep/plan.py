@@ -178,6 +178,8 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
     `always_tag`: setting keys named in every run folder that has them (a search's sampled keys), not only where
     trials collide."""
     records = _unique(expand(spec) if records is None else records)
+    # a trial that declares GPUs runs its VAE and trainer on one (config.json records the device)
+    device = ["--device", "cuda"] if spec.gpus_per_trial > 0 else []
     vae_jobs: dict[str, Job] = {}
     jobs: list[Job] = []
 
@@ -211,7 +213,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
             vid = f"{edir}/pretrain_s{seed}{vtag}"
             if vid not in vae_jobs:
                 argv = ["pretrain", "--demos", settings["demos"], "--seed", str(seed), "--out", vae_run, "--force",
-                        *preset]
+                        *preset, *device]
                 for key, value in sorted(vs.items()):
                     if key.startswith(VAE_KEYS):
                         argv += flag_args(key, value)
@@ -231,7 +233,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
         else:
             run = f"{edir}/{name}"
             argv = ["train", "--method", train_method, "--demos", settings["demos"], "--seed", str(seed),
-                    "--out", run, "--force", *preset]
+                    "--out", run, "--force", *preset, *device]
             if vae_run is not None:
                 argv += ["--vae", vae_run]
             for key, value in sorted(settings.items()):

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.sweep.engine import check_consistent, execute, init_ray, job_done, job_to_dict, run_job
+from digail.sweep.cluster import start_ray, stop_ray
+from digail.sweep.engine import check_consistent, execute, job_done, job_to_dict, run_job
 from digail.sweep.plan import VAE_KEYS, Job, expand, plan
 from digail.sweep.spec import Range, SweepSpec, Value
 
@@ -131,7 +132,8 @@ def run_search(spec: SweepSpec, out: Path, *, address: str | None = None, num_cp
         from ray.tune.search.optuna import OptunaSearch
     except ImportError as exc:
         raise UserError("the search runs on Ray Tune and Optuna; pip install 'digail[sweep]'.") from exc
-    started = init_ray(address, num_cpus, dashboard)
+    session = start_ray(address, num_cpus, dashboard, cpus_per_trial=spec.cpus_per_trial,
+                        gpus_per_trial=spec.gpus_per_trial)
     out.mkdir(parents=True, exist_ok=True)
     try:
         # VAEs that no searched key changes: pre-trained once, here, and shared by every sample
@@ -139,7 +141,8 @@ def run_search(spec: SweepSpec, out: Path, *, address: str | None = None, num_cp
             first = {k: (d.low if isinstance(d, Range) else d[0]) for k, d in space.items()}
             vaes = [j for j in sample_jobs(spec, first, keys) if j.kind == "vae"]
             check_consistent(out, vaes)
-            execute(vaes, out, retries=spec.retries, cpus=spec.cpus_per_trial, gpus=spec.gpus_per_trial)
+            execute(vaes, out, retries=spec.retries, cpus=spec.cpus_per_trial, gpus=spec.gpus_per_trial,
+                    shared_fs=True)
         trainable = tune.with_resources(
             tune.with_parameters(_trainable, spec=spec, sweep=str(out), keys=keys),
             {"cpu": spec.cpus_per_trial, "gpu": spec.gpus_per_trial})
@@ -156,10 +159,7 @@ def run_search(spec: SweepSpec, out: Path, *, address: str | None = None, num_cp
                                           failure_config=tune.FailureConfig(max_failures=spec.retries)))
         grid = tuner.fit()
     finally:
-        if started:
-            import ray
-
-            ray.shutdown()
+        stop_ray(session)
     samples = []
     records: list[dict[str, Any]] = []
     for i in range(len(grid)):

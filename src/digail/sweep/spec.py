@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +101,17 @@ class Grid:
             raise UserError(f"unknown method {', '.join(unknown) or '(none)'}; choose from {', '.join(METHODS)}.")
         if self.demos is not None and len(self.envs) > 1:
             raise UserError("`demos` names one dataset, so a grid with it takes a single env; split the grid.")
+        bad = [e for e in self.envs if not isinstance(e, str) or not e]
+        if bad:
+            raise UserError(f"env {bad[0]!r} is not an environment id; write envs as strings, e.g. "
+                            "envs = [\"digail/CircleWorld-v0\"].")
+        for seed in self.seeds:
+            if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+                raise UserError(f"seed {seed!r} is not a seed; write seeds as integers from 0 to 2**32 - 1, "
+                                "e.g. seeds = [0, 1, 2].")
+        if self.episodes is not None and (not isinstance(self.episodes, int) or isinstance(self.episodes, bool)
+                                          or self.episodes < 1):
+            raise UserError(f"episodes must be a whole number of at least 1, got {self.episodes!r}.")
         for key, _ in self.overrides:
             check_key(key)
 
@@ -135,6 +146,19 @@ class SweepSpec:
     """a search instead of a grid"""
     name: str = ""
     """a name for the tables"""
+    resources_per_trial: tuple[tuple[str, float], ...] = ()
+    """custom Ray resources each trial declares, e.g. (("worker", 1.0),): trials run only on nodes that have them"""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.retries, int) or isinstance(self.retries, bool) or self.retries < 0:
+            raise UserError(f"retries must be a whole number of at least 0, got {self.retries!r}.")
+        if not self.cpus_per_trial > 0:
+            raise UserError(f"cpus per trial must be more than 0, got {self.cpus_per_trial!r}.")
+        if not self.gpus_per_trial >= 0:
+            raise UserError(f"gpus per trial must be 0 or more, got {self.gpus_per_trial!r}.")
+        for name, amount in self.resources_per_trial:
+            if not amount > 0:
+                raise UserError(f"resource {name!r} per trial must be more than 0, got {amount!r}.")
 
     def with_flags(self, **changes: Any) -> SweepSpec:
         """A copy with the non-None `changes` applied."""
@@ -158,7 +182,9 @@ def parse_value(text: str) -> Value | Range:
         try:
             low, high = _number(lo), _number(hi)
         except ValueError:
-            pass
+            if _looks_numeric(lo) or _looks_numeric(hi):  # half a range (0.1..), not a string value
+                raise UserError(f"range {text!r} is malformed; write LOW..HIGH or LOW..HIGH:log with two numbers, "
+                                "e.g. 0.01..0.1:log.") from None
         else:
             if opt not in ("", "log"):
                 raise UserError(f"range {text!r}: write LOW..HIGH or LOW..HIGH:log.")
@@ -175,6 +201,14 @@ def parse_value(text: str) -> Value | Range:
         return _number(text)
     except ValueError:
         return text
+
+
+def _looks_numeric(text: str) -> bool:
+    try:
+        _number(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _number(text: str) -> int | float:
@@ -228,7 +262,7 @@ def _toml_values(key: str, value: Any) -> tuple[Value | Range, ...]:
 
 
 GRID_KEYS = {"envs", "methods", "seeds", "preset", "demos", "episodes", "set", "compose", "bc_weight"}
-TOP_KEYS = GRID_KEYS | {"grid", "retries", "cpus_per_trial", "gpus_per_trial", "search", "name"}
+TOP_KEYS = GRID_KEYS | {"grid", "retries", "cpus_per_trial", "gpus_per_trial", "search", "name", "resources_per_trial"}
 
 
 def load_spec(path: Path | str) -> SweepSpec:
@@ -257,22 +291,56 @@ def spec_from_dict(data: dict[str, Any], where: str = "spec") -> SweepSpec:
         if bad:
             raise UserError(f"{where}: grid {i}: unknown key(s) {', '.join(sorted(bad))}.")
         merged = {**top, **block}
+        if not all(isinstance(d.get("set", {}), dict) for d in (top, block)):
+            raise UserError(f"{where}: grid {i}: set must be a table of overrides, e.g. set = {{ \"train.x\" = 1 }}.")
         sets = {**top.get("set", {}), **block.get("set", {})}
         if "envs" not in merged:
             raise UserError(f"{where}: grid {i} has no envs; add `envs = [...]`.")
         grids.append(Grid(
-            envs=tuple(merged["envs"]), methods=tuple(merged.get("methods", ("digail",))),
-            seeds=tuple(int(s) for s in merged.get("seeds", (0,))), preset=merged.get("preset"),
+            envs=_list(merged["envs"], "envs", where),
+            methods=_list(merged.get("methods", ["digail"]), "methods", where),
+            seeds=_list(merged.get("seeds", [0]), "seeds", where), preset=merged.get("preset"),
             demos=merged.get("demos"), episodes=merged.get("episodes"), compose=merged.get("compose") or None,
-            bc_weight=float(merged.get("bc_weight", DEFAULT_BC_WEIGHT)),
+            bc_weight=_float(merged.get("bc_weight", DEFAULT_BC_WEIGHT), "bc_weight", where),
             overrides=tuple((k.replace("-", "_"), _toml_values(k, v)) for k, v in sets.items())))
     search = None
     if "search" in data:
+        allowed = {f.name for f in fields(SearchSpec)}
+        if not isinstance(data["search"], dict) or set(data["search"]) - allowed:
+            extra = sorted(set(data["search"]) - allowed) if isinstance(data["search"], dict) else ["(not a table)"]
+            raise UserError(f"{where}: [search] has unknown key(s) {', '.join(extra)}; allowed: "
+                            f"{', '.join(sorted(allowed))}.")
         search = SearchSpec(**data["search"])
-    return SweepSpec(grids=tuple(grids), retries=int(data.get("retries", 1)),
-                     cpus_per_trial=float(data.get("cpus_per_trial", 1.0)),
-                     gpus_per_trial=float(data.get("gpus_per_trial", 0.0)), search=search,
-                     name=str(data.get("name", "")))
+    resources = data.get("resources_per_trial", {})
+    if not isinstance(resources, dict) or not all(_is_number(v) for v in resources.values()):
+        raise UserError(f"{where}: resources_per_trial must be a table of numbers, e.g. {{ worker = 1 }}.")
+    return SweepSpec(grids=tuple(grids), retries=_whole(data.get("retries", 1), "retries", where),
+                     cpus_per_trial=_float(data.get("cpus_per_trial", 1.0), "cpus_per_trial", where),
+                     gpus_per_trial=_float(data.get("gpus_per_trial", 0.0), "gpus_per_trial", where), search=search,
+                     name=str(data.get("name", "")),
+                     resources_per_trial=tuple((str(k), float(v)) for k, v in sorted(resources.items())))
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _whole(value: Any, key: str, where: str) -> Any:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise UserError(f"{where}: {key} must be a whole number, got {value!r}.")
+    return value
+
+
+def _float(value: Any, key: str, where: str) -> float:
+    if not _is_number(value):
+        raise UserError(f"{where}: {key} must be a number, got {value!r}.")
+    return float(value)
+
+
+def _list(value: Any, key: str, where: str) -> tuple[Any, ...]:
+    if not isinstance(value, list | tuple):
+        raise UserError(f"{where}: {key} must be a list, e.g. {key} = [...], got {value!r}.")
+    return tuple(value)
 
 
 def merge_overrides(grid: Grid, extra: tuple[tuple[str, tuple[Value | Range, ...]], ...]) -> Grid:
@@ -283,15 +351,24 @@ def merge_overrides(grid: Grid, extra: tuple[tuple[str, tuple[Value | Range, ...
 
 
 
-def build_spec(*, envs: tuple[str, ...] = (), methods: tuple[str, ...] = (), seeds: tuple[int, ...] = (),
-               preset: str | None = None, episodes: int | None = None, sets: tuple[str, ...] = (),
-               spec_file: Path | None = None, retries: int | None = None, cpus_per_trial: float | None = None,
-               gpus_per_trial: float | None = None, search: str | None = None, trials: int | None = None,
-               metric: str | None = None, mode: str | None = None) -> SweepSpec:
+def build_spec(*, envs: tuple[str, ...] | None = None, methods: tuple[str, ...] | None = None,
+               seeds: tuple[int, ...] | None = None, preset: str | None = None, episodes: int | None = None,
+               sets: tuple[str, ...] = (), spec_file: Path | None = None, retries: int | None = None,
+               cpus_per_trial: float | None = None, gpus_per_trial: float | None = None, search: str | None = None,
+               trials: int | None = None, metric: str | None = None, mode: str | None = None) -> SweepSpec:
     """The spec of a `digail sweep` call: the spec file's (if any), its grids narrowed or replaced by the flags.
 
     With a spec file, --envs / --methods / --seeds keep only those of its trials, --preset / --episodes replace the
-    file's, and --set adds (or replaces) overrides in every grid. Without one the flags are a single grid."""
+    file's, and --set adds (or replaces) overrides in every grid. Without one the flags are a single grid.
+    None means a flag was not given; an empty tuple that it was given without values, which is refused."""
+    for flag, given in (("--envs", envs), ("--methods", methods), ("--seeds", seeds)):
+        if given is not None and not given:
+            raise UserError(f"{flag} was given no value; name at least one after it (or leave the flag out).")
+    if episodes is not None and episodes < 1:
+        raise UserError(f"--episodes must be at least 1, got {episodes}.")
+    if trials is not None and trials < 1:
+        raise UserError(f"--trials must be at least 1, got {trials}.")
+    envs, methods, seeds = envs or (), methods or (), seeds or ()
     extra = parse_set(sets)
     if spec_file is not None:
         spec = load_spec(spec_file)
@@ -303,7 +380,7 @@ def build_spec(*, envs: tuple[str, ...] = (), methods: tuple[str, ...] = (), see
             if not (kept_envs and kept_methods and kept_seeds):
                 continue  # a grid the flags empty is dropped (an empty Grid is refused on construction)
             g = replace(g, envs=kept_envs, methods=kept_methods, seeds=kept_seeds, preset=preset or g.preset,
-                        episodes=episodes or g.episodes)
+                        episodes=g.episodes if episodes is None else episodes)
             grids.append(merge_overrides(g, extra))
         if not grids:
             raise UserError(f"--envs / --methods / --seeds leave no trial of {spec_file}; check the names.")
