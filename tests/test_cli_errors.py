@@ -8,6 +8,9 @@ something first, a phrase of the expected message, and the path that must come o
 from __future__ import annotations
 
 import errno
+import html
+import html.parser
+import json
 import os
 import pickle
 import shutil
@@ -95,6 +98,12 @@ def _disk_fills_up(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(digail.utils, "write_json", write_json)
 
 
+def _mkdir(name: str) -> Callable[[Path, pytest.MonkeyPatch], None]:
+    def setup(tmp: Path, _: pytest.MonkeyPatch) -> None:
+        (tmp / name).mkdir()
+    return setup
+
+
 TRAIN = ["train", "--demos", "{demos}", "--vae", "{vae}", "--preset", "smoke", "--out", "{tmp}/out"]
 RUN = "{tmp}/run"
 
@@ -172,6 +181,14 @@ CASES: dict[str, Case] = {
     "bad choice": Case([*TRAIN, "--method", "bc"], "--method must be one of digail, gail"),
     "unknown flag": Case(["evaluate", RUN, "--epsiodes", "3"], "unknown option"),
     "flag without value": Case(["evaluate", RUN, "--seed"], "--seed expects an integer"),
+    # 8. reports
+    "report an empty folder": Case(["report", "{tmp}/empty"], "not a run folder", watch="{tmp}/empty",
+                                   setup=_mkdir("empty")),
+    "report a folder that is not a run": Case(["report", "{tmp}"], "not a run folder", watch="{tmp}"),
+    "report --out a folder": Case(["report", RUN, "--no-figures", "--out", "{tmp}/pages"], "is a folder",
+                                  watch="{tmp}", setup=_mkdir("pages")),
+    "compare --out a folder": Case(["report", "--compare", RUN, "--out", "{tmp}/pages"], "is a folder",
+                                   watch="{tmp}", setup=_mkdir("pages")),
     # already handled before this issue
     "unknown command": Case(["trian"], "unknown command"),
     "unknown env": Case(["run", "NoSuchEnv-v9", "--out", "{tmp}/out"], "NoSuchEnv-v9"),
@@ -260,3 +277,42 @@ def test_train_resume_from_another_directory(runs, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path.parent)
     assert main(["train", "--resume", str(run)]) == 0
     assert (run / "metrics.csv").read_text() == rows
+
+
+HOSTILE = ["<script>document.title='owned'</script>", "<img src=x onerror=alert(1)>"]
+
+
+class _Tags(html.parser.HTMLParser):
+    """Every start tag of a page with its attribute names."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[tuple[str, list[str]]] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append((tag, [name for name, _ in attrs]))
+
+
+@pytest.mark.parametrize("payload", HOSTILE)
+def test_report_escapes_whatever_the_run_folder_holds(runs, tmp_path, payload):
+    """Markup planted in config.json and eval.json (method, env id, seed, preset, numbers) reaches the page as
+    text: no script element, no event-handler attribute, the planted text shown escaped."""
+    run = tmp_path / "run"
+    shutil.copytree(runs / "run", run)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg.update(method=payload, env_id=payload, seed=payload, preset=payload, command=payload)
+    cfg["train"] = {**cfg["train"], "iterations": payload}
+    (run / "config.json").write_text(json.dumps(cfg))
+    (run / "eval.json").write_text(json.dumps({"episodes": payload, "mean_return": payload, "std_return": payload,
+                                               "success_rate": 0.5, "env_id": payload, "macro_policy": payload,
+                                               "expert": {"mean_return": payload, "success_rate": 1.0}}))
+    (run / "segmentation.json").write_text(json.dumps({"accuracy": 0.5, "matching": payload,
+                                                       "mapping": {payload: payload}}))
+    assert main(["report", str(run), "--no-figures"]) == 0
+    page = (run / "report.html").read_text()
+    parser = _Tags()
+    parser.feed(page)
+    assert parser.tags, "the page did not parse"
+    assert "script" not in [tag for tag, _ in parser.tags]
+    assert not [(tag, a) for tag, attrs in parser.tags for a in attrs if a.lower().startswith("on")]
+    assert html.escape(payload) in page

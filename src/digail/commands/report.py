@@ -48,17 +48,33 @@ def report_command(args: ReportArgs) -> Path:
         folder = Path(args.runs[0])
         sweep = len(args.runs) == 1 and not (folder / "config.json").exists()
         out = args.out or (folder if sweep else _common_parent(runs)) / "compare.html"
+        check_page_path(out)
         page = write_compare_report(runs, out)
         print(f"compared {len(runs)} runs: {page}")
         return page
     if len(args.runs) != 1:
         raise UserError(f"got {len(args.runs)} run folders; pass one, or add --compare for a comparison page.")
     run = Path(args.runs[0])
+    if not (run / "config.json").is_file():
+        raise UserError(f"{run} is not a run folder (it has no config.json); pass a folder made by `digail run`, "
+                        "`digail train` or `digail pretrain`.")
+    if args.out is not None:
+        check_page_path(args.out)
     if args.figures and (run / "model.pt").exists():
         make_figures(run, unsmoothed=args.unsmoothed)
     page = write_report(run, args.out)
     print(f"report: {page}")
     return page
+
+
+def check_page_path(out: Path) -> None:
+    """Refuse, before anything is drawn, an --out that names a folder or cannot be written."""
+    from digail.utils import check_writable
+
+    out = Path(out)
+    if out.is_dir():
+        raise UserError(f"--out {out} is a folder; name the page to write, e.g. {out / 'compare.html'}.")
+    check_writable(out)
 
 
 def find_runs(paths: tuple[Path, ...] | list[Path], depth: int = 3) -> list[Path]:
