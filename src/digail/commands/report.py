@@ -100,8 +100,11 @@ def _demo_codes(run: Path) -> list[np.ndarray] | None:
     path = run / "codes.npz"
     if not path.exists():
         return None
-    with np.load(path) as z:
-        return [z[k] for k in sorted(z.files)]
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return [z[k] for k in sorted(z.files)]
+    except (OSError, ValueError):  # unreadable, or object arrays that would need pickle: segment again
+        return None
 
 
 def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed: Path | None = None,
