@@ -297,7 +297,7 @@ def headline(run_dir: Path) -> str:
     comp = _load(run_dir / "compose.json")
     env = str(cfg.get("env_id") or ev.get("env_id") or "an unknown environment")
     method = METHOD_NAMES.get(str(cfg.get("method") or cfg.get("kind")), str(cfg.get("method") or "a model"))
-    train = cfg.get("train") if isinstance(cfg.get("train"), Mapping) else {}
+    train: Mapping[str, Any] = cfg["train"] if isinstance(cfg.get("train"), Mapping) else {}
     steps = _total_steps(run_dir)
     # every piece read from the folder is escaped: a run folder from elsewhere must not put markup in the page
     what = (f"{_esc(method)} on {_esc(env_name(env))} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
