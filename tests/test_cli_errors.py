@@ -13,7 +13,11 @@ import html.parser
 import json
 import os
 import pickle
+import resource
 import shutil
+import signal
+import subprocess
+import sys
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -98,6 +102,16 @@ def _disk_fills_up(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(digail.utils, "write_json", write_json)
 
 
+def _file_too_large(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A file-size limit (`ulimit -f`) is reached while the results are written."""
+    import digail.utils
+
+    def write_json(path, obj):  # noqa: ANN001, ANN202
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(digail.utils, "write_json", write_json)
+
+
 def _mkdir(name: str) -> Callable[[Path, pytest.MonkeyPatch], None]:
     def setup(tmp: Path, _: pytest.MonkeyPatch) -> None:
         (tmp / name).mkdir()
@@ -129,6 +143,8 @@ CASES: dict[str, Case] = {
                                     setup=_full_disk),
     "disk fills up while writing": Case(["evaluate", RUN, "--episodes", "2"], "no space left", watch=RUN,
                                         setup=_disk_fills_up),
+    "file-size limit reached while writing": Case(["evaluate", RUN, "--episodes", "2"], "file too large",
+                                                  watch=RUN, setup=_file_too_large),
     # 3. numbers
     "evaluate --episodes 0": Case(["evaluate", RUN, "--episodes", "0"], "--episodes must be at least 1",
                                   watch=RUN),
@@ -316,3 +332,61 @@ def test_report_escapes_whatever_the_run_folder_holds(runs, tmp_path, payload):
     assert "script" not in [tag for tag, _ in parser.tags]
     assert not [(tag, a) for tag, attrs in parser.tags for a in attrs if a.lower().startswith("on")]
     assert html.escape(payload) in page
+
+
+def _digail(argv: list[str], fsize: int | None = None, script: str = "", **kwargs: object) -> subprocess.Popen:
+    """`python -m digail.cli ARGV` in a child process, optionally under a file-size limit (`ulimit -f`) with
+    SIGXFSZ ignored, so that a write past it fails with EFBIG as it does under a shell's limit; `script` runs
+    first in the child (e.g. to move a threshold)."""
+    def limit() -> None:
+        if fsize is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+
+    code = f"import sys\n{script}\nfrom digail.cli import main\nsys.exit(main(sys.argv[1:]))"
+    env = {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": os.pathsep.join(sys.path)}
+    return subprocess.Popen([sys.executable, "-c", code, *argv], env=env, preexec_fn=limit,
+                            stderr=subprocess.PIPE, text=True, **kwargs)  # type: ignore[call-overload]
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".tmp-" in p.name or ".old-" in p.name)
+
+
+def test_a_small_file_size_limit_is_refused_before_any_work(runs, tmp_path):
+    out = tmp_path / "vae"
+    proc = _digail(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out)],
+                   fsize=64 * 1024, stdout=subprocess.DEVNULL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith("digail pretrain: error: a file-size limit of 64 KiB"), err
+    assert "Traceback" not in err and not out.exists() and not _leftovers(tmp_path)
+
+
+def test_a_write_past_the_file_size_limit_is_one_sentence_and_leaves_nothing(runs, tmp_path):
+    """Past the up-front check (its threshold moved to 0 here), a model file larger than the limit fails with
+    EFBIG: one sentence, exit status 2, no output folder and no temporary one."""
+    out = tmp_path / "vae"
+    proc = _digail(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out)],
+                   fsize=24 * 1024, script="import digail.utils; digail.utils.MIN_FREE_BYTES = 0",
+                   stdout=subprocess.DEVNULL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith("digail pretrain: error: file too large"), err
+    assert "ulimit -f" in err and "Traceback" not in err
+    assert not out.exists() and not _leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("argv", [["pretrain", "--help"], ["--help"], ["evaluate", RUN, "--episodes", "2"]])
+def test_output_into_a_closed_pipe_ends_quietly(runs, tmp_path, argv):
+    """`digail ... | head` when head has already gone: no BrokenPipe traceback, the status of SIGPIPE."""
+    shutil.copytree(runs / "run", tmp_path / "run")
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the first line is written
+    try:
+        proc = _digail([a.format(tmp=tmp_path) for a in argv], stdout=write_end)
+    finally:
+        os.close(write_end)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGPIPE, err
+    assert "Traceback" not in err and "BrokenPipe" not in err, err

@@ -78,6 +78,21 @@ def check_writable(path: Path, flag: str = "--out") -> None:
     if free < MIN_FREE_BYTES:
         raise UserError(f"only {free // 2**20} MiB free where {path} would be written; free some space or choose "
                         f"another {flag}.")
+    limit = file_size_limit()
+    if limit is not None and limit < MIN_FREE_BYTES:
+        # checked up front: HDF5 (the datasets' format) crashes instead of reporting a write past the limit
+        raise UserError(f"a file-size limit of {limit // 1024} KiB is in force (`ulimit -f`), too small for "
+                        f"what {path} will hold; raise it or run without it.")
+
+
+def file_size_limit() -> int | None:
+    """The largest file this process may write, in bytes (`ulimit -f`), or None when unlimited or unknown."""
+    try:
+        import resource
+    except ImportError:  # not on this platform
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
 def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
