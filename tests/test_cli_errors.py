@@ -112,6 +112,21 @@ def _file_too_large(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(digail.utils, "write_json", write_json)
 
 
+def _ffmpeg_stops(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """ffmpeg exits while the frames are piped to it (as on a read-only mount it was not probed on)."""
+    import imageio.v2 as imageio
+
+    real = imageio.mimsave
+
+    def mimsave(uri, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        if str(uri).endswith(".mp4"):
+            Path(uri).write_bytes(b"half a video")
+            raise BrokenPipeError(32, "Broken pipe")
+        return real(uri, *args, **kwargs)
+
+    monkeypatch.setattr(imageio, "mimsave", mimsave)
+
+
 def _mkdir(name: str) -> Callable[[Path, pytest.MonkeyPatch], None]:
     def setup(tmp: Path, _: pytest.MonkeyPatch) -> None:
         (tmp / name).mkdir()
@@ -197,6 +212,16 @@ CASES: dict[str, Case] = {
     "bad choice": Case([*TRAIN, "--method", "bc"], "--method must be one of digail, gail"),
     "unknown flag": Case(["evaluate", RUN, "--epsiodes", "3"], "unknown option"),
     "flag without value": Case(["evaluate", RUN, "--seed"], "--seed expects an integer"),
+    # 7. videos
+    "video --max-steps -1": Case(["video", RUN, "--max-steps", "-1"], "--max-steps must be at least 1", watch=RUN),
+    "video --max-steps 0": Case(["video", RUN, "--max-steps", "0"], "--max-steps must be at least 1", watch=RUN),
+    "video --seed -5": Case(["video", RUN, "--seed", "-5"], "--seed must be between 0 and", watch=RUN),
+    "video --name ../../x": Case(["video", RUN, "--max-steps", "3", "--name", "../../x"], "plain file name",
+                                 watch="{tmp}"),
+    "video of a read-only run": Case(["video", RUN, "--max-steps", "3"], "cannot write", watch=RUN,
+                                     setup=_unwritable),
+    "ffmpeg stops while writing": Case(["video", RUN, "--max-steps", "3"], "ffmpeg could not write", watch=RUN,
+                                       setup=_ffmpeg_stops),
     # 8. reports
     "report an empty folder": Case(["report", "{tmp}/empty"], "not a run folder", watch="{tmp}/empty",
                                    setup=_mkdir("empty")),
@@ -344,7 +369,7 @@ def _digail(argv: list[str], fsize: int | None = None, script: str = "", **kwarg
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
 
     code = f"import sys\n{script}\nfrom digail.cli import main\nsys.exit(main(sys.argv[1:]))"
-    env = {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": os.pathsep.join(sys.path)}
+    env = kwargs.pop("env", {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": os.pathsep.join(sys.path)})
     return subprocess.Popen([sys.executable, "-c", code, *argv], env=env, preexec_fn=limit,
                             stderr=subprocess.PIPE, text=True, **kwargs)  # type: ignore[call-overload]
 
@@ -390,3 +415,41 @@ def test_output_into_a_closed_pipe_ends_quietly(runs, tmp_path, argv):
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 128 + signal.SIGPIPE, err
     assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+@pytest.fixture(scope="module")
+def mujoco_run(tmp_path_factory):
+    """A run folder whose (untrained) model acts on InvertedPendulum-v5, a MuJoCo env."""
+    from digail.checkpoint import save_model
+    from digail.nets.policy import ActionSpec
+    from digail.nets.vae import HierarchicalPolicy
+
+    run = tmp_path_factory.mktemp("mujoco") / "run"
+    run.mkdir()
+    model = HierarchicalPolicy(4, 2, ActionSpec(False, 1))
+    save_model(run / "model.pt", model, kind="vae", config={"env_id": "InvertedPendulum-v5"},
+               env_id="InvertedPendulum-v5")
+    (run / "config.json").write_text(json.dumps({"kind": "vae", "env_id": "InvertedPendulum-v5"}))
+    return run
+
+
+@pytest.mark.mujoco
+@pytest.mark.parametrize("gl", ["bogus", "osmesa"])
+@pytest.mark.parametrize("command", ["video", "evaluate"])
+def test_a_renderer_mujoco_cannot_start_is_one_sentence(mujoco_run, tmp_path, gl, command):
+    """MUJOCO_GL set to a value MuJoCo refuses, or to osmesa where its library is missing: one sentence naming
+    MUJOCO_GL from the commands that render or step MuJoCo, exit status 2, nothing written."""
+    import ctypes.util
+
+    if gl == "osmesa" and ctypes.util.find_library("OSMesa") is not None:
+        pytest.skip("OSMesa is installed here")
+    run = tmp_path / "run"
+    shutil.copytree(mujoco_run, run)
+    before = _snapshot(run)
+    argv = [command, str(run), "--max-steps" if command == "video" else "--episodes", "2"]
+    proc = _digail(argv, stdout=subprocess.DEVNULL, env={**os.environ, "MUJOCO_GL": gl,
+                                                         "PYTHONPATH": os.pathsep.join(sys.path)})
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2, err
+    assert len(err.strip().splitlines()) == 1 and err.startswith(f"digail {command}: error: MUJOCO_GL="), err
+    assert _snapshot(run) == before

@@ -8,6 +8,7 @@ import json
 import os
 import random
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -248,6 +249,32 @@ def ensure_offscreen_gl() -> str:
         has_osmesa = ctypes.util.find_library("OSMesa") is not None
         os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
     return os.environ["MUJOCO_GL"]
+
+
+MUJOCO_GL_VALUES = ("egl", "osmesa", "glfw", "glx", "disable", "disabled", "off", "false", "0", "enable", "enabled",
+                    "on", "true", "1", "")
+"""what MuJoCo accepts in `MUJOCO_GL` on Linux (anything else fails its import)"""
+
+
+def mujoco_gl_error() -> UserError | None:
+    """Why MuJoCo cannot start under this process's `MUJOCO_GL`, as one `UserError` sentence; None when it
+    imports. MuJoCo reads the variable when first imported and fails with a RuntimeError (an unknown value) or an
+    AttributeError deep in PyOpenGL (osmesa without its library): callers that see MuJoCo's import fail turn it
+    into this sentence."""
+    try:
+        import mujoco  # noqa: F401
+    except Exception as exc:  # noqa: BLE001  (any failure of the import means the same to the user)
+        gl = os.environ.get("MUJOCO_GL", "")
+        value = gl.lower().strip()
+        fix = "unset MUJOCO_GL (digail then picks egl, or osmesa where only it is installed) or set it to egl"
+        if sys.platform.startswith("linux") and value not in MUJOCO_GL_VALUES:
+            return UserError(f"MUJOCO_GL={gl!r} is not a renderer MuJoCo knows (egl, osmesa, glfw); {fix}.")
+        if value in ("osmesa", "egl") and ctypes.util.find_library("OSMesa" if value == "osmesa" else "EGL") is None:
+            return UserError(f"MUJOCO_GL={value} but the {'OSMesa' if value == 'osmesa' else 'EGL'} library is not "
+                             f"installed; install it or {fix.replace(' or set it to egl', '')}.")
+        return UserError(f"MuJoCo cannot start with MUJOCO_GL={gl!r} ({type(exc).__name__}: {one_line(exc)}); "
+                         f"{fix}.")
+    return None
 
 
 def die_with_parent() -> None:

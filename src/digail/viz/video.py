@@ -11,6 +11,8 @@ Each video is written twice: an MP4 (H.264 through imageio-ffmpeg) to download, 
 
 from __future__ import annotations
 
+import contextlib
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import ensure_offscreen_gl
+from digail.utils import ensure_offscreen_gl, one_line
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
@@ -162,9 +164,9 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
     if not frames:
         raise ValueError("no frames to write")
     stem = Path(stem)
+    created = not stem.parent.exists()
     stem.parent.mkdir(parents=True, exist_ok=True)
     mp4, gif = stem.with_suffix(".mp4"), stem.with_suffix(".gif")
-    imageio.mimsave(mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
     small: list[Any] = []
     gif_stride = max(gif_stride, -(-len(frames) // GIF_MAX_FRAMES))
     for f in frames[::max(1, gif_stride)]:
@@ -172,7 +174,24 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
         if img.width > GIF_WIDTH:
             img = img.resize((GIF_WIDTH, round(img.height * GIF_WIDTH / img.width)), Image.Resampling.LANCZOS)
         small.append(np.asarray(img))
-    imageio.mimsave(gif, small, duration=1000 * max(1, gif_stride) / fps, loop=0)
+    # both go to temporary names first and are renamed once both are complete: no half-written video is left
+    tmp_mp4, tmp_gif = (stem.with_name(f".{stem.name}.tmp-{os.getpid()}{ext}") for ext in (".mp4", ".gif"))
+    try:
+        try:
+            imageio.mimsave(tmp_mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
+        except (BrokenPipeError, RuntimeError) as exc:  # ffmpeg stopped: its message says why
+            raise UserError(f"ffmpeg could not write {mp4} ({one_line(exc).splitlines()[0][:200]}); check that "
+                            "the folder is writable and has free space.") from None
+        imageio.mimsave(tmp_gif, small, duration=1000 * max(1, gif_stride) / fps, loop=0)
+        os.replace(tmp_mp4, mp4)
+        os.replace(tmp_gif, gif)
+    except BaseException:
+        for tmp in (tmp_mp4, tmp_gif):
+            tmp.unlink(missing_ok=True)
+        if created:
+            with contextlib.suppress(OSError):
+                stem.parent.rmdir()  # the folder made for this video, now empty again
+        raise
     return mp4, gif
 
 
