@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -434,22 +435,107 @@ def mujoco_run(tmp_path_factory):
 
 
 @pytest.mark.mujoco
-@pytest.mark.parametrize("gl", ["bogus", "osmesa"])
+@pytest.mark.parametrize("gl", ["bogus", "osmesa", "osmesa, PyOpenGL on egl"])
 @pytest.mark.parametrize("command", ["video", "evaluate"])
 def test_a_renderer_mujoco_cannot_start_is_one_sentence(mujoco_run, tmp_path, gl, command):
-    """MUJOCO_GL set to a value MuJoCo refuses, or to osmesa where its library is missing: one sentence naming
-    MUJOCO_GL from the commands that render or step MuJoCo, exit status 2, nothing written."""
+    """MUJOCO_GL set to a value MuJoCo refuses, or to osmesa where its library is missing (MuJoCo's import fails,
+    or with PyOpenGL already on another platform its first frame does): one sentence naming MUJOCO_GL from the
+    commands that render or step MuJoCo, exit status 2, nothing written."""
     import ctypes.util
 
-    if gl == "osmesa" and ctypes.util.find_library("OSMesa") is not None:
+    if gl.startswith("osmesa") and ctypes.util.find_library("OSMesa") is not None:
         pytest.skip("OSMesa is installed here")
     run = tmp_path / "run"
     shutil.copytree(mujoco_run, run)
     before = _snapshot(run)
     argv = [command, str(run), "--max-steps" if command == "video" else "--episodes", "2"]
-    proc = _digail(argv, stdout=subprocess.DEVNULL, env={**os.environ, "MUJOCO_GL": gl,
-                                                         "PYTHONPATH": os.pathsep.join(sys.path)})
+    env = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}
+    env.update(MUJOCO_GL=gl.split(",")[0], PYTHONPATH=os.pathsep.join(sys.path))
+    if "PyOpenGL" in gl:
+        env["PYOPENGL_PLATFORM"] = "egl"
+    proc = _digail(argv, stdout=subprocess.DEVNULL, env=env)
     _, err = proc.communicate(timeout=300)
+    if command == "evaluate" and "PyOpenGL" in gl:  # MuJoCo loads and evaluate draws nothing: it works
+        assert proc.returncode == 0, err
+        return
     assert proc.returncode == 2, err
     assert len(err.strip().splitlines()) == 1 and err.startswith(f"digail {command}: error: MUJOCO_GL="), err
     assert _snapshot(run) == before
+
+
+@pytest.fixture
+def held_run(runs, tmp_path):
+    """A copy of the trained run folder held by another process (`run_dir_lock`), as a live command holds it."""
+    run = tmp_path / "run"
+    shutil.copytree(runs / "run", run)
+    code = ("import sys, time\nfrom pathlib import Path\nfrom digail.utils import run_dir_lock\n"
+            "with run_dir_lock(Path(sys.argv[1])):\n    print('held', flush=True)\n    time.sleep(600)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(run)], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    yield run, holder
+    holder.kill()
+    holder.wait()
+
+
+SECOND_WRITERS = {
+    "train --force": [*TRAIN[:-1], "{run}", "--force"],
+    "train --resume": ["train", "--resume", "{run}"],
+    "pretrain --force": ["pretrain", "--demos", "{demos}", "--preset", "smoke", "--out", "{run}", "--force"],
+    "demos --force": ["demos", ENV, "--episodes", "2", "--out", "{run}", "--force"],
+    "evaluate": ["evaluate", "{run}", "--episodes", "2"],
+    "compose": ["compose", "{run}", "--schedule", "0:5", "--episodes", "2"],
+    "segment": ["segment", "{run}"],
+    "video": ["video", "{run}", "--max-steps", "3"],
+    "report": ["report", "{run}", "--no-figures"],
+    "expert": ["expert", "Pendulum-v1", "--out", "{run}", "--steps", "64"],
+}
+
+
+@pytest.mark.parametrize("name", list(SECOND_WRITERS))
+def test_a_folder_another_command_writes_is_refused(name, runs, held_run, capsys):
+    """While another process writes a run folder, every command that would write it (--force included) is
+    refused in one sentence naming that process, and the folder is left as it is."""
+    run, holder = held_run
+    argv = [a.format(run=run, demos=runs / "demos", vae=runs / "vae", tmp=run.parent) for a in SECOND_WRITERS[name]]
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert main(argv) == 2, name
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"is being written by another digail command (process {holder.pid})" in err, err
+    assert _snapshot(run) == before
+    assert not _leftovers(run.parent)
+
+
+def test_a_lock_left_by_a_killed_process_blocks_nothing(held_run, capsys):
+    run, holder = held_run
+    holder.kill()
+    holder.wait()
+    assert (run / ".digail.lock").is_file()  # the file stays; the kernel dropped the lock with the process
+    assert main(["evaluate", str(run), "--episodes", "2"]) == 0, capsys.readouterr().err
+    assert (run / "eval.json").is_file() and not (run / ".digail.lock").exists()
+
+
+@pytest.mark.slow
+def test_two_trainings_forced_into_one_folder(runs, tmp_path):
+    """`digail train --out F --force` twice, the second started while the first trains: the second is refused
+    and writes nothing; the first finishes with its own metrics."""
+    out = tmp_path / "F"
+    argv = ["train", "--demos", str(runs / "demos"), "--vae", str(runs / "vae"), "--preset", "smoke", "--out",
+            str(out), "--force", "--train.iterations", "400"]
+    first = _digail(argv, stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while not (out / ".digail.lock").exists():
+        assert first.poll() is None and time.monotonic() < deadline, "the first training never started"
+        time.sleep(0.05)
+    second = _digail(argv, stdout=subprocess.DEVNULL)
+    _, err = second.communicate(timeout=300)
+    assert second.returncode == 2, err
+    assert "is being written by another digail command" in err.strip().splitlines()[-1], err
+    _, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    rows = (out / "metrics.csv").read_text().splitlines()
+    iterations = [float(r.split(",")[rows[0].split(",").index("iteration")]) for r in rows[1:]]
+    assert iterations == [float(i) for i in range(1, 401)]
+    assert not (out / ".digail.lock").exists()

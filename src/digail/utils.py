@@ -104,6 +104,7 @@ def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
     if path.exists() and not force:
         what = "folder" if path.is_dir() else "file"
         raise UserError(f"output {what} {path} already exists; choose another --out or pass --force{hint}.")
+    check_not_locked(path)  # --force never replaces a folder another command is writing
     check_writable(path)
 
 
@@ -123,16 +124,99 @@ def remove_path(path: Path) -> None:
         path.unlink()
 
 
-def fresh_dir(path: Path, force: bool, hint: str = "") -> Path:
-    """Create the output folder `path` for a command that writes in place (resumable training): refused when it
-    exists without `force`; with `force`, whatever was there (old eval.json, segmentation.json, a file) goes
-    first, so nothing old sits beside the new results."""
+LOCK_FILE = ".digail.lock"
+"""the file inside a run folder that a command writing the folder holds an exclusive `flock` on"""
+_HELD: dict[str, int] = {}
+"""run folders this process holds (real path -> the lock file's descriptor)"""
+
+
+@contextlib.contextmanager
+def run_dir_lock(folder: Path) -> Iterator[Path]:
+    """Hold the existing run folder `folder` for writing while the block runs: one writer per folder.
+
+    An exclusive `flock` on `folder/.digail.lock`, so a second command that would write the same folder (a
+    `train --force` on a live run, an `evaluate` during a training) is refused in one sentence instead of
+    clobbering it. The kernel drops the lock when its process dies, so a lock file left by a killed process
+    blocks nothing; the file is removed on release. Re-entrant within a process; a no-op where `fcntl` does not
+    exist."""
+    folder = Path(folder)
+    key = os.path.realpath(folder)
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no locking
+        yield folder
+        return
+    if key in _HELD:
+        yield folder
+        return
+    fd = _lock_file(folder, fcntl)
+    _HELD[key] = fd
+    try:
+        yield folder
+    finally:
+        del _HELD[key]
+        with signals_deferred():
+            if _same_file(fd, folder / LOCK_FILE):  # still ours (the folder may have been swapped away)
+                with contextlib.suppress(OSError):
+                    os.unlink(folder / LOCK_FILE)
+            os.close(fd)
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        st, fst = os.stat(path), os.fstat(fd)
+    except OSError:
+        return False
+    return (st.st_ino, st.st_dev) == (fst.st_ino, fst.st_dev)
+
+
+def _lock_file(folder: Path, fcntl: Any) -> int:
+    path = folder / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held by a live process
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            os.close(fd)
+            who = f" (process {holder})" if holder.isdigit() else ""
+            raise UserError(f"{folder} is being written by another digail command{who}; wait for it to finish "
+                            "or choose another folder.") from None
+        # the previous holder removes the file on release: a lock taken on a file no longer in place is retried
+        if _same_file(fd, path):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            return fd
+        os.close(fd)
+
+
+def check_not_locked(folder: Path) -> None:
+    """Refuse, in one sentence, a folder another process is writing (`run_dir_lock`); takes no lock."""
+    if Path(folder).is_dir() and not Path(folder).is_symlink():
+        with run_dir_lock(folder):
+            pass
+
+
+@contextlib.contextmanager
+def fresh_dir(path: Path, force: bool, hint: str = "") -> Iterator[Path]:
+    """Create the output folder `path` for a command that writes in place (resumable training) and hold it
+    (`run_dir_lock`) while the block runs: refused when it exists without `force`; with `force`, whatever was
+    there (old eval.json, segmentation.json, a file) goes first, so nothing old sits beside the new results,
+    unless another command is writing it."""
     path = Path(path)
     check_new_dir(path, force, hint)
-    if path.exists() or path.is_symlink():
+    if force and (path.is_symlink() or (path.exists() and not path.is_dir())):
         remove_path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    try:
+        path.mkdir(parents=True, exist_ok=force)
+    except FileExistsError:  # made by another command since the check
+        raise UserError(f"output folder {path} already exists; choose another --out or pass --force{hint}.") \
+            from None
+    with run_dir_lock(path):
+        for child in path.iterdir():  # --force: the old files go, the lock stays
+            if child.name != LOCK_FILE:
+                remove_path(child)
+        yield path
 
 
 @contextlib.contextmanager
@@ -155,21 +239,31 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
         with signals_deferred():
             shutil.rmtree(tmp, ignore_errors=True)
         raise
-    with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
-        old = None
-        try:
-            if final.exists() or final.is_symlink():
-                old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
-                os.replace(final, old / "x")  # out of the way first, so a failure never loses both
-            os.replace(tmp, final)
-        except BaseException:
-            if old is not None and (old / "x").exists() and not final.exists():
-                os.replace(old / "x", final)
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        finally:
-            if old is not None:
-                remove_path(old)
+    if (final.exists() or final.is_symlink()) and not force:  # made by another command meanwhile
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise UserError(f"output {final} appeared while this command ran; choose another --out or pass --force.")
+    with contextlib.ExitStack() as held:
+        if final.is_dir() and not final.is_symlink():
+            try:
+                held.enter_context(run_dir_lock(final))  # a folder another command is writing is never swapped away
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
+            old = None
+            try:
+                if final.exists() or final.is_symlink():
+                    old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+                    os.replace(final, old / "x")  # out of the way first, so a failure never loses both
+                os.replace(tmp, final)
+            except BaseException:
+                if old is not None and (old / "x").exists() and not final.exists():
+                    os.replace(old / "x", final)
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            finally:
+                if old is not None:
+                    remove_path(old)
 
 
 @contextlib.contextmanager
@@ -256,25 +350,31 @@ MUJOCO_GL_VALUES = ("egl", "osmesa", "glfw", "glx", "disable", "disabled", "off"
 """what MuJoCo accepts in `MUJOCO_GL` on Linux (anything else fails its import)"""
 
 
-def mujoco_gl_error() -> UserError | None:
-    """Why MuJoCo cannot start under this process's `MUJOCO_GL`, as one `UserError` sentence; None when it
-    imports. MuJoCo reads the variable when first imported and fails with a RuntimeError (an unknown value) or an
-    AttributeError deep in PyOpenGL (osmesa without its library): callers that see MuJoCo's import fail turn it
-    into this sentence."""
+def mujoco_gl_error(render_error: BaseException | None = None) -> UserError | None:
+    """Why MuJoCo cannot start (or, given the exception, render) under this process's `MUJOCO_GL`, as one
+    `UserError` sentence; None when it imports and no `render_error` is given.
+
+    MuJoCo reads the variable when first imported and fails with a RuntimeError (an unknown value) or an
+    AttributeError deep in PyOpenGL (osmesa without its library); with another PyOpenGL platform already chosen
+    in the process it imports and fails at the first frame instead. Callers that see either turn it into this
+    sentence."""
+    gl = os.environ.get("MUJOCO_GL", "")
+    value = gl.lower().strip()
+    fix = "unset MUJOCO_GL (digail then picks egl, or osmesa where only it is installed) or set it to egl"
+    problem = render_error
     try:
         import mujoco  # noqa: F401
     except Exception as exc:  # noqa: BLE001  (any failure of the import means the same to the user)
-        gl = os.environ.get("MUJOCO_GL", "")
-        value = gl.lower().strip()
-        fix = "unset MUJOCO_GL (digail then picks egl, or osmesa where only it is installed) or set it to egl"
-        if sys.platform.startswith("linux") and value not in MUJOCO_GL_VALUES:
-            return UserError(f"MUJOCO_GL={gl!r} is not a renderer MuJoCo knows (egl, osmesa, glfw); {fix}.")
-        if value in ("osmesa", "egl") and ctypes.util.find_library("OSMesa" if value == "osmesa" else "EGL") is None:
-            return UserError(f"MUJOCO_GL={value} but the {'OSMesa' if value == 'osmesa' else 'EGL'} library is not "
-                             f"installed; install it or {fix.replace(' or set it to egl', '')}.")
-        return UserError(f"MuJoCo cannot start with MUJOCO_GL={gl!r} ({type(exc).__name__}: {one_line(exc)}); "
-                         f"{fix}.")
-    return None
+        problem = exc
+    if problem is None:
+        return None
+    if sys.platform.startswith("linux") and value not in MUJOCO_GL_VALUES:
+        return UserError(f"MUJOCO_GL={gl!r} is not a renderer MuJoCo knows (egl, osmesa, glfw); {fix}.")
+    if value in ("osmesa", "egl") and ctypes.util.find_library("OSMesa" if value == "osmesa" else "EGL") is None:
+        return UserError(f"MUJOCO_GL={value} but the {'OSMesa' if value == 'osmesa' else 'EGL'} library is not "
+                         f"installed; install it or {fix.replace(' or set it to egl', '')}.")
+    return UserError(f"MuJoCo cannot {'render' if problem is render_error else 'start'} with MUJOCO_GL={gl!r} "
+                     f"({type(problem).__name__}: {one_line(problem)}); {fix}.")
 
 
 def die_with_parent() -> None:

@@ -3,6 +3,7 @@ over methods and seeds."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,7 @@ class ReportArgs:
 
 def report_command(args: ReportArgs) -> Path:
     """Write the page; returns its path."""
+    from digail.utils import run_dir_lock
     from digail.viz.report import write_compare_report, write_report
 
     if not args.runs:
@@ -60,9 +62,11 @@ def report_command(args: ReportArgs) -> Path:
                         "`digail train` or `digail pretrain`.")
     if args.out is not None:
         check_page_path(args.out)
-    if args.figures and (run / "model.pt").exists():
-        make_figures(run, unsmoothed=args.unsmoothed)
-    page = write_report(run, args.out)
+    # one writer per run folder: its figures and its page are written into it
+    with run_dir_lock(run) if args.figures or args.out is None else contextlib.nullcontext():
+        if args.figures and (run / "model.pt").exists():
+            make_figures(run, unsmoothed=args.unsmoothed)
+        page = write_report(run, args.out)
     print(f"report: {page}")
     return page
 

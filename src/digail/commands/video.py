@@ -10,7 +10,7 @@ import tyro
 
 from digail.config import check_at_least, check_seed
 from digail.errors import UserError
-from digail.utils import check_writable
+from digail.utils import check_writable, run_dir_lock
 
 
 @dataclass(frozen=True)
@@ -58,19 +58,20 @@ def video_command(args: VideoArgs) -> tuple[Path, Path]:
     if videos.exists() and not videos.is_dir():
         raise UserError(f"{videos} is a file, not a folder; move it away to record videos into it.")
     check_writable(videos, "run folder")
-    model, meta = load_model(run / "model.pt")
-    env_id = run_env_id(run, meta)
-    schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
-    seed = args.seed
-    if args.outcome != "any":
-        if schedule is not None or args.episodes != 1:
-            raise UserError("--outcome picks one closed-loop episode: drop --schedule and --episodes.")
-        seed = find_outcome(model, env_id, args.outcome == "success", args.seed, args.search, args.max_steps)
-    name = args.name or ("composed" if schedule is not None else "closed_loop" if args.outcome == "any"
-                         else args.outcome)
-    mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=seed, episodes=args.episodes,
-                            schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
-                            max_steps=args.max_steps)
-    print(f"wrote {mp4} and {gif}" + (f" (seed {seed}, {args.outcome})" if args.outcome != "any" else ""))
+    with run_dir_lock(run):  # one writer per run folder
+        model, meta = load_model(run / "model.pt")
+        env_id = run_env_id(run, meta)
+        schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
+        seed = args.seed
+        if args.outcome != "any":
+            if schedule is not None or args.episodes != 1:
+                raise UserError("--outcome picks one closed-loop episode: drop --schedule and --episodes.")
+            seed = find_outcome(model, env_id, args.outcome == "success", args.seed, args.search, args.max_steps)
+        name = args.name or ("composed" if schedule is not None else "closed_loop" if args.outcome == "any"
+                             else args.outcome)
+        mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=seed, episodes=args.episodes,
+                                schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
+                                max_steps=args.max_steps)
+        print(f"wrote {mp4} and {gif}" + (f" (seed {seed}, {args.outcome})" if args.outcome != "any" else ""))
     return mp4, gif
 

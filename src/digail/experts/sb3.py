@@ -26,7 +26,14 @@ from digail.experts.recipes import (
     safe_name,
     spec_for,
 )
-from digail.utils import atomic_write_bytes, one_line, resolve_device, set_torch_threads, write_json
+from digail.utils import (
+    atomic_write_bytes,
+    one_line,
+    resolve_device,
+    run_dir_lock,
+    set_torch_threads,
+    write_json,
+)
 
 _STEP_RE = re.compile(r"step_(\d+)\.pt$")
 CHECKPOINT_FORMAT = "digail-sb3-checkpoint"
@@ -341,13 +348,21 @@ def train_expert(args: ExpertRun) -> Path:
         if progress.get("env_id", args.env) != args.env:
             raise UserError(f"{out} holds an expert for {progress['env_id']!r}, not {args.env!r}; "
                             "resume with the same env or choose another --out.")
-        model, _ = _load_model(args.env, spec, existing[-1][1], args.seed, device)
+    elif existing or (out / "expert.pt").exists() or (ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip"))):
+        raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
+                        "another --out.")
+    out.mkdir(parents=True, exist_ok=True)
+    with run_dir_lock(out):  # one writer per expert folder: a second `digail expert` on it is refused
+        return _train_in(args, spec, out, total, device, existing[-1][1] if args.resume else None)
+
+
+def _train_in(args: ExpertRun, spec: ExpertSpec, out: Path, total: int, device: str, ckpt: Path | None) -> Path:
+    """`train_expert` in its checked and held folder, from the checkpoint `ckpt` or from scratch."""
+    if ckpt is not None:
+        model, _ = _load_model(args.env, spec, ckpt, args.seed, device)
+        progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
         (out / "wall_before_resume.txt").write_text(str(progress.get("wall_s", 0.0)))
     else:
-        if existing or (out / "expert.pt").exists() or (ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip"))):
-            raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
-                            "another --out.")
-        out.mkdir(parents=True, exist_ok=True)
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
         model, _ = build_sb3_model(args.env, spec, args.seed, device)
     # the one run-folder schema (`kind` "expert"), with the budget and the recipe it trained with

@@ -12,7 +12,10 @@ Each video is written twice: an MP4 (H.264 through imageio-ffmpeg) to download, 
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
+import sys
+import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import ensure_offscreen_gl, one_line
+from digail.utils import ensure_offscreen_gl, mujoco_gl_error, one_line
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
@@ -75,12 +78,12 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     def act(envs: list[Any], obs: list[Any], eps: list[Episode]) -> Any:
         """The frame of the state the code and action are chosen in, then the policy's action."""
         if render:
-            frames.append(np.asarray(env.render()))
+            frames.append(_frame(env))
         return policy(envs, obs, eps)
 
     def done(ep: Episode) -> None:
         if render:
-            frames.append(np.asarray(env.render()))
+            frames.append(_frame(env))
         out.append(RenderedEpisode(frames=list(frames), codes=ep.codes, obs=[np.asarray(o) for o in ep.obs],
                                    ret=ep.ret, final_info=dict(ep.final_info)))
         frames.clear()
@@ -93,6 +96,28 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     finally:
         env.close()
     return out
+
+
+def _frame(env: Any) -> np.ndarray:
+    """`env.render()` as an array; a MuJoCo env that cannot draw under this `MUJOCO_GL` is one sentence."""
+    try:
+        return np.asarray(env.render())
+    except (ImportError, RuntimeError, AttributeError, OSError) as exc:
+        base = type(env.unwrapped)
+        if "mujoco" not in f"{base.__module__}.{base.__name__}".lower():
+            raise
+        error = mujoco_gl_error(exc) or exc
+        # the viewer Gymnasium half-built before the failure complains from its __del__ once collected: let go of
+        # it here (the traceback's frames hold it), with that complaint silenced, so the sentence stays alone
+        hook = sys.unraisablehook
+        sys.unraisablehook = lambda _: None
+        try:
+            traceback.clear_frames(exc.__traceback__)
+            del exc
+            gc.collect()
+        finally:
+            sys.unraisablehook = hook
+    raise error from None
 
 
 def find_outcome(model: Any, env_id: str, success: bool, seed: int = 10_000, search: int = 200,
