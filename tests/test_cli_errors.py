@@ -465,13 +465,15 @@ def test_a_renderer_mujoco_cannot_start_is_one_sentence(mujoco_run, tmp_path, gl
 
 @pytest.fixture
 def held_run(runs, tmp_path):
-    """A copy of the trained run folder held by another process (`run_dir_lock`), as a live command holds it."""
+    """A copy of the trained run folder held by another process as a live command holds it: an exclusive flock
+    on RUN/.digail.lock, which holds the holder's process id."""
     run = tmp_path / "run"
     shutil.copytree(runs / "run", run)
-    code = ("import sys, time\nfrom pathlib import Path\nfrom digail.utils import run_dir_lock\n"
-            "with run_dir_lock(Path(sys.argv[1])):\n    print('held', flush=True)\n    time.sleep(600)\n")
-    holder = subprocess.Popen([sys.executable, "-c", code, str(run)], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    code = ("import fcntl, os, sys, time\n"
+            "fd = os.open(os.path.join(sys.argv[1], '.digail.lock'), os.O_RDWR | os.O_CREAT)\n"
+            "fcntl.flock(fd, fcntl.LOCK_EX)\nos.write(fd, f'{os.getpid()}\\n'.encode())\n"
+            "print('held', flush=True)\ntime.sleep(600)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(run)], stdout=subprocess.PIPE, text=True)
     assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
     yield run, holder
     holder.kill()
