@@ -323,13 +323,49 @@ def one_line(exc: BaseException) -> str:
     return text.rstrip(".") if text else type(exc).__name__
 
 
-def progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:
-    """A tqdm bar for a long loop (None when `enabled` is False)."""
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
+PROGRESS_INTERVAL_S = 0.5
+"""seconds between redraws of a progress bar on a terminal"""
+PROGRESS_LOG_INTERVAL_S = 60.0
+"""seconds between progress lines off a terminal (a log file, CI, nohup, a job scheduler)"""
 
-    return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)
+
+class _LineStream:
+    """What tqdm writes, as one line per update: off a terminal a carriage-return redraw piles up on one
+    never-ending line of the log, where a line per update reads (and greps) as a log does."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        line = text.replace("\r", "").rstrip()
+        if line:
+            self.stream.write(line + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(total: int, enabled: bool = True, desc: str = "VAE", unit: str = "epoch", initial: int = 0) -> Any:
+    """The tqdm bar of a long loop (disabled, drawing nothing, when `enabled` is False).
+
+    On a terminal it redraws every `PROGRESS_INTERVAL_S`. Off one (stderr is a file or a pipe) it writes a line
+    at its start, at most one every `PROGRESS_LOG_INTERVAL_S` and one at its end, rather than a redraw twice a
+    second that fills a log with thousands of updates. Set postfixes with `refresh=False`: a forced refresh
+    would draw on every call."""
+    import sys
+
+    from tqdm.auto import tqdm
+    from tqdm.autonotebook import tqdm as chosen
+
+    stream = sys.stderr
+    interactive = stream is not None and hasattr(stream, "isatty") and stream.isatty()
+    notebook = chosen.__module__ == "tqdm.notebook"  # a Jupyter widget, which draws in place
+    if interactive or notebook or not enabled:
+        return tqdm(total=total, initial=initial, desc=desc, unit=unit, mininterval=PROGRESS_INTERVAL_S,
+                    dynamic_ncols=True, disable=not enabled)
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=_LineStream(stream),
+                mininterval=PROGRESS_LOG_INTERVAL_S, maxinterval=PROGRESS_LOG_INTERVAL_S)
 
 
 def ensure_offscreen_gl() -> str:

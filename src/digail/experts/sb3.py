@@ -29,6 +29,7 @@ from digail.experts.recipes import (
 from digail.utils import (
     atomic_write_bytes,
     one_line,
+    progress_bar,
     resolve_device,
     run_dir_lock,
     set_torch_threads,
@@ -217,7 +218,6 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
                        t_start: float) -> Any:
     """SB3 callback: progress bar, resumable checkpoints, periodic evaluation, best export, early stop."""
     from stable_baselines3.common.callbacks import BaseCallback
-    from tqdm import tqdm
 
     class _Callback(BaseCallback):
         def __init__(self) -> None:
@@ -229,8 +229,7 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
 
         def _on_training_start(self) -> None:
             done = self.num_timesteps
-            self.bar = tqdm(total=total, initial=done, unit="step", dynamic_ncols=True, desc=env_id,
-                            mininterval=5.0)
+            self.bar = progress_bar(total, desc=env_id, unit="step", initial=done)
             self.next_ckpt = (done // spec.checkpoint_every + 1) * spec.checkpoint_every
             self.next_eval = (done // spec.eval_every + 1) * spec.eval_every
             state_file = out / "progress.json"
