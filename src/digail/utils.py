@@ -361,11 +361,14 @@ def progress_bar(total: int, enabled: bool = True, desc: str = "VAE", unit: str 
     stream = sys.stderr
     interactive = stream is not None and hasattr(stream, "isatty") and stream.isatty()
     notebook = chosen.__module__ == "tqdm.notebook"  # a Jupyter widget, which draws in place
+    enabled = enabled and total > 0  # a loop over nothing (e.g. no VAE epochs before the polish) shows nothing
     if interactive or notebook or not enabled:
         return tqdm(total=total, initial=initial, desc=desc, unit=unit, mininterval=PROGRESS_INTERVAL_S,
                     dynamic_ncols=True, disable=not enabled)
-    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=_LineStream(stream),
-                mininterval=PROGRESS_LOG_INTERVAL_S, maxinterval=PROGRESS_LOG_INTERVAL_S)
+    # miniters=1: the clock is read at every update, so a line comes once a minute whatever the pace (tqdm's
+    # adaptive skipping would delay it when the loop slows down, and its monitor thread would add extra lines)
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=_LineStream(stream), miniters=1,
+                mininterval=PROGRESS_LOG_INTERVAL_S)
 
 
 def ensure_offscreen_gl() -> str:
