@@ -176,12 +176,14 @@ def _lock_file(folder: Path, fcntl: Any) -> int:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:  # held by a live process
+        except BlockingIOError:  # held by a live process
             holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
             os.close(fd)
             who = f" (process {holder})" if holder.isdigit() else ""
             raise UserError(f"{folder} is being written by another digail command{who}; wait for it to finish "
                             "or choose another folder.") from None
+        except OSError:  # a filesystem without locks (some network mounts): written as before, unguarded
+            return fd
         # the previous holder removes the file on release: a lock taken on a file no longer in place is retried
         if _same_file(fd, path):
             os.ftruncate(fd, 0)
