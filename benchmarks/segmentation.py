@@ -170,7 +170,7 @@ def figure(results: Path, runs: Path, data_root: Path, out: Path, episodes: int 
         demos, _, _, _ = task_data(name, data_root)
         labels = [np.asarray(t.subtasks)[:len(t)] for t in load_dataset(demos).trajs[:episodes]]
         run = runs / f"{name}_s0"
-        codes = np.load(run / "codes.npz")
+        codes = np.load(run / "codes.npz", allow_pickle=False)
         mapping = {int(k): int(v) for k, v in json.loads((run / "segmentation.json").read_text())["mapping"].items()}
         width = max(len(c) for c in labels)
         strips = []

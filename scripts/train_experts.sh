@@ -34,7 +34,7 @@ for env in "${envs[@]}"; do
         continue
     fi
     resume=()
-    compgen -G "${out}/checkpoints/step_*.zip" >/dev/null && resume=(--resume)
+    compgen -G "${out}/checkpoints/step_*.pt" >/dev/null && resume=(--resume)
     mkdir -p "${out}"
     echo "$(date -u +%FT%TZ) start ${env} ${resume[*]:-}" | tee -a "${out}/train.log"
     # The exact training command (the env's default budget from digail.experts.recipes.EXPERT_SPECS):

@@ -8,10 +8,18 @@ something first, a phrase of the expected message, and the path that must come o
 from __future__ import annotations
 
 import errno
+import html
+import html.parser
+import json
 import os
 import pickle
+import resource
 import shutil
+import signal
+import subprocess
+import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,6 +103,37 @@ def _disk_fills_up(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(digail.utils, "write_json", write_json)
 
 
+def _file_too_large(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A file-size limit (`ulimit -f`) is reached while the results are written."""
+    import digail.utils
+
+    def write_json(path, obj):  # noqa: ANN001, ANN202
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(digail.utils, "write_json", write_json)
+
+
+def _ffmpeg_stops(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """ffmpeg exits while the frames are piped to it (as on a read-only mount it was not probed on)."""
+    import imageio.v2 as imageio
+
+    real = imageio.mimsave
+
+    def mimsave(uri, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        if str(uri).endswith(".mp4"):
+            Path(uri).write_bytes(b"half a video")
+            raise BrokenPipeError(32, "Broken pipe")
+        return real(uri, *args, **kwargs)
+
+    monkeypatch.setattr(imageio, "mimsave", mimsave)
+
+
+def _mkdir(name: str) -> Callable[[Path, pytest.MonkeyPatch], None]:
+    def setup(tmp: Path, _: pytest.MonkeyPatch) -> None:
+        (tmp / name).mkdir()
+    return setup
+
+
 TRAIN = ["train", "--demos", "{demos}", "--vae", "{vae}", "--preset", "smoke", "--out", "{tmp}/out"]
 RUN = "{tmp}/run"
 
@@ -120,6 +159,8 @@ CASES: dict[str, Case] = {
                                     setup=_full_disk),
     "disk fills up while writing": Case(["evaluate", RUN, "--episodes", "2"], "no space left", watch=RUN,
                                         setup=_disk_fills_up),
+    "file-size limit reached while writing": Case(["evaluate", RUN, "--episodes", "2"], "file too large",
+                                                  watch=RUN, setup=_file_too_large),
     # 3. numbers
     "evaluate --episodes 0": Case(["evaluate", RUN, "--episodes", "0"], "--episodes must be at least 1",
                                   watch=RUN),
@@ -172,6 +213,24 @@ CASES: dict[str, Case] = {
     "bad choice": Case([*TRAIN, "--method", "bc"], "--method must be one of digail, gail"),
     "unknown flag": Case(["evaluate", RUN, "--epsiodes", "3"], "unknown option"),
     "flag without value": Case(["evaluate", RUN, "--seed"], "--seed expects an integer"),
+    # 7. videos
+    "video --max-steps -1": Case(["video", RUN, "--max-steps", "-1"], "--max-steps must be at least 1", watch=RUN),
+    "video --max-steps 0": Case(["video", RUN, "--max-steps", "0"], "--max-steps must be at least 1", watch=RUN),
+    "video --seed -5": Case(["video", RUN, "--seed", "-5"], "--seed must be between 0 and", watch=RUN),
+    "video --name ../../x": Case(["video", RUN, "--max-steps", "3", "--name", "../../x"], "plain file name",
+                                 watch="{tmp}"),
+    "video of a read-only run": Case(["video", RUN, "--max-steps", "3"], "cannot write", watch=RUN,
+                                     setup=_unwritable),
+    "ffmpeg stops while writing": Case(["video", RUN, "--max-steps", "3"], "ffmpeg could not write", watch=RUN,
+                                       setup=_ffmpeg_stops),
+    # 8. reports
+    "report an empty folder": Case(["report", "{tmp}/empty"], "not a run folder", watch="{tmp}/empty",
+                                   setup=_mkdir("empty")),
+    "report a folder that is not a run": Case(["report", "{tmp}"], "not a run folder", watch="{tmp}"),
+    "report --out a folder": Case(["report", RUN, "--no-figures", "--out", "{tmp}/pages"], "is a folder",
+                                  watch="{tmp}", setup=_mkdir("pages")),
+    "compare --out a folder": Case(["report", "--compare", RUN, "--out", "{tmp}/pages"], "is a folder",
+                                   watch="{tmp}", setup=_mkdir("pages")),
     # already handled before this issue
     "unknown command": Case(["trian"], "unknown command"),
     "unknown env": Case(["run", "NoSuchEnv-v9", "--out", "{tmp}/out"], "NoSuchEnv-v9"),
@@ -260,3 +319,225 @@ def test_train_resume_from_another_directory(runs, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path.parent)
     assert main(["train", "--resume", str(run)]) == 0
     assert (run / "metrics.csv").read_text() == rows
+
+
+HOSTILE = ["<script>document.title='owned'</script>", "<img src=x onerror=alert(1)>"]
+
+
+class _Tags(html.parser.HTMLParser):
+    """Every start tag of a page with its attribute names."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tags: list[tuple[str, list[str]]] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.tags.append((tag, [name for name, _ in attrs]))
+
+
+@pytest.mark.parametrize("payload", HOSTILE)
+def test_report_escapes_whatever_the_run_folder_holds(runs, tmp_path, payload):
+    """Markup planted in config.json and eval.json (method, env id, seed, preset, numbers) reaches the page as
+    text: no script element, no event-handler attribute, the planted text shown escaped."""
+    run = tmp_path / "run"
+    shutil.copytree(runs / "run", run)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg.update(method=payload, env_id=payload, seed=payload, preset=payload, command=payload)
+    cfg["train"] = {**cfg["train"], "iterations": payload}
+    (run / "config.json").write_text(json.dumps(cfg))
+    (run / "eval.json").write_text(json.dumps({"episodes": payload, "mean_return": payload, "std_return": payload,
+                                               "success_rate": 0.5, "env_id": payload, "macro_policy": payload,
+                                               "expert": {"mean_return": payload, "success_rate": 1.0}}))
+    (run / "segmentation.json").write_text(json.dumps({"accuracy": 0.5, "matching": payload,
+                                                       "mapping": {payload: payload}}))
+    assert main(["report", str(run), "--no-figures"]) == 0
+    page = (run / "report.html").read_text()
+    parser = _Tags()
+    parser.feed(page)
+    assert parser.tags, "the page did not parse"
+    assert "script" not in [tag for tag, _ in parser.tags]
+    assert not [(tag, a) for tag, attrs in parser.tags for a in attrs if a.lower().startswith("on")]
+    assert html.escape(payload) in page
+
+
+def _digail(argv: list[str], fsize: int | None = None, script: str = "", **kwargs: object) -> subprocess.Popen:
+    """`python -m digail.cli ARGV` in a child process, optionally under a file-size limit (`ulimit -f`) with
+    SIGXFSZ ignored, so that a write past it fails with EFBIG as it does under a shell's limit; `script` runs
+    first in the child (e.g. to move a threshold)."""
+    def limit() -> None:
+        if fsize is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+
+    code = f"import sys\n{script}\nfrom digail.cli import main\nsys.exit(main(sys.argv[1:]))"
+    env = kwargs.pop("env", {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": os.pathsep.join(sys.path)})
+    return subprocess.Popen([sys.executable, "-c", code, *argv], env=env, preexec_fn=limit,
+                            stderr=subprocess.PIPE, text=True, **kwargs)  # type: ignore[call-overload]
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".tmp-" in p.name or ".old-" in p.name)
+
+
+def test_a_small_file_size_limit_is_refused_before_any_work(runs, tmp_path):
+    out = tmp_path / "vae"
+    proc = _digail(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out)],
+                   fsize=64 * 1024, stdout=subprocess.DEVNULL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith("digail pretrain: error: a file-size limit of 64 KiB"), err
+    assert "Traceback" not in err and not out.exists() and not _leftovers(tmp_path)
+
+
+def test_a_write_past_the_file_size_limit_is_one_sentence_and_leaves_nothing(runs, tmp_path):
+    """Past the up-front check (its threshold moved to 0 here), a model file larger than the limit fails with
+    EFBIG: one sentence, exit status 2, no output folder and no temporary one."""
+    out = tmp_path / "vae"
+    proc = _digail(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out)],
+                   fsize=24 * 1024, script="import digail.utils; digail.utils.MIN_FREE_BYTES = 0",
+                   stdout=subprocess.DEVNULL)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 2, err
+    assert err.strip().splitlines()[-1].startswith("digail pretrain: error: file too large"), err
+    assert "ulimit -f" in err and "Traceback" not in err
+    assert not out.exists() and not _leftovers(tmp_path)
+
+
+@pytest.mark.parametrize("argv", [["pretrain", "--help"], ["--help"], ["evaluate", RUN, "--episodes", "2"]])
+def test_output_into_a_closed_pipe_ends_quietly(runs, tmp_path, argv):
+    """`digail ... | head` when head has already gone: no BrokenPipe traceback, the status of SIGPIPE."""
+    shutil.copytree(runs / "run", tmp_path / "run")
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the first line is written
+    try:
+        proc = _digail([a.format(tmp=tmp_path) for a in argv], stdout=write_end)
+    finally:
+        os.close(write_end)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGPIPE, err
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+@pytest.fixture(scope="module")
+def mujoco_run(tmp_path_factory):
+    """A run folder whose (untrained) model acts on InvertedPendulum-v5, a MuJoCo env."""
+    from digail.checkpoint import save_model
+    from digail.nets.policy import ActionSpec
+    from digail.nets.vae import HierarchicalPolicy
+
+    run = tmp_path_factory.mktemp("mujoco") / "run"
+    run.mkdir()
+    model = HierarchicalPolicy(4, 2, ActionSpec(False, 1))
+    save_model(run / "model.pt", model, kind="vae", config={"env_id": "InvertedPendulum-v5"},
+               env_id="InvertedPendulum-v5")
+    (run / "config.json").write_text(json.dumps({"kind": "vae", "env_id": "InvertedPendulum-v5"}))
+    return run
+
+
+@pytest.mark.mujoco
+@pytest.mark.parametrize("gl", ["bogus", "osmesa", "osmesa, PyOpenGL on egl"])
+@pytest.mark.parametrize("command", ["video", "evaluate"])
+def test_a_renderer_mujoco_cannot_start_is_one_sentence(mujoco_run, tmp_path, gl, command):
+    """MUJOCO_GL set to a value MuJoCo refuses, or to osmesa where its library is missing (MuJoCo's import fails,
+    or with PyOpenGL already on another platform its first frame does): one sentence naming MUJOCO_GL from the
+    commands that render or step MuJoCo, exit status 2, nothing written."""
+    import ctypes.util
+
+    if gl.startswith("osmesa") and ctypes.util.find_library("OSMesa") is not None:
+        pytest.skip("OSMesa is installed here")
+    run = tmp_path / "run"
+    shutil.copytree(mujoco_run, run)
+    before = _snapshot(run)
+    argv = [command, str(run), "--max-steps" if command == "video" else "--episodes", "2"]
+    env = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}
+    env.update(MUJOCO_GL=gl.split(",")[0], PYTHONPATH=os.pathsep.join(sys.path))
+    if "PyOpenGL" in gl:
+        env["PYOPENGL_PLATFORM"] = "egl"
+    proc = _digail(argv, stdout=subprocess.DEVNULL, env=env)
+    _, err = proc.communicate(timeout=300)
+    if command == "evaluate" and "PyOpenGL" in gl:  # MuJoCo loads and evaluate draws nothing: it works
+        assert proc.returncode == 0, err
+        return
+    assert proc.returncode == 2, err
+    assert len(err.strip().splitlines()) == 1 and err.startswith(f"digail {command}: error: MUJOCO_GL="), err
+    assert _snapshot(run) == before
+
+
+@pytest.fixture
+def held_run(runs, tmp_path):
+    """A copy of the trained run folder held by another process as a live command holds it: an exclusive flock
+    on RUN/.digail.lock, which holds the holder's process id."""
+    run = tmp_path / "run"
+    shutil.copytree(runs / "run", run)
+    code = ("import fcntl, os, sys, time\n"
+            "fd = os.open(os.path.join(sys.argv[1], '.digail.lock'), os.O_RDWR | os.O_CREAT)\n"
+            "fcntl.flock(fd, fcntl.LOCK_EX)\nos.write(fd, f'{os.getpid()}\\n'.encode())\n"
+            "print('held', flush=True)\ntime.sleep(600)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(run)], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    yield run, holder
+    holder.kill()
+    holder.wait()
+
+
+SECOND_WRITERS = {
+    "train --force": [*TRAIN[:-1], "{run}", "--force"],
+    "train --resume": ["train", "--resume", "{run}"],
+    "pretrain --force": ["pretrain", "--demos", "{demos}", "--preset", "smoke", "--out", "{run}", "--force"],
+    "demos --force": ["demos", ENV, "--episodes", "2", "--out", "{run}", "--force"],
+    "evaluate": ["evaluate", "{run}", "--episodes", "2"],
+    "compose": ["compose", "{run}", "--schedule", "0:5", "--episodes", "2"],
+    "segment": ["segment", "{run}"],
+    "video": ["video", "{run}", "--max-steps", "3"],
+    "report": ["report", "{run}", "--no-figures"],
+    "expert": ["expert", "Pendulum-v1", "--out", "{run}", "--steps", "64"],
+}
+
+
+@pytest.mark.parametrize("name", list(SECOND_WRITERS))
+def test_a_folder_another_command_writes_is_refused(name, runs, held_run, capsys):
+    """While another process writes a run folder, every command that would write it (--force included) is
+    refused in one sentence naming that process, and the folder is left as it is."""
+    run, holder = held_run
+    argv = [a.format(run=run, demos=runs / "demos", vae=runs / "vae", tmp=run.parent) for a in SECOND_WRITERS[name]]
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert main(argv) == 2, name
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"is being written by another digail command (process {holder.pid})" in err, err
+    assert _snapshot(run) == before
+    assert not _leftovers(run.parent)
+
+
+def test_a_lock_left_by_a_killed_process_blocks_nothing(held_run, capsys):
+    run, holder = held_run
+    holder.kill()
+    holder.wait()
+    assert (run / ".digail.lock").is_file()  # the file stays; the kernel dropped the lock with the process
+    assert main(["evaluate", str(run), "--episodes", "2"]) == 0, capsys.readouterr().err
+    assert (run / "eval.json").is_file() and not (run / ".digail.lock").exists()
+
+
+@pytest.mark.slow
+def test_two_trainings_forced_into_one_folder(runs, tmp_path):
+    """`digail train --out F --force` twice, the second started while the first trains: the second is refused
+    and writes nothing; the first finishes with its own metrics."""
+    out = tmp_path / "F"
+    argv = ["train", "--demos", str(runs / "demos"), "--vae", str(runs / "vae"), "--preset", "smoke", "--out",
+            str(out), "--force", "--train.iterations", "400"]
+    first = _digail(argv, stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 240
+    while not (out / ".digail.lock").exists():
+        assert first.poll() is None and time.monotonic() < deadline, "the first training never started"
+        time.sleep(0.05)
+    second = _digail(argv, stdout=subprocess.DEVNULL)
+    _, err = second.communicate(timeout=300)
+    assert second.returncode == 2, err
+    assert "is being written by another digail command" in err.strip().splitlines()[-1], err
+    _, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    rows = (out / "metrics.csv").read_text().splitlines()
+    iterations = [float(r.split(",")[rows[0].split(",").index("iteration")]) for r in rows[1:]]
+    assert iterations == [float(i) for i in range(1, 401)]
+    assert not (out / ".digail.lock").exists()

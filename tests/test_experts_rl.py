@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import pickle
+import tempfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -167,7 +170,7 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
         rollout = 200
     monkeypatch.setitem(ENV_SPECS, "Pendulum-v1", dataclasses.replace(pendulum, rl_expert=recipe))
     expert_command(ExpertArgs(env="Pendulum-v1", out=out, steps=rollout))
-    assert (out / "checkpoints" / f"step_{rollout}.zip").is_file()
+    assert (out / "checkpoints" / f"step_{rollout}.pt").is_file()
     first = json.loads((out / "eval.json").read_text())
     assert first["episodes"] == 50 and len(first["returns"]) == 50 and first["total_steps"] == rollout
     with pytest.raises(UserError, match="--resume"):
@@ -181,9 +184,9 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
     assert set(run_config(kind="expert", env_id=None, demos=None, seed=0)) <= set(config)
     assert (config["kind"], config["env_id"], config["steps"]) == ("expert", "Pendulum-v1", 2 * rollout)
     assert config["expert"]["algo"] == recipe.algo and config["args"]["resume"] is True
-    assert (out / "checkpoints" / f"step_{2 * rollout}.zip").is_file()
+    assert (out / "checkpoints" / f"step_{2 * rollout}.pt").is_file()
     if algo == "sac":
-        assert (out / "checkpoints" / f"step_{2 * rollout}.replay.pkl").is_file()
+        assert (out / "checkpoints" / f"step_{2 * rollout}.replay.npz").is_file()
         assert json.loads((out / "progress.json").read_text())["evals"][0]["steps"] == 150
     # the evaluation is reproducible: the same expert and seeds give the same returns
     again = evaluate_expert("Pendulum-v1", load_expert("Pendulum-v1", out / "best_expert.pt"), 50, 10_000)
@@ -251,3 +254,94 @@ def test_dataset_for_another_env_is_refused() -> None:
     ds = load_dataset("digail/pendulum/expert-v0")
     with pytest.raises(UserError, match="has observations of shape"):
         check_matches_env(ds, "digail/CircleWorld-v0")
+
+
+# ------------------------------------------------------------------------------------ pickle-free checkpoints
+MARKER = Path(tempfile.gettempdir()) / "digail-expert-pickle-ran"
+
+
+class _Hostile:
+    def __reduce__(self):  # noqa: ANN204  (creates MARKER when unpickled)
+        return os.system, (f"touch {MARKER}",)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_training_checkpoint_round_trip_is_exact(tmp_path: Path, algo: str) -> None:
+    """A checkpoint written without pickle gives a freshly built model the same weights, optimiser state,
+    normaliser statistics, replay buffer and counters."""
+    from digail.experts.sb3 import load_checkpoint, save_checkpoint
+
+    spec = PPO_GSDE if algo == "ppo" else spec_for("Pendulum-v1")
+    model, venv = build_sb3_model("Pendulum-v1", spec, seed=0, device="cpu")
+    rng = np.random.default_rng(1)
+    with torch.no_grad():
+        for p in model.policy.parameters():
+            p.add_(torch.as_tensor(rng.normal(size=tuple(p.shape)), dtype=p.dtype))
+    if algo == "ppo":
+        venv.obs_rms.mean, venv.obs_rms.var, venv.obs_rms.count = rng.normal(size=3), rng.uniform(1, 2, 3), 77.0
+    else:
+        buf = model.replay_buffer
+        for _ in range(5):
+            obs = rng.normal(size=(1, 3)).astype(np.float32)
+            buf.add(obs, obs + 1, rng.uniform(-2, 2, (1, 1)).astype(np.float32), np.ones(1, np.float32),
+                    np.zeros(1, bool), [{}])
+        with torch.no_grad():
+            model.log_ent_coef.fill_(-0.7)
+    model.num_timesteps, model._n_updates = 1234, 56
+    save_checkpoint(model, venv, tmp_path / "step_1234")
+    fresh, fresh_venv = build_sb3_model("Pendulum-v1", spec, seed=1, device="cpu")
+    load_checkpoint(fresh, fresh_venv, tmp_path / "step_1234.pt", "cpu")
+    for name, state in model.get_parameters().items():
+        got = fresh.get_parameters()[name]
+        if "optimizer" in name:
+            assert got["param_groups"] == state["param_groups"]
+            continue
+        assert state.keys() == got.keys()
+        for k in state:
+            torch.testing.assert_close(got[k], state[k], rtol=0, atol=0)
+    assert (fresh.num_timesteps, fresh._n_updates) == (1234, 56)
+    if algo == "ppo":
+        np.testing.assert_array_equal(fresh_venv.obs_rms.mean, venv.obs_rms.mean)
+        np.testing.assert_array_equal(fresh_venv.obs_rms.var, venv.obs_rms.var)
+        assert fresh_venv.obs_rms.count == 77.0
+    else:
+        assert (fresh.replay_buffer.pos, fresh.replay_buffer.full) == (5, False)
+        np.testing.assert_array_equal(fresh.replay_buffer.observations[:5], model.replay_buffer.observations[:5])
+        np.testing.assert_array_equal(fresh.replay_buffer.actions[:5], model.replay_buffer.actions[:5])
+        assert fresh.log_ent_coef.item() == pytest.approx(-0.7)
+
+
+def _plant(out: Path, kind: str) -> None:
+    """An expert folder whose checkpoint files hold a pickle that would run code."""
+    from digail.experts.sb3 import save_checkpoint
+
+    ckpt = out / "checkpoints"
+    ckpt.mkdir(parents=True)
+    (out / "progress.json").write_text(json.dumps({"env_id": "Pendulum-v1", "evals": []}))
+    hostile = pickle.dumps(_Hostile())
+    if kind == "checkpoint":
+        (ckpt / "step_100.pt").write_bytes(hostile)
+        return
+    model, venv = build_sb3_model("Pendulum-v1", spec_for("Pendulum-v1"), seed=0, device="cpu")
+    if kind == "replay buffer":  # a genuine checkpoint beside an .npz whose array unpickles
+        save_checkpoint(model, venv, ckpt / "step_100")
+        np.savez(ckpt / "step_100.replay.npz", observations=np.array([_Hostile()], dtype=object))
+    else:  # the format earlier versions wrote: SB3's zip and a pickled replay buffer
+        model.save(str(ckpt / "step_100.zip"))
+        (ckpt / "step_100.replay.pkl").write_bytes(hostile)
+
+
+@pytest.mark.parametrize("kind", ["checkpoint", "replay buffer", "old format"])
+def test_expert_resume_runs_no_pickle(tmp_path: Path, capsys: pytest.CaptureFixture[str], kind: str) -> None:
+    """`digail expert --resume` on a folder whose checkpoint files would run code when unpickled: nothing runs,
+    one sentence, exit status 2."""
+    out = tmp_path / "expert"
+    _plant(out, kind)
+    MARKER.unlink(missing_ok=True)
+    capsys.readouterr()
+    assert main(["expert", "Pendulum-v1", "--out", str(out), "--resume", "--steps", "2000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert not MARKER.exists(), "a pickle in the checkpoint folder ran"
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert {"checkpoint": "corrupt", "replay buffer": "not plain arrays", "old format": "older"}[kind] in err, err
+    assert not (out / "config.json").exists() and not (out / "wall_before_resume.txt").exists()

@@ -61,6 +61,19 @@ def _usage() -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `digail` console script; returns the exit status."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # the reader went away (`digail ... | head`): stop quietly, as a Unix tool killed by SIGPIPE does, and
+        # point the standard streams at /dev/null so that the interpreter's final flush does not complain
+        with contextlib.suppress(OSError, ValueError):
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            for stream in (sys.stdout, sys.stderr):
+                os.dup2(devnull, stream.fileno())
+        return 128 + signal.SIGPIPE
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(_usage())
@@ -94,13 +107,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if exc.errno not in _DISK_ERRORS:
             raise
         where = f" at {exc.filename}" if exc.filename else ""
-        print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; free some space, fix the "
-              "permissions or choose another --out.", file=sys.stderr)
+        fix = ("raise the file-size limit (`ulimit -f`) or choose another --out" if exc.errno == errno.EFBIG
+               else "free some space, fix the permissions or choose another --out")
+        print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; {fix}.", file=sys.stderr)
         return 2
     return 0
 
 
-_DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+_DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
 """OSErrors of the disk rather than of the program: reported as one sentence, exit 2"""
 
 

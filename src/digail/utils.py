@@ -8,6 +8,7 @@ import json
 import os
 import random
 import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -86,6 +87,21 @@ def check_writable(path: Path, flag: str = "--out") -> None:
     if free < MIN_FREE_BYTES:
         raise UserError(f"only {free // 2**20} MiB free where {path} would be written; free some space or choose "
                         f"another {flag}.")
+    limit = file_size_limit()
+    if limit is not None and limit < MIN_FREE_BYTES:
+        # checked up front: HDF5 (the datasets' format) crashes instead of reporting a write past the limit
+        raise UserError(f"a file-size limit of {limit // 1024} KiB is in force (`ulimit -f`), too small for "
+                        f"what {path} will hold; raise it or run without it.")
+
+
+def file_size_limit() -> int | None:
+    """The largest file this process may write, in bytes (`ulimit -f`), or None when unlimited or unknown."""
+    try:
+        import resource
+    except ImportError:  # not on this platform
+        return None
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
 def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
@@ -96,6 +112,7 @@ def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
     if path.exists() and not force:
         what = "folder" if path.is_dir() else "file"
         raise UserError(f"output {what} {path} already exists; choose another --out or pass --force{hint}.")
+    check_not_locked(path)  # --force never replaces a folder another command is writing
     check_writable(path)
 
 
@@ -115,16 +132,101 @@ def remove_path(path: Path) -> None:
         path.unlink()
 
 
-def fresh_dir(path: Path, force: bool, hint: str = "") -> Path:
-    """Create the output folder `path` for a command that writes in place (resumable training): refused when it
-    exists without `force`; with `force`, whatever was there (old eval.json, segmentation.json, a file) goes
-    first, so nothing old sits beside the new results."""
+LOCK_FILE = ".digail.lock"
+"""the file inside a run folder that a command writing the folder holds an exclusive `flock` on"""
+_HELD: dict[str, int] = {}
+"""run folders this process holds (real path -> the lock file's descriptor)"""
+
+
+@contextlib.contextmanager
+def run_dir_lock(folder: Path) -> Iterator[Path]:
+    """Hold the existing run folder `folder` for writing while the block runs: one writer per folder.
+
+    An exclusive `flock` on `folder/.digail.lock`, so a second command that would write the same folder (a
+    `train --force` on a live run, an `evaluate` during a training) is refused in one sentence instead of
+    clobbering it. The kernel drops the lock when its process dies, so a lock file left by a killed process
+    blocks nothing; the file is removed on release. Re-entrant within a process; a no-op where `fcntl` does not
+    exist."""
+    folder = Path(folder)
+    key = os.path.realpath(folder)
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no locking
+        yield folder
+        return
+    if key in _HELD:
+        yield folder
+        return
+    fd = _lock_file(folder, fcntl)
+    _HELD[key] = fd
+    try:
+        yield folder
+    finally:
+        del _HELD[key]
+        with signals_deferred():
+            if _same_file(fd, folder / LOCK_FILE):  # still ours (the folder may have been swapped away)
+                with contextlib.suppress(OSError):
+                    os.unlink(folder / LOCK_FILE)
+            os.close(fd)
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        st, fst = os.stat(path), os.fstat(fd)
+    except OSError:
+        return False
+    return (st.st_ino, st.st_dev) == (fst.st_ino, fst.st_dev)
+
+
+def _lock_file(folder: Path, fcntl: Any) -> int:
+    path = folder / LOCK_FILE
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # held by a live process
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            os.close(fd)
+            who = f" (process {holder})" if holder.isdigit() else ""
+            raise UserError(f"{folder} is being written by another digail command{who}; wait for it to finish "
+                            "or choose another folder.") from None
+        except OSError:  # a filesystem without locks (some network mounts): written as before, unguarded
+            return fd
+        # the previous holder removes the file on release: a lock taken on a file no longer in place is retried
+        if _same_file(fd, path):
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            return fd
+        os.close(fd)
+
+
+def check_not_locked(folder: Path) -> None:
+    """Refuse, in one sentence, a folder another process is writing (`run_dir_lock`); takes no lock."""
+    if Path(folder).is_dir() and not Path(folder).is_symlink():
+        with run_dir_lock(folder):
+            pass
+
+
+@contextlib.contextmanager
+def fresh_dir(path: Path, force: bool, hint: str = "") -> Iterator[Path]:
+    """Create the output folder `path` for a command that writes in place (resumable training) and hold it
+    (`run_dir_lock`) while the block runs: refused when it exists without `force`; with `force`, whatever was
+    there (old eval.json, segmentation.json, a file) goes first, so nothing old sits beside the new results,
+    unless another command is writing it."""
     path = Path(path)
     check_new_dir(path, force, hint)
-    if path.exists() or path.is_symlink():
+    if force and (path.is_symlink() or (path.exists() and not path.is_dir())):
         remove_path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    try:
+        path.mkdir(parents=True, exist_ok=force)
+    except FileExistsError:  # made by another command since the check
+        raise UserError(f"output folder {path} already exists; choose another --out or pass --force{hint}.") \
+            from None
+    with run_dir_lock(path):
+        for child in path.iterdir():  # --force: the old files go, the lock stays
+            if child.name != LOCK_FILE:
+                remove_path(child)
+        yield path
 
 
 @contextlib.contextmanager
@@ -147,21 +249,31 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
         with signals_deferred():
             shutil.rmtree(tmp, ignore_errors=True)
         raise
-    with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
-        old = None
-        try:
-            if final.exists() or final.is_symlink():
-                old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
-                os.replace(final, old / "x")  # out of the way first, so a failure never loses both
-            os.replace(tmp, final)
-        except BaseException:
-            if old is not None and (old / "x").exists() and not final.exists():
-                os.replace(old / "x", final)
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        finally:
-            if old is not None:
-                remove_path(old)
+    if (final.exists() or final.is_symlink()) and not force:  # made by another command meanwhile
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise UserError(f"output {final} appeared while this command ran; choose another --out or pass --force.")
+    with contextlib.ExitStack() as held:
+        if final.is_dir() and not final.is_symlink():
+            try:
+                held.enter_context(run_dir_lock(final))  # a folder another command is writing is never swapped away
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
+            old = None
+            try:
+                if final.exists() or final.is_symlink():
+                    old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+                    os.replace(final, old / "x")  # out of the way first, so a failure never loses both
+                os.replace(tmp, final)
+            except BaseException:
+                if old is not None and (old / "x").exists() and not final.exists():
+                    os.replace(old / "x", final)
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            finally:
+                if old is not None:
+                    remove_path(old)
 
 
 @contextlib.contextmanager
@@ -221,13 +333,52 @@ def one_line(exc: BaseException) -> str:
     return text.rstrip(".") if text else type(exc).__name__
 
 
-def progress_bar(total: int, enabled: bool, desc: str = "VAE", unit: str = "epoch") -> Any:
-    """A tqdm bar for a long loop (None when `enabled` is False)."""
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
+PROGRESS_INTERVAL_S = 0.5
+"""seconds between redraws of a progress bar on a terminal"""
+PROGRESS_LOG_INTERVAL_S = 60.0
+"""seconds between progress lines off a terminal (a log file, CI, nohup, a job scheduler)"""
 
-    return tqdm(total=total, desc=desc, unit=unit, mininterval=0.5, dynamic_ncols=True)
+
+class _LineStream:
+    """What tqdm writes, as one line per update: off a terminal a carriage-return redraw piles up on one
+    never-ending line of the log, where a line per update reads (and greps) as a log does."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        line = text.replace("\r", "").rstrip()
+        if line:
+            self.stream.write(line + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(total: int, enabled: bool = True, desc: str = "VAE", unit: str = "epoch", initial: int = 0) -> Any:
+    """The tqdm bar of a long loop (disabled, drawing nothing, when `enabled` is False).
+
+    On a terminal it redraws every `PROGRESS_INTERVAL_S`. Off one (stderr is a file or a pipe) it writes a line
+    at its start, at most one every `PROGRESS_LOG_INTERVAL_S` and one at its end, rather than a redraw twice a
+    second that fills a log with thousands of updates. Set postfixes with `refresh=False`: a forced refresh
+    would draw on every call."""
+    import sys
+
+    from tqdm.auto import tqdm
+    from tqdm.autonotebook import tqdm as chosen
+
+    stream = sys.stderr
+    interactive = stream is not None and hasattr(stream, "isatty") and stream.isatty()
+    notebook = chosen.__module__ == "tqdm.notebook"  # a Jupyter widget, which draws in place
+    enabled = enabled and total > 0  # a loop over nothing (e.g. no VAE epochs before the polish) shows nothing
+    if interactive or notebook or not enabled:
+        return tqdm(total=total, initial=initial, desc=desc, unit=unit, mininterval=PROGRESS_INTERVAL_S,
+                    dynamic_ncols=True, disable=not enabled)
+    # miniters=1: the clock is read at every update, so a line comes once a minute whatever the pace (tqdm's
+    # adaptive skipping would delay it when the loop slows down, and its monitor thread would add extra lines)
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=_LineStream(stream), miniters=1,
+                mininterval=PROGRESS_LOG_INTERVAL_S)
 
 
 def ensure_offscreen_gl() -> str:
@@ -241,6 +392,38 @@ def ensure_offscreen_gl() -> str:
         has_osmesa = ctypes.util.find_library("OSMesa") is not None
         os.environ["MUJOCO_GL"] = "egl" if has_egl or not has_osmesa else "osmesa"
     return os.environ["MUJOCO_GL"]
+
+
+MUJOCO_GL_VALUES = ("egl", "osmesa", "glfw", "glx", "disable", "disabled", "off", "false", "0", "enable", "enabled",
+                    "on", "true", "1", "")
+"""what MuJoCo accepts in `MUJOCO_GL` on Linux (anything else fails its import)"""
+
+
+def mujoco_gl_error(render_error: BaseException | None = None) -> UserError | None:
+    """Why MuJoCo cannot start (or, given the exception, render) under this process's `MUJOCO_GL`, as one
+    `UserError` sentence; None when it imports and no `render_error` is given.
+
+    MuJoCo reads the variable when first imported and fails with a RuntimeError (an unknown value) or an
+    AttributeError deep in PyOpenGL (osmesa without its library); with another PyOpenGL platform already chosen
+    in the process it imports and fails at the first frame instead. Callers that see either turn it into this
+    sentence."""
+    gl = os.environ.get("MUJOCO_GL", "")
+    value = gl.lower().strip()
+    fix = "unset MUJOCO_GL (digail then picks egl, or osmesa where only it is installed) or set it to egl"
+    problem = render_error
+    try:
+        import mujoco  # noqa: F401
+    except Exception as exc:  # noqa: BLE001  (any failure of the import means the same to the user)
+        problem = exc
+    if problem is None:
+        return None
+    if sys.platform.startswith("linux") and value not in MUJOCO_GL_VALUES:
+        return UserError(f"MUJOCO_GL={gl!r} is not a renderer MuJoCo knows (egl, osmesa, glfw); {fix}.")
+    if value in ("osmesa", "egl") and ctypes.util.find_library("OSMesa" if value == "osmesa" else "EGL") is None:
+        return UserError(f"MUJOCO_GL={value} but the {'OSMesa' if value == 'osmesa' else 'EGL'} library is not "
+                         f"installed; install it or {fix.replace(' or set it to egl', '')}.")
+    return UserError(f"MuJoCo cannot {'render' if problem is render_error else 'start'} with MUJOCO_GL={gl!r} "
+                     f"({type(problem).__name__}: {one_line(problem)}); {fix}.")
 
 
 def die_with_parent() -> None:

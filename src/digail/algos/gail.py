@@ -34,7 +34,7 @@ from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
-from digail.utils import seed_everything
+from digail.utils import progress_bar, seed_everything
 
 RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
 """(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
@@ -265,16 +265,13 @@ class GAIL:
         scalars are logged as `eval/*` at the current env step. It must not draw from the trainer's generators
         (a deterministic closed-loop evaluation on its own envs does not), so evaluating leaves training as is.
         """
-        from tqdm import tqdm
-
         total = self.cfg.iterations if iterations is None else iterations
         self._total_iterations = total
         if self.run_dir is not None and self._logger is None:
             # a resumed run continues its metrics at the checkpoint: rows the stopped run logged later go
             self._logger = ScalarLogger(self.run_dir, resume_step=self.global_step)
         last: dict[str, float] = {}
-        bar = tqdm(total=total, initial=self.iteration, disable=not self.progress, desc=self.method,
-                   dynamic_ncols=True)
+        bar = progress_bar(total, self.progress, desc=self.method, unit="it", initial=self.iteration)
         start_step, t_start = self.global_step, time.perf_counter()
         every = self.cfg.eval_every
         try:
@@ -286,9 +283,10 @@ class GAIL:
             while self.iteration < total:
                 last = self.iterate()
                 sps = (self.global_step - start_step) / max(time.perf_counter() - t_start, 1e-9)
-                bar.update(1)
                 bar.set_postfix(steps=self.global_step, sps=f"{sps:.0f}", ret=f"{last['rollout/ep_return']:.2f}",
-                                d_acc=f"{last['disc/accuracy']:.2f}", bonus=f"{last['rollout/bonus']:.2f}")
+                                d_acc=f"{last['disc/accuracy']:.2f}", bonus=f"{last['rollout/bonus']:.2f}",
+                                refresh=False)  # drawn by update(), on its schedule
+                bar.update(1)
                 if evaluate is not None and every > 0 and (self.iteration % every == 0 or self.iteration == total):
                     last.update({f"eval/{k}": float(v) for k, v in evaluate(self.model).items()})
                     self.model.train()

@@ -95,8 +95,8 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
             p.grad = g
         adam_step()
         if bar is not None and step % 200 == 0:
-            bar.update(min(200, steps - step))
             bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
+            bar.update(min(200, steps - step))
     if bar is not None:
         bar.close()
     if not all(torch.isfinite(p).all() for p in params):

@@ -307,9 +307,9 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
         history["vae/tau"].append(tau)
         history["time/s"].append(time.perf_counter() - start)
         if bar is not None:
-            bar.update(1)
             bar.set_postfix(recon=f"{sums['losses/recon']:.3f}", kl=f"{sums['losses/kl']:.3f}",
                             smooth=f"{sums['losses/smooth']:.3f}", tau=f"{tau:.2f}", refresh=False)
+            bar.update(1)
     if bar is not None:
         bar.close()
     return model.eval(), history

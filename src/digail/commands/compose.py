@@ -37,18 +37,19 @@ def compose_command(args: ComposeArgs) -> dict[str, Any]:
     from digail.checkpoint import load_model
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.eval.composition import compose, episode_limit, parse_schedule
-    from digail.utils import write_json
+    from digail.utils import run_dir_lock, write_json
     from digail.viz.run_figures import composition_figure
 
     run = check_output_folder(args.run)
-    model, meta = load_model(run / "model.pt")
-    env_id = run_env_id(run, meta)
-    pairs = parse_schedule(args.schedule, model.codes, episode_limit(env_id))
-    result, eps = compose(model, env_id, pairs, args.episodes, args.seed)
-    result["schedule"] = args.schedule
-    fig = composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in eps], run / "figures" / "compose.png",
-                             args.schedule)
-    result["figure"] = str(fig)
-    write_json(run / "compose.json", result)
-    print_eval_summary(result)
+    with run_dir_lock(run):  # one writer per run folder
+        model, meta = load_model(run / "model.pt")
+        env_id = run_env_id(run, meta)
+        pairs = parse_schedule(args.schedule, model.codes, episode_limit(env_id))
+        result, eps = compose(model, env_id, pairs, args.episodes, args.seed)
+        result["schedule"] = args.schedule
+        fig = composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in eps],
+                                 run / "figures" / "compose.png", args.schedule)
+        result["figure"] = str(fig)
+        write_json(run / "compose.json", result)
+        print_eval_summary(result)
     return result

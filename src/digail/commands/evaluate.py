@@ -37,19 +37,20 @@ def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.envs.registry import preset_for
     from digail.eval.returns import evaluate
-    from digail.utils import write_json
+    from digail.utils import run_dir_lock, write_json
 
     run = check_output_folder(args.run)
-    model, meta = load_model(run / "model.pt")
-    env_id = run_env_id(run, meta)
-    episodes = args.episodes if args.episodes is not None else preset_for(env_id).eval_episodes
-    result = evaluate(model, env_id, episodes, args.seed, not args.stochastic)
-    result["kind"] = meta.get("kind")
-    write_json(run / "eval.json", result)
-    print_eval_summary(result)
-    if args.video:
-        from digail.viz.video import record_video
+    with run_dir_lock(run):  # one writer per run folder
+        model, meta = load_model(run / "model.pt")
+        env_id = run_env_id(run, meta)
+        episodes = args.episodes if args.episodes is not None else preset_for(env_id).eval_episodes
+        result = evaluate(model, env_id, episodes, args.seed, not args.stochastic)
+        result["kind"] = meta.get("kind")
+        write_json(run / "eval.json", result)
+        print_eval_summary(result)
+        if args.video:
+            from digail.viz.video import record_video
 
-        mp4, gif = record_video(model, env_id, run / "videos" / "eval.mp4", seed=args.seed)
-        print(f"video: {mp4} and {gif}")
+            mp4, gif = record_video(model, env_id, run / "videos" / "eval.mp4", seed=args.seed)
+            print(f"video: {mp4} and {gif}")
     return result

@@ -3,6 +3,7 @@ over methods and seeds."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,7 @@ class ReportArgs:
 
 def report_command(args: ReportArgs) -> Path:
     """Write the page; returns its path."""
+    from digail.utils import run_dir_lock
     from digail.viz.report import write_compare_report, write_report
 
     if not args.runs:
@@ -48,17 +50,35 @@ def report_command(args: ReportArgs) -> Path:
         folder = Path(args.runs[0])
         sweep = len(args.runs) == 1 and not (folder / "config.json").exists()
         out = args.out or (folder if sweep else _common_parent(runs)) / "compare.html"
+        check_page_path(out)
         page = write_compare_report(runs, out)
         print(f"compared {len(runs)} runs: {page}")
         return page
     if len(args.runs) != 1:
         raise UserError(f"got {len(args.runs)} run folders; pass one, or add --compare for a comparison page.")
     run = Path(args.runs[0])
-    if args.figures and (run / "model.pt").exists():
-        make_figures(run, unsmoothed=args.unsmoothed)
-    page = write_report(run, args.out)
+    if not (run / "config.json").is_file():
+        raise UserError(f"{run} is not a run folder (it has no config.json); pass a folder made by `digail run`, "
+                        "`digail train` or `digail pretrain`.")
+    if args.out is not None:
+        check_page_path(args.out)
+    # one writer per run folder: its figures and its page are written into it
+    with run_dir_lock(run) if args.figures or args.out is None else contextlib.nullcontext():
+        if args.figures and (run / "model.pt").exists():
+            make_figures(run, unsmoothed=args.unsmoothed)
+        page = write_report(run, args.out)
     print(f"report: {page}")
     return page
+
+
+def check_page_path(out: Path) -> None:
+    """Refuse, before anything is drawn, an --out that names a folder or cannot be written."""
+    from digail.utils import check_writable
+
+    out = Path(out)
+    if out.is_dir():
+        raise UserError(f"--out {out} is a folder; name the page to write, e.g. {out / 'compare.html'}.")
+    check_writable(out)
 
 
 def find_runs(paths: tuple[Path, ...] | list[Path], depth: int = 3) -> list[Path]:
@@ -84,8 +104,11 @@ def _demo_codes(run: Path) -> list[np.ndarray] | None:
     path = run / "codes.npz"
     if not path.exists():
         return None
-    with np.load(path) as z:
-        return [z[k] for k in sorted(z.files)]
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return [z[k] for k in sorted(z.files)]
+    except (OSError, ValueError):  # unreadable, or object arrays that would need pickle: segment again
+        return None
 
 
 def make_figures(run: Path, *, model: Any = None, trajs: Any = None, unsmoothed: Path | None = None,

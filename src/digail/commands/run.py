@@ -20,7 +20,15 @@ import tyro
 
 from digail.config import check_at_least, check_seed
 from digail.errors import UserError
-from digail.utils import check_writable, fresh_dir, remove_path, resolve_device, set_torch_threads, write_json
+from digail.utils import (
+    check_writable,
+    fresh_dir,
+    remove_path,
+    resolve_device,
+    run_dir_lock,
+    set_torch_threads,
+    write_json,
+)
 
 
 @dataclass(frozen=True)
@@ -132,22 +140,9 @@ def _demonstrations(env_id: str, run_dir: Path, seed: int, demos: str | None = N
 
 def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
-    from digail.algos.directed_info_gail import build_trainer
-    from digail.algos.vae_pretrain import auto_epochs, pretrain
-    from digail.checkpoint import load_model, path_ref, run_config, save_model, write_run_config
     from digail.commands.common import new_run_dir
-    from digail.commands.report import make_figures
-    from digail.commands.train import TrainArgs
-    from digail.config import to_dict
-    from digail.data.validation import check_matches_env
     from digail.envs import make_env
-    from digail.envs.registry import env_spec, init_pieces_fn, preset_for
-    from digail.eval.composition import compose, episode_limit, parse_schedule, schedule_in_codes
-    from digail.eval.returns import evaluate
-    from digail.eval.segmentation import write_segmentation
-    from digail.nets.policy import ActionSpec
-    from digail.viz.report import BEFORE_POLISH, write_report
-    from digail.viz.video import record_video
+    from digail.envs.registry import preset_for
 
     set_torch_threads(1)
     resuming = False
@@ -160,10 +155,32 @@ def run_command(args: RunArgs) -> Path:
     if resuming:
         run_dir = Path(args.out or ".")
         check_writable(run_dir, "run folder")
+        held = run_dir_lock(run_dir)
         print(f"resuming {run_dir}")
     else:
         run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run")
-        fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
+        held = fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
+    with held:  # the folder is this command's until the end: a second writer is refused, --force included
+        return _run_stages(args, run_dir, resuming, preset, device)
+
+
+def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, device: Any) -> Path:
+    """Every stage of `run_command` in its (held) run folder; finished stages of an interrupted run are kept."""
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.algos.vae_pretrain import auto_epochs, pretrain
+    from digail.checkpoint import load_model, path_ref, run_config, save_model, write_run_config
+    from digail.commands.report import make_figures
+    from digail.commands.train import TrainArgs
+    from digail.config import to_dict
+    from digail.data.validation import check_matches_env
+    from digail.envs.registry import env_spec, init_pieces_fn
+    from digail.eval.composition import compose, episode_limit, parse_schedule, schedule_in_codes
+    from digail.eval.returns import evaluate
+    from digail.eval.segmentation import write_segmentation
+    from digail.nets.policy import ActionSpec
+    from digail.viz.report import BEFORE_POLISH, write_report
+    from digail.viz.video import record_video
+
     cfg = replace(preset.train, method="digail")
     vae_dir = run_dir / "vae"
     run_args = replace(args, out=run_dir.resolve(), resume=None, force=False, demos=path_ref(args.demos))

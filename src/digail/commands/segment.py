@@ -34,26 +34,28 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     from digail.commands.common import check_output_folder
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
+    from digail.utils import run_dir_lock
 
     run, demos = check_output_folder(args.run), args.demos
-    model, meta = load_model(run)
-    if demos is None:
-        config = read_config(run) or meta["config"]
-        demos = config.get("demos")
-        if not demos:
-            raise UserError(f"{run} does not record its demonstrations; pass --demos.")
-    dataset = load_dataset(demos)
-    if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
-        raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
-                        "demonstrations; pass demonstrations of the model's environment.")
-    if args.label_map is not None:
-        labels = {int(v) for t in dataset.trajs if t.subtasks is not None for v in set(t.subtasks.tolist())}
-        if not labels:
-            raise UserError(f"{demos} has no oracle labels to merge; drop --label-map.")
-        if min(labels) < 0 or max(labels) >= len(args.label_map):
-            raise UserError(f"--label-map gives {len(args.label_map)} labels but {demos} has labels "
-                            f"{min(labels)} to {max(labels)}; give one number per oracle label.")
-    metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos), label_map=args.label_map)
-    print(summary_line(metrics))
-    print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
+    with run_dir_lock(run):  # one writer per run folder
+        model, meta = load_model(run)
+        if demos is None:
+            config = read_config(run) or meta["config"]
+            demos = config.get("demos")
+            if not demos:
+                raise UserError(f"{run} does not record its demonstrations; pass --demos.")
+        dataset = load_dataset(demos)
+        if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
+            raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
+                            "demonstrations; pass demonstrations of the model's environment.")
+        if args.label_map is not None:
+            labels = {int(v) for t in dataset.trajs if t.subtasks is not None for v in set(t.subtasks.tolist())}
+            if not labels:
+                raise UserError(f"{demos} has no oracle labels to merge; drop --label-map.")
+            if min(labels) < 0 or max(labels) >= len(args.label_map):
+                raise UserError(f"--label-map gives {len(args.label_map)} labels but {demos} has labels "
+                                f"{min(labels)} to {max(labels)}; give one number per oracle label.")
+        metrics = write_segmentation(run, model, dataset.trajs, demos=str(demos), label_map=args.label_map)
+        print(summary_line(metrics))
+        print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
     return metrics

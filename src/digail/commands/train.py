@@ -63,7 +63,7 @@ def train_command(args: TrainArgs) -> Path:
     from digail.algos.directed_info_gail import build_trainer
     from digail.checkpoint import path_ref, run_config, write_run_config
     from digail.commands.common import new_run_dir
-    from digail.utils import check_writable, fresh_dir, resolve_device, set_torch_threads
+    from digail.utils import check_writable, fresh_dir, resolve_device, run_dir_lock, set_torch_threads
 
     set_torch_threads(1)
     run_dir = None
@@ -91,27 +91,27 @@ def train_command(args: TrainArgs) -> Path:
         run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force, resume_command="train")
     else:
         check_writable(run_dir, "run folder")
-    trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
-                            device=device)
-    ckpt = run_dir / "checkpoint.pt"
-    if args.resume is not None:
-        if ckpt.exists():
-            trainer.load_checkpoint(ckpt)
-            print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
-        else:
-            print(f"no checkpoint in {run_dir} yet: its training starts again from iteration 0")
     config = run_config(kind=cfg.method, env_id=env_id, demos=args.demos, seed=args.seed, preset=args.preset,
                         device=args.device, train=cfg, vae_run=args.vae,
                         args=replace(args, train=cfg, env=env_id, demos=path_ref(args.demos) or "",
                                      vae=None if args.vae is None else Path(args.vae).resolve()))
-    if args.resume is None:
-        fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
-        write_run_config(run_dir, config)
-    trainer.model_config = config
-    trainer.run_dir = run_dir
+    trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
+                            device=device)
+    ckpt = run_dir / "checkpoint.pt"
     try:
-        trainer.train(evaluate=periodic_evaluation(env_id, cfg))
-        trainer.save_checkpoint(ckpt)
+        # the folder is this command's while it trains: a second writer is refused, --force included
+        with run_dir_lock(run_dir) if args.resume is not None else fresh_dir(run_dir, args.force):
+            if args.resume is None:
+                write_run_config(run_dir, config)
+            elif ckpt.exists():
+                trainer.load_checkpoint(ckpt)
+                print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
+            else:
+                print(f"no checkpoint in {run_dir} yet: its training starts again from iteration 0")
+            trainer.model_config = config
+            trainer.run_dir = run_dir
+            trainer.train(evaluate=periodic_evaluation(env_id, cfg))
+            trainer.save_checkpoint(ckpt)
     finally:
         trainer.close()
     print(f"run folder: {run_dir}")

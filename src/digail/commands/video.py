@@ -8,6 +8,10 @@ from typing import Annotated, Literal
 
 import tyro
 
+from digail.config import check_at_least, check_seed
+from digail.errors import UserError
+from digail.utils import check_writable, run_dir_lock
+
 
 @dataclass(frozen=True)
 class VideoArgs:
@@ -31,33 +35,43 @@ class VideoArgs:
     search: int = 200
     """with --outcome: episodes to try (played without frames) before giving up"""
 
+    def __post_init__(self) -> None:
+        check_at_least(self.episodes, "--episodes")
+        check_at_least(self.max_steps, "--max-steps")
+        check_at_least(self.search, "--search")
+        check_seed(self.seed, count=max(self.episodes, self.search if self.outcome != "any" else 1))
+        if self.name is not None and (self.name in ("", ".", "..") or Path(self.name).name != self.name
+                                      or "\\" in self.name):
+            raise UserError(f"--name must be a plain file name without folders, got {self.name!r}; the video is "
+                            "always written to RUN/videos.")
+
 
 def video_command(args: VideoArgs) -> tuple[Path, Path]:
     """Write RUN/videos/<name>.mp4 and .gif; returns their paths."""
     from digail.checkpoint import load_model
-    from digail.commands.common import run_env_id
-    from digail.errors import UserError
+    from digail.commands.common import check_output_folder, run_env_id
     from digail.eval.composition import CodeSchedule, parse_schedule
     from digail.viz.video import find_outcome, record_video
 
-    run = Path(args.run)
-    if args.episodes < 1:
-        raise UserError(f"--episodes must be at least 1, got {args.episodes}.")
-    model, meta = load_model(run / "model.pt")
-    env_id = run_env_id(run, meta)
-    if args.search < 1:
-        raise UserError(f"--search must be at least 1, got {args.search}.")
-    schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
-    seed = args.seed
-    if args.outcome != "any":
-        if schedule is not None or args.episodes != 1:
-            raise UserError("--outcome picks one closed-loop episode: drop --schedule and --episodes.")
-        seed = find_outcome(model, env_id, args.outcome == "success", args.seed, args.search, args.max_steps)
-    name = args.name or ("composed" if schedule is not None else "closed_loop" if args.outcome == "any"
-                         else args.outcome)
-    mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=seed, episodes=args.episodes,
-                            schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
-                            max_steps=args.max_steps)
-    print(f"wrote {mp4} and {gif}" + (f" (seed {seed}, {args.outcome})" if args.outcome != "any" else ""))
+    run = check_output_folder(args.run)
+    videos = run / "videos"
+    if videos.exists() and not videos.is_dir():
+        raise UserError(f"{videos} is a file, not a folder; move it away to record videos into it.")
+    check_writable(videos, "run folder")
+    with run_dir_lock(run):  # one writer per run folder
+        model, meta = load_model(run / "model.pt")
+        env_id = run_env_id(run, meta)
+        schedule = CodeSchedule(parse_schedule(args.schedule, model.codes)) if args.schedule else None
+        seed = args.seed
+        if args.outcome != "any":
+            if schedule is not None or args.episodes != 1:
+                raise UserError("--outcome picks one closed-loop episode: drop --schedule and --episodes.")
+            seed = find_outcome(model, env_id, args.outcome == "success", args.seed, args.search, args.max_steps)
+        name = args.name or ("composed" if schedule is not None else "closed_loop" if args.outcome == "any"
+                             else args.outcome)
+        mp4, gif = record_video(model, env_id, run / "videos" / f"{name}.mp4", seed=seed, episodes=args.episodes,
+                                schedule=schedule, label=f"schedule {args.schedule}" if args.schedule else "",
+                                max_steps=args.max_steps)
+        print(f"wrote {mp4} and {gif}" + (f" (seed {seed}, {args.outcome})" if args.outcome != "any" else ""))
     return mp4, gif
 

@@ -16,7 +16,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from digail.data.minari_io import SUBTASK_KEY, flatten_dict_obs, load_dataset, minari_root
 from digail.data.minari_write import write_dataset
@@ -27,7 +26,7 @@ from digail.envs.episodes import play_episode
 from digail.envs.registry import env_spec
 from digail.errors import UserError
 from digail.experts import Policy, expert_for
-from digail.utils import check_new_dir
+from digail.utils import check_new_dir, progress_bar
 
 
 def default_dataset_id(env_id: str) -> str:
@@ -59,8 +58,8 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
 
     trajs: list[Trajectory] = []
     returns: list[float] = []
-    bar = tqdm(range(episodes), desc=desc, unit="ep", disable=not progress)
-    for i in bar:
+    bar = progress_bar(episodes, progress, desc=desc, unit="ep")
+    for i in range(episodes):
         ep = play_episode(env, act, seed + i, keep=True)
         labels = [info.get(SUBTASK_KEY) for info in ep.infos]
         trajs.append(Trajectory(
@@ -71,7 +70,9 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
             terminated=ep.terminated,
         ))
         returns.append(float(np.sum(ep.rews)))
-        bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=ep.length)
+        bar.set_postfix(ret=f"{returns[-1]:.2f}", mean=f"{np.mean(returns):.2f}", steps=ep.length, refresh=False)
+        bar.update(1)
+    bar.close()
     return trajs
 
 

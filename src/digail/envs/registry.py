@@ -16,7 +16,7 @@ import numpy as np
 
 from digail.config import Preset, TrainConfig, VAEConfig, get_preset
 from digail.errors import UserError
-from digail.utils import one_line
+from digail.utils import mujoco_gl_error, one_line
 
 
 @dataclass(frozen=True)
@@ -250,6 +250,11 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
                 from exc
         except gym.error.Error as exc:
             raise UserError(f"could not create environment {env_id!r}: {one_line(exc)}.") from exc
+        except (RuntimeError, AttributeError, ImportError, OSError) as exc:
+            gl = mujoco_gl_error()  # a MuJoCo env whose renderer setting stops MuJoCo from loading
+            if gl is not None:
+                raise gl from exc
+            raise
     raise AssertionError("unreachable")
 
 
@@ -260,6 +265,11 @@ def _register_robotics() -> bool:
             import gymnasium_robotics
     except ImportError:
         return False
+    except (RuntimeError, AttributeError, OSError) as exc:  # it imports MuJoCo, which reads MUJOCO_GL
+        gl = mujoco_gl_error()
+        if gl is not None:
+            raise gl from exc
+        raise
     gym.register_envs(gymnasium_robotics)
     return True
 

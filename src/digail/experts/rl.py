@@ -7,9 +7,12 @@ step of the whole project on a CPU.
 
 Two formats live side by side:
 
-* **Training checkpoints** (`OUT/checkpoints/step_<N>.zip` + `step_<N>.vecnormalize.pkl` for PPO,
-  `step_<N>.replay.pkl` (the replay buffer) for SAC): SB3's own format, with the value or Q nets, the
-  optimiser state and the running statistics, used only by `--resume`.
+* **Training checkpoints** (`OUT/checkpoints/step_<N>.pt` + `step_<N>.vecnormalize.npz` for PPO,
+  `step_<N>.replay.npz` (the replay buffer) for SAC), used only by `--resume`: the state_dicts of every net
+  and optimiser (value or Q nets included) and the counters as tensors and plain data, loaded with
+  `torch.load(..., weights_only=True)`, and the running statistics and the buffer as arrays, loaded with
+  `np.load(..., allow_pickle=False)`. SB3's own `.zip`/`.pkl` files are not used: they unpickle on load, so a
+  file planted in the folder could run code. The model is rebuilt from its recipe and then given these.
 * **Shipped experts** (`*.pt`): the deterministic actor alone, exported as a plain state_dict together with
   the observation statistics, the env id, the action bounds and the algorithm (`algo`; SAC's adds `squash`,
   a tanh-squashed mean), loaded with `torch.load(..., weights_only=True)`. They are tiny, pickle-free and

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import re
@@ -13,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.checkpoint import run_config, write_run_config
+from digail.checkpoint import load_weights, run_config, write_run_config
 from digail.config import to_dict
 from digail.envs.registry import ExpertSpec
 from digail.errors import UserError
@@ -25,14 +26,144 @@ from digail.experts.recipes import (
     safe_name,
     spec_for,
 )
-from digail.utils import resolve_device, set_torch_threads, write_json
+from digail.utils import (
+    atomic_write_bytes,
+    one_line,
+    progress_bar,
+    resolve_device,
+    run_dir_lock,
+    set_torch_threads,
+    write_json,
+)
 
-_STEP_RE = re.compile(r"step_(\d+)\.zip$")
+_STEP_RE = re.compile(r"step_(\d+)\.pt$")
+CHECKPOINT_FORMAT = "digail-sb3-checkpoint"
+"""`format` of a training checkpoint (`checkpoints/step_<N>.pt`)"""
+REPLAY_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts")
+"""the arrays of SB3's `ReplayBuffer` a SAC checkpoint keeps (their filled rows)"""
 
 
 def _checkpoints(folder: Path) -> list[tuple[int, Path]]:
-    found = [(int(m.group(1)), p) for p in folder.glob("step_*.zip") if (m := _STEP_RE.search(p.name))]
+    found = [(int(m.group(1)), p) for p in folder.glob("step_*.pt") if (m := _STEP_RE.search(p.name))]
     return sorted(found)
+
+
+def _companions(ckpt: Path) -> tuple[Path, Path]:
+    """The normaliser statistics (PPO) and the replay buffer (SAC) files beside a checkpoint."""
+    return ckpt.with_suffix(".vecnormalize.npz"), ckpt.with_suffix(".replay.npz")
+
+
+def _npz_bytes(arrays: dict[str, Any]) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, allow_pickle=False, **{k: np.asarray(v) for k, v in arrays.items()})
+    return buf.getvalue()
+
+
+def save_checkpoint(model: Any, venv: Any, stem: Path) -> Path:
+    """Write a resumable training checkpoint without pickle: `stem.pt` holds the state_dicts (networks and
+    optimisers, as SB3's `get_parameters` names them), SAC's entropy coefficient and the counters, saved as
+    tensors and plain data; PPO's `VecNormalize` statistics go to `stem.vecnormalize.npz` and SAC's replay
+    buffer (its filled rows) to `stem.replay.npz`. Returns the .pt path."""
+    import torch
+
+    ckpt = stem.with_suffix(".pt")
+    stats, replay = _companions(ckpt)
+    if hasattr(venv, "obs_rms"):
+        atomic_write_bytes(stats, _npz_bytes({
+            "obs_mean": venv.obs_rms.mean, "obs_var": venv.obs_rms.var, "obs_count": np.float64(venv.obs_rms.count),
+            "ret_mean": venv.ret_rms.mean, "ret_var": venv.ret_rms.var, "ret_count": np.float64(venv.ret_rms.count)}))
+    buffer = getattr(model, "replay_buffer", None)
+    if buffer is not None:
+        filled = buffer.buffer_size if buffer.full else buffer.pos
+        arrays = {k: getattr(buffer, k)[:filled] for k in REPLAY_ARRAYS if getattr(buffer, k, None) is not None}
+        atomic_write_bytes(replay, _npz_bytes({**arrays, "pos": np.int64(buffer.pos), "full": np.bool_(buffer.full)}))
+    ent = getattr(model, "log_ent_coef", None)
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "algo": "sac" if buffer is not None else "ppo",
+        "params": model.get_parameters(),
+        "log_ent_coef": ent.detach().cpu() if isinstance(ent, torch.Tensor) else None,
+        "num_timesteps": int(model.num_timesteps),
+        "n_updates": int(getattr(model, "_n_updates", 0)),
+        "episode_num": int(getattr(model, "_episode_num", 0)),
+    }
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    atomic_write_bytes(ckpt, buf.getvalue())  # last: a checkpoint is complete once its .pt exists
+    return ckpt
+
+
+def _read_npz(path: Path, what: str) -> dict[str, np.ndarray]:
+    """The arrays of an .npz, read without pickle; every failure one sentence."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise UserError(f"the {what} file {path} is missing; restore it or start the expert again without "
+                        "--resume.") from None
+    except Exception as exc:  # truncated, not an npz, or object arrays (which would need pickle)
+        raise UserError(f"the {what} file {path} is corrupt or not plain arrays ({type(exc).__name__}); restore "
+                        "it or start the expert again without --resume.") from None
+
+
+def load_checkpoint(model: Any, venv: Any, ckpt: Path, device: str) -> None:
+    """Restore what `save_checkpoint` wrote into a freshly built `model` and its `venv` (the same recipe):
+    `torch.load(..., weights_only=True)` and `np.load(..., allow_pickle=False)` only, every failure one
+    sentence."""
+    import torch
+
+    def broken(why: str) -> UserError:
+        return UserError(f"training checkpoint {ckpt} {why}; restore it or start the expert again without --resume.")
+
+    payload = load_weights(ckpt, "training checkpoint", device)  # weights_only: a hostile pickle runs nothing
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise broken("is not a digail expert checkpoint")
+    algo = "sac" if getattr(model, "replay_buffer", None) is not None else "ppo"
+    if payload.get("algo") != algo:
+        raise broken(f"was written by {payload.get('algo')!r}, not by this recipe's {algo!r}")
+    try:
+        model.set_parameters(payload["params"], exact_match=True, device=device)
+        ent = getattr(model, "log_ent_coef", None)
+        if isinstance(ent, torch.Tensor) and payload.get("log_ent_coef") is not None:
+            with torch.no_grad():
+                ent.copy_(payload["log_ent_coef"])  # in place: the entropy optimiser holds this tensor
+        model.num_timesteps = int(payload["num_timesteps"])
+        model._n_updates = int(payload["n_updates"])
+        model._episode_num = int(payload["episode_num"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise broken(f"does not fit this recipe's networks ({type(exc).__name__})") from None
+    stats, replay = _companions(ckpt)
+    if hasattr(venv, "obs_rms"):
+        z = _read_npz(stats, "normaliser statistics")
+        try:
+            for rms, key in ((venv.obs_rms, "obs"), (venv.ret_rms, "ret")):
+                mean, var = np.asarray(z[f"{key}_mean"], np.float64), np.asarray(z[f"{key}_var"], np.float64)
+                if mean.shape != np.shape(rms.mean) or var.shape != np.shape(rms.var):
+                    raise ValueError(f"{key} statistics of shape {mean.shape}")
+                rms.mean, rms.var, rms.count = mean, var, float(z[f"{key}_count"])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise UserError(f"the normaliser statistics {stats} do not fit this env ({one_line(exc)}); restore "
+                            "them or start the expert again without --resume.") from None
+    buffer = getattr(model, "replay_buffer", None)
+    if buffer is not None and replay.is_file():  # without it, training resumes with an empty buffer
+        z = _read_npz(replay, "replay buffer")
+        try:
+            filled = 0
+            for k in REPLAY_ARRAYS:
+                dst = getattr(buffer, k, None)
+                if dst is None:
+                    continue
+                src = z[k]
+                if src.shape[1:] != dst.shape[1:] or len(src) > len(dst):
+                    raise ValueError(f"{k} of shape {src.shape}")
+                dst[:len(src)] = src
+                filled = len(src)
+            buffer.pos, buffer.full = int(z["pos"]), bool(z["full"])
+            if buffer.pos > filled or buffer.pos >= buffer.buffer_size:
+                raise ValueError(f"position {buffer.pos}")
+        except (KeyError, ValueError, TypeError) as exc:
+            raise UserError(f"the replay buffer {replay} does not fit this recipe ({one_line(exc)}); restore it or "
+                            "start the expert again without --resume.") from None
 
 
 def _learning_rate(value: Any) -> Any:
@@ -76,22 +207,10 @@ def build_sb3_model(env_id: str, spec: ExpertSpec, seed: int, device: str) -> tu
     return model, venv
 
 
-def _load_model(env_id: str, spec: ExpertSpec, zip_path: Path, seed: int, device: str) -> tuple[Any, Any]:
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    if spec.algo == "sac":
-        venv = _make_vec_env(env_id, spec, seed)
-        sac = SAC.load(str(zip_path), env=venv, device=device)
-        replay = zip_path.with_suffix(".replay.pkl")
-        if replay.is_file():  # without it, training resumes with an empty buffer
-            sac.load_replay_buffer(str(replay))
-        return sac, venv
-    stats = str(zip_path.with_suffix(".vecnormalize.pkl"))
-    venv = VecNormalize.load(stats, _make_vec_env(env_id, spec, seed))
-    venv.training = True
-    custom = {"learning_rate": _learning_rate(spec.ppo.get("learning_rate", 3e-4))}
-    model = PPO.load(str(zip_path), env=venv, device=device, custom_objects=custom)
+def _load_model(env_id: str, spec: ExpertSpec, ckpt: Path, seed: int, device: str) -> tuple[Any, Any]:
+    """The recipe's model rebuilt fresh, then given the checkpoint's weights, statistics and buffer."""
+    model, venv = build_sb3_model(env_id, spec, seed, device)
+    load_checkpoint(model, venv, ckpt, device)
     return model, venv
 
 
@@ -99,7 +218,6 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
                        t_start: float) -> Any:
     """SB3 callback: progress bar, resumable checkpoints, periodic evaluation, best export, early stop."""
     from stable_baselines3.common.callbacks import BaseCallback
-    from tqdm import tqdm
 
     class _Callback(BaseCallback):
         def __init__(self) -> None:
@@ -111,8 +229,7 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
 
         def _on_training_start(self) -> None:
             done = self.num_timesteps
-            self.bar = tqdm(total=total, initial=done, unit="step", dynamic_ncols=True, desc=env_id,
-                            mininterval=5.0)
+            self.bar = progress_bar(total, desc=env_id, unit="step", initial=done)
             self.next_ckpt = (done // spec.checkpoint_every + 1) * spec.checkpoint_every
             self.next_eval = (done // spec.eval_every + 1) * spec.eval_every
             state_file = out / "progress.json"
@@ -163,19 +280,12 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
         def _checkpoint(self) -> None:
             ckpt_dir = out / "checkpoints"
             ckpt_dir.mkdir(parents=True, exist_ok=True)
-            stem = ckpt_dir / f"step_{self.num_timesteps}"
-            model: Any = self.model
-            model.save(str(stem) + ".zip")
-            if spec.algo == "sac":
-                model.save_replay_buffer(str(stem) + ".replay.pkl")
-            else:
-                vec_normalize: Any = self.training_env  # a VecNormalize, which adds save()
-                vec_normalize.save(str(stem) + ".vecnormalize.pkl")
+            save_checkpoint(self.model, self.training_env, ckpt_dir / f"step_{self.num_timesteps}")
             self._save_progress()
             for _, old in _checkpoints(ckpt_dir)[:-2]:  # keep the last two
                 old.unlink(missing_ok=True)
-                old.with_suffix(".vecnormalize.pkl").unlink(missing_ok=True)
-                old.with_suffix(".replay.pkl").unlink(missing_ok=True)
+                for companion in _companions(old):
+                    companion.unlink(missing_ok=True)
 
         def _on_training_end(self) -> None:
             self._checkpoint()
@@ -229,19 +339,29 @@ def train_expert(args: ExpertRun) -> Path:
     existing = _checkpoints(ckpt_dir) if ckpt_dir.is_dir() else []
     if args.resume:
         if not existing:
-            raise UserError(f"nothing to resume in {out}: no checkpoints/step_*.zip; drop --resume to start "
+            old = " (its step_*.zip checkpoints are of an older, pickle-based format that is no longer loaded)" \
+                if ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip")) else ""
+            raise UserError(f"nothing to resume in {out}: no checkpoints/step_*.pt{old}; drop --resume to start "
                             "anew.")
         progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
         if progress.get("env_id", args.env) != args.env:
             raise UserError(f"{out} holds an expert for {progress['env_id']!r}, not {args.env!r}; "
                             "resume with the same env or choose another --out.")
+    elif existing or (out / "expert.pt").exists() or (ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip"))):
+        raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
+                        "another --out.")
+    out.mkdir(parents=True, exist_ok=True)
+    with run_dir_lock(out):  # one writer per expert folder: a second `digail expert` on it is refused
+        return _train_in(args, spec, out, total, device, existing[-1][1] if args.resume else None)
+
+
+def _train_in(args: ExpertRun, spec: ExpertSpec, out: Path, total: int, device: str, ckpt: Path | None) -> Path:
+    """`train_expert` in its checked and held folder, from the checkpoint `ckpt` or from scratch."""
+    if ckpt is not None:
+        model, _ = _load_model(args.env, spec, ckpt, args.seed, device)
+        progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
         (out / "wall_before_resume.txt").write_text(str(progress.get("wall_s", 0.0)))
-        model, _ = _load_model(args.env, spec, existing[-1][1], args.seed, device)
     else:
-        if existing or (out / "expert.pt").exists():
-            raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
-                            "another --out.")
-        out.mkdir(parents=True, exist_ok=True)
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
         model, _ = build_sb3_model(args.env, spec, args.seed, device)
     # the one run-folder schema (`kind` "expert"), with the budget and the recipe it trained with

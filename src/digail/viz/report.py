@@ -297,12 +297,13 @@ def headline(run_dir: Path) -> str:
     comp = _load(run_dir / "compose.json")
     env = str(cfg.get("env_id") or ev.get("env_id") or "an unknown environment")
     method = METHOD_NAMES.get(str(cfg.get("method") or cfg.get("kind")), str(cfg.get("method") or "a model"))
-    train = cfg.get("train") or {}
+    train: Mapping[str, Any] = cfg["train"] if isinstance(cfg.get("train"), Mapping) else {}
     steps = _total_steps(run_dir)
-    what = (f"{method} on {env_name(env)} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
+    # every piece read from the folder is escaped: a run folder from elsewhere must not put markup in the page
+    what = (f"{_esc(method)} on {_esc(env_name(env))} (<code>{_esc(env)}</code>), seed {_esc(cfg.get('seed', 0))}"
             + (f", preset <code>{_esc(cfg['preset'])}</code>" if cfg.get("preset") else "")
-            + (f", {fmt(train['iterations'], 'int')} training iterations" if train.get("iterations") else "")
-            + (f" ({fmt(steps, 'int')} environment steps)" if steps else "") + ".")
+            + (f", {_esc(fmt(train['iterations'], 'int'))} training iterations" if train.get("iterations") else "")
+            + (f" ({_esc(fmt(steps, 'int'))} environment steps)" if steps else "") + ".")
     rows: list[list[str]] = []
     if ev:
         expert = ev.get("expert") or {}
@@ -322,7 +323,7 @@ def headline(run_dir: Path) -> str:
     if isinstance(comp.get("order_reversed_rate"), int | float):
         rows.append([f"composed ({comp.get('schedule', 'schedule')}): reversed order drawn",
                      fmt(comp["order_reversed_rate"], "pct"), "–", "–"])
-    episodes = f" over {fmt(ev['episodes'], 'int')} closed-loop episodes" if ev.get("episodes") else ""
+    episodes = f" over {_esc(fmt(ev['episodes'], 'int'))} closed-loop episodes" if ev.get("episodes") else ""
     header = ["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"]
     if paper_return(env) is None:
         header, rows = header[:3], [r[:3] for r in rows]
@@ -461,6 +462,7 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
         groups.setdefault(key, []).append(r)
     out = Path(out)
     fig_path = out.with_name(out.stem + "_learning_curves.png")
+    existed = fig_path.exists()
     fig = learning_curves_multi(groups, fig_path)
     keys = ["mean_return", "normalized_return", *TASK_KEYS]
     present = [k for k in keys if any(isinstance(ev.get(k), int | float) for _, ev, _ in info.values())]
@@ -495,5 +497,10 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
                      + "<figcaption>Mean over seeds (line) and min–max over seeds (band) against environment steps."
                      "</figcaption></figure>")
     parts.append("<h2>Every run</h2>" + _table(header[:1] + ["seed"] + header[2:] + ["run folder"], per_seed))
-    atomic_write_bytes(out, _page("digail comparison", "".join(parts)).encode())
+    try:
+        atomic_write_bytes(out, _page("digail comparison", "".join(parts)).encode())
+    except BaseException:
+        if fig is not None and not existed:  # no figure left beside a page that was never written
+            fig_path.unlink(missing_ok=True)
+        raise
     return out

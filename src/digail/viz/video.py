@@ -11,6 +11,11 @@ Each video is written twice: an MP4 (H.264 through imageio-ffmpeg) to download, 
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import os
+import sys
+import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import ensure_offscreen_gl
+from digail.utils import ensure_offscreen_gl, mujoco_gl_error, one_line
 
 GIF_WIDTH = 320
 """Largest GIF width in pixels (frames are shrunk, never enlarged)."""
@@ -73,12 +78,12 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     def act(envs: list[Any], obs: list[Any], eps: list[Episode]) -> Any:
         """The frame of the state the code and action are chosen in, then the policy's action."""
         if render:
-            frames.append(np.asarray(env.render()))
+            frames.append(_frame(env))
         return policy(envs, obs, eps)
 
     def done(ep: Episode) -> None:
         if render:
-            frames.append(np.asarray(env.render()))
+            frames.append(_frame(env))
         out.append(RenderedEpisode(frames=list(frames), codes=ep.codes, obs=[np.asarray(o) for o in ep.obs],
                                    ret=ep.ret, final_info=dict(ep.final_info)))
         frames.clear()
@@ -91,6 +96,28 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     finally:
         env.close()
     return out
+
+
+def _frame(env: Any) -> np.ndarray:
+    """`env.render()` as an array; a MuJoCo env that cannot draw under this `MUJOCO_GL` is one sentence."""
+    try:
+        return np.asarray(env.render())
+    except (ImportError, RuntimeError, AttributeError, OSError) as exc:
+        base = type(env.unwrapped)
+        if "mujoco" not in f"{base.__module__}.{base.__name__}".lower():
+            raise
+        error = mujoco_gl_error(exc) or exc
+        # the viewer Gymnasium half-built before the failure complains from its __del__ once collected: let go of
+        # it here (the traceback's frames hold it), with that complaint silenced, so the sentence stays alone
+        hook = sys.unraisablehook
+        sys.unraisablehook = lambda _: None
+        try:
+            traceback.clear_frames(exc.__traceback__)
+            del exc
+            gc.collect()
+        finally:
+            sys.unraisablehook = hook
+    raise error from None
 
 
 def find_outcome(model: Any, env_id: str, success: bool, seed: int = 10_000, search: int = 200,
@@ -162,9 +189,9 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
     if not frames:
         raise ValueError("no frames to write")
     stem = Path(stem)
+    created = not stem.parent.exists()
     stem.parent.mkdir(parents=True, exist_ok=True)
     mp4, gif = stem.with_suffix(".mp4"), stem.with_suffix(".gif")
-    imageio.mimsave(mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
     small: list[Any] = []
     gif_stride = max(gif_stride, -(-len(frames) // GIF_MAX_FRAMES))
     for f in frames[::max(1, gif_stride)]:
@@ -172,7 +199,24 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
         if img.width > GIF_WIDTH:
             img = img.resize((GIF_WIDTH, round(img.height * GIF_WIDTH / img.width)), Image.Resampling.LANCZOS)
         small.append(np.asarray(img))
-    imageio.mimsave(gif, small, duration=1000 * max(1, gif_stride) / fps, loop=0)
+    # both go to temporary names first and are renamed once both are complete: no half-written video is left
+    tmp_mp4, tmp_gif = (stem.with_name(f".{stem.name}.tmp-{os.getpid()}{ext}") for ext in (".mp4", ".gif"))
+    try:
+        try:
+            imageio.mimsave(tmp_mp4, [_pad16(f) for f in frames], fps=fps, macro_block_size=1)
+        except (BrokenPipeError, RuntimeError) as exc:  # ffmpeg stopped: its message says why
+            raise UserError(f"ffmpeg could not write {mp4} ({one_line(exc).splitlines()[0][:200]}); check that "
+                            "the folder is writable and has free space.") from None
+        imageio.mimsave(tmp_gif, small, duration=1000 * max(1, gif_stride) / fps, loop=0)
+        os.replace(tmp_mp4, mp4)
+        os.replace(tmp_gif, gif)
+    except BaseException:
+        for tmp in (tmp_mp4, tmp_gif):
+            tmp.unlink(missing_ok=True)
+        if created:
+            with contextlib.suppress(OSError):
+                stem.parent.rmdir()  # the folder made for this video, now empty again
+        raise
     return mp4, gif
 
 
