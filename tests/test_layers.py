@@ -1,4 +1,4 @@
-"""The import layers of DESIGN.md hold (import-linter's contract in pyproject.toml): a new cycle fails CI."""
+"""The import layers of docs/design.md hold (import-linter's contract in pyproject.toml): a new cycle fails CI."""
 
 from __future__ import annotations
 

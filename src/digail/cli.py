@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import importlib
 import os
 import re
 import signal
 import sys
 from collections.abc import Iterator, Sequence
+from types import ModuleType
 from typing import Any
 
 import tyro
@@ -37,9 +37,60 @@ COMMANDS: dict[str, tuple[str, str]] = {
 """subcommand -> (argument dataclass, function) in the module `digail.commands.<subcommand>`"""
 
 
+def _module(name: str) -> ModuleType:
+    """The module of subcommand `name`, imported only now (a command's heavy imports wait until it runs). Each
+    import is written out, not built from a string, so that the layer contract sees `cli` above `commands`."""
+    match name:
+        case "demos":
+            from digail.commands import demos
+
+            return demos
+        case "pretrain":
+            from digail.commands import pretrain
+
+            return pretrain
+        case "segment":
+            from digail.commands import segment
+
+            return segment
+        case "train":
+            from digail.commands import train
+
+            return train
+        case "evaluate":
+            from digail.commands import evaluate
+
+            return evaluate
+        case "compose":
+            from digail.commands import compose
+
+            return compose
+        case "run":
+            from digail.commands import run
+
+            return run
+        case "expert":
+            from digail.commands import expert
+
+            return expert
+        case "video":
+            from digail.commands import video
+
+            return video
+        case "report":
+            from digail.commands import report
+
+            return report
+        case "sweep":
+            from digail.commands import sweep
+
+            return sweep
+    raise KeyError(name)
+
+
 def _command(name: str) -> tuple[Any, Any, Any]:
     """The argument class, the function and the optional `defaults(argv)` of subcommand `name`."""
-    module = importlib.import_module(f"digail.commands.{name}")
+    module = _module(name)
     args_cls, fn = COMMANDS[name]
     return getattr(module, args_cls), getattr(module, fn), getattr(module, "defaults", None)
 

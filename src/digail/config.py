@@ -295,7 +295,7 @@ class TrainConfig:
     replay_fraction: float = 0.5
     """share of envs whose codes replay q's segmentation of a random expert demonstration; the rest closed-loop"""
     closed_loop_codes: Literal["sample", "argmax"] = "sample"
-    """closed-loop envs: sample c_t ~ q (DESIGN.md) or take argmax q, what evaluation and segmentation do"""
+    """closed-loop envs: sample c_t ~ q (docs/design.md) or take argmax q, what evaluation and segmentation do"""
     bc_weight: float = 0.0
     """weight of the BC / L2 term on expert (s, c_E) -> a_E (paper's Fetch experiment); 0 disables it"""
     anchor_weight: float = 0.0

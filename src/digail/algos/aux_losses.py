@@ -4,15 +4,12 @@ pairs (the paper's Fetch experiment) and the anchor to the initial policy."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 
+from digail.algos.batch import PPOBatch
 from digail.algos.expert_data import ExpertData
 from digail.nets.policy import SubtaskPolicy
-
-if TYPE_CHECKING:  # ppo_update recognises `AnchorLoss`, so ppo's modules import this one
-    from digail.algos.ppo import PPOBatch
 
 
 def bc_loss(pi: SubtaskPolicy, expert: ExpertData, eye: torch.Tensor, batch_size: int, gen: torch.Generator, *,

@@ -29,7 +29,7 @@ class DirectedInfoGAIL(GAIL):
     lambda_1 * log q. As a reward, log q(c_t | s_t, c_{t-1}) scores the state s_t, so it is credited to the
     transition (s_{t-1}, a_{t-1}) that produced s_t. The authors' released code subtracted it; we do not.
 
-    Code sources per env (DESIGN.md): the first `round(replay_fraction * N)` envs replay q's causal segmentation
+    Code sources per env (docs/design.md): the first `round(replay_fraction * N)` envs replay q's causal segmentation
     of a random expert demonstration (samples of p(c^{1:t})), continued closed-loop past its end; the others
     sample c_t ~ q(. | s_t, c_{t-1}) on their own states.
     """

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, cast
 
 import numpy as np
 import torch
 
 from digail.algos.aux_losses import AnchorLoss
+from digail.algos.batch import PPOBatch
 from digail.algos.ppo_grad import PPOGrad
 from digail.config import PPOConfig
 from digail.nets.critic import ValueNet
@@ -40,21 +40,6 @@ def compute_gae(rews: torch.Tensor, values: torch.Tensor, terminated: torch.Tens
         adv_np[t] = gae
     adv = torch.from_numpy(adv_np).to(rews.device)
     return adv, adv + values
-
-
-@dataclass(frozen=True)
-class PPOBatch:
-    """Flattened rollout: `b_` tensors of length B (obs already normalised, codes one-hot)."""
-
-    obs: torch.Tensor
-    codes: torch.Tensor
-    acts: torch.Tensor
-    logp: torch.Tensor
-    adv: torch.Tensor
-    returns: torch.Tensor
-
-    def __len__(self) -> int:
-        return len(self.obs)
 
 
 def minibatch_loss(policy: SubtaskPolicy, value: ValueNet, x_pi: torch.Tensor, x_v: torch.Tensor,
