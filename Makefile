@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 TORCH := torch==2.13.0
 PINS := "gymnasium[mujoco,classic-control]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
 
-.PHONY: demo test test-slow test-all bench lint venv clean
+.PHONY: demo test test-slow test-all bench lint venv clean presets-doc
 
 $(BIN)/activate:
 	$(PY) -m venv $(VENV)
@@ -37,6 +37,10 @@ bench: venv
 	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py
 	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --env digail/FetchPickAndPlace-v4 --rounds 3 \
 		--out benchmarks/throughput_fetch.json
+
+# docs/presets.md from src/digail/presets/*.toml (tests/test_presets.py checks it is up to date)
+presets-doc: venv
+	$(BIN)/python scripts/presets_doc.py
 
 lint: venv
 	$(BIN)/ruff check src tests benchmarks

@@ -182,3 +182,17 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, decoder_
                     assert int(b["codes"][t + 1, i]) == code, (i, t)
     # the replayed episodes really replay (first half), the others follow q
     assert trainer.n_replay == N // 2 and all(d >= 0 for i in range(N // 2) for d in demo_of[i])
+
+
+def test_every_log_std_clamp_uses_the_policy_bounds() -> None:
+    """The TorchScript gradients repeat `LOG_STD_BOUNDS` (they cannot read module constants): the same range."""
+    import inspect
+    import re
+
+    from digail.algos import polish, ppo_grad, vae_grad
+    from digail.nets.policy import LOG_STD_BOUNDS
+
+    for module in (ppo_grad, vae_grad, polish):
+        found = re.findall(r"clamp\(\s*(-?[\d.]+)\s*,\s*(-?[\d.]+)\s*\)", inspect.getsource(module))
+        assert found, f"{module.__name__} no longer clamps a log-std: drop it from this check"
+        assert {(float(a), float(b)) for a, b in found} == {LOG_STD_BOUNDS}, module.__name__

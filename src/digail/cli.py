@@ -123,6 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     cls, handler, defaults = _command(name)
+    rest = _renamed_flags(name, rest, getattr(_module(name), "ALIASES", {}))
     try:
         with _terminate_as_interrupt():
             default = defaults(rest) if defaults is not None else None
@@ -146,6 +147,19 @@ def main(argv: Sequence[str] | None = None) -> int:
               "permissions or choose another --out.", file=sys.stderr)
         return 2
     return 0
+
+
+def _renamed_flags(name: str, argv: list[str], aliases: dict[str, str]) -> list[str]:
+    """`argv` with a command's old flag spellings (`ALIASES` in its module: old -> new) replaced by the new ones,
+    each announced once on stderr."""
+    out = []
+    for tok in argv:
+        flag, eq, value = tok.partition("=")
+        if flag in aliases:
+            print(f"digail {name}: {flag} is deprecated; use {aliases[flag]}.", file=sys.stderr)
+            tok = aliases[flag] + eq + value
+        out.append(tok)
+    return out
 
 
 _DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}

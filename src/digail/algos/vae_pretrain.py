@@ -193,8 +193,6 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
         `losses/recon`, `losses/kl`, `losses/smooth` (per-step averages over the epoch), `vae/tau`, `time/s`.
     """
-    if cfg.codes < 1 or cfg.batch_size < 1:
-        raise UserError("VAE settings need codes >= 1 and batch_size >= 1.")
     obs_dim, action_spec = check_demos(trajs, action_spec)
     dev = resolve_device(str(device))
     if cfg.decoder_obs is not None and not 0 <= cfg.decoder_obs[0] < cfg.decoder_obs[1] <= obs_dim:

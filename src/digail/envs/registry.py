@@ -77,7 +77,8 @@ class EnvSpec:
     env_id: str
     """Gymnasium id"""
     preset: str
-    """name of its settings preset in `digail.config.PRESETS` (paper Table 3)"""
+    """name of its settings preset (`src/digail/presets/<name>.toml`; `paper-<name>`, where there is one, holds the
+    paper's own)"""
     demo_episodes: int
     """demonstrations `digail demos` records by default (the paper's dataset size)"""
     entry_point: str | None = None
@@ -215,12 +216,12 @@ def tracked_info_keys(env: gym.Env | str | None) -> tuple[str, ...]:
 
 def preset_for(env_id: str | None, name: str | None = None) -> Preset:
     """The preset called `name`, else the one of `env_id`'s entry (the defaults for an env without one)."""
+    spec = ENV_SPECS.get(env_id or "")
     if name is None:
-        spec = ENV_SPECS.get(env_id or "")
         if spec is None:
             return Preset(VAEConfig(), TrainConfig())
         name = spec.preset
-    return get_preset(name)
+    return get_preset(name, spec.preset if spec is not None else None)
 
 
 def register_envs() -> None:

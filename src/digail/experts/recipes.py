@@ -7,14 +7,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from digail.config import FINAL_EVAL_SEED as FINAL_EVAL_SEED  # where the experts module has always offered it
 from digail.envs.registry import ExpertSpec, env_spec, rl_expert_envs
 from digail.errors import UserError
 
 EXPERT_FORMAT = "digail-expert-v1"
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 FINAL_EVAL_EPISODES = 50
-FINAL_EVAL_SEED = 10_000
-"""seed of the first final-evaluation episode (episode i uses seed + i); never used for training"""
 PERIODIC_EVAL_SEED = 5_000
 
 
