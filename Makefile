@@ -33,10 +33,12 @@ test-slow: venv
 test-all: venv
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q
 
+# measures into runs/bench/ (untracked); publishing a measurement is a deliberate copy into benchmarks/results/
 bench: venv
-	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py
+	mkdir -p runs/bench
+	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --out runs/bench/throughput.json
 	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --env digail/FetchPickAndPlace-v4 --rounds 3 \
-		--out benchmarks/throughput_fetch.json
+		--out runs/bench/throughput_fetch.json
 
 # docs/presets.md from src/digail/presets/*.toml (tests/test_presets.py checks it is up to date)
 presets-doc: venv
