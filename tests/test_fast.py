@@ -5,10 +5,10 @@ import pytest
 import torch
 
 from digail.algos.directed_info_gail import DirectedInfoGAIL
+from digail.algos.fast.inference import ActorCritic, CodeMLP, log_softmax
 from digail.config import PPOConfig, TrainConfig
 from digail.envs import make_env
 from digail.nets.critic import ValueNet
-from digail.nets.fast import ActorCritic, CodeMLP, log_softmax
 from digail.nets.mlp import one_hot
 from digail.nets.policy import ActionSpec, SubtaskPolicy
 from digail.nets.vae import HierarchicalPolicy, MacroPolicy
@@ -189,7 +189,8 @@ def test_every_log_std_clamp_uses_the_policy_bounds() -> None:
     import inspect
     import re
 
-    from digail.algos import polish, ppo_grad, vae_grad
+    from digail.algos import polish
+    from digail.algos.fast import ppo_grad, vae_grad
     from digail.nets.policy import LOG_STD_BOUNDS
 
     for module in (ppo_grad, vae_grad, polish):

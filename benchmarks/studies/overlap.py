@@ -3,7 +3,8 @@
     python benchmarks/studies/overlap.py [--env Hopper-v5] [--num-envs 8] [--steps 256] [--rounds 5]
 
 Two rollout loops on the subprocess backend, the same total envs and the rollout's per-step inference (q, then pi
-and V on NumPy snapshots, `digail.nets.fast`, of an untrained 4-code model; speed does not depend on the weights):
+and V on NumPy snapshots, `digail.algos.fast.inference`, of an untrained 4-code model; speed does not depend on
+the weights):
 - `lockstep`: one `SubprocVecEnv` of N envs (one worker per core); each step the main process infers for all N,
   then waits for all N to step (the trainer's loop);
 - `halves`: two `SubprocVecEnv`s of N/2 envs (half the workers each); while one half steps, the main process infers
@@ -37,9 +38,9 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
+    from digail.algos.fast.inference import ActorCritic, CodeMLP
     from digail.envs.vector import SubprocVecEnv, cpu_count
     from digail.nets.critic import ValueNet
-    from digail.nets.fast import ActorCritic, CodeMLP
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
 
