@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 TORCH := torch==2.13.0
 PINS := "gymnasium[mujoco,classic-control]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
 
-.PHONY: demo test test-slow test-all bench lint docs venv clean
+.PHONY: demo test test-slow test-all bench lint docs venv clean presets-doc hashes table1 table2 readme-tables segmentation-table
 
 $(BIN)/activate:
 	$(PY) -m venv $(VENV)
@@ -33,10 +33,36 @@ test-slow: venv
 test-all: venv
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q
 
+# measures into runs/bench/ (untracked); publishing a measurement is a deliberate copy into benchmarks/results/
 bench: venv
-	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py
+	mkdir -p runs/bench
+	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --out runs/bench/throughput.json
 	MUJOCO_GL=egl $(BIN)/python benchmarks/throughput.py --env digail/FetchPickAndPlace-v4 --rounds 3 \
-		--out benchmarks/throughput_fetch.json
+		--out runs/bench/throughput_fetch.json
+
+# behaviour fingerprint (sha256 of weights and metrics of short fixed-seed runs): equal before and after a refactor
+hashes: venv
+	MUJOCO_GL=egl $(BIN)/python benchmarks/hashes.py --out runs/hashes
+
+# Generators of the published tables: each rewrites its file under benchmarks/results/ (and its README table) from
+# the runs or sweeps its docstring names; run one on purpose, then commit what changed.
+SWEEPS ?= runs/sweeps
+table1: venv
+	$(BIN)/python benchmarks/table1.py summarize
+	$(BIN)/python benchmarks/table1.py readme
+
+table2: venv
+	$(BIN)/python benchmarks/table2.py $(SWEEPS)/table2
+
+readme-tables: venv
+	$(BIN)/python benchmarks/readme_tables.py $(SWEEPS)/results-fourrooms $(SWEEPS)/results-circleworld
+
+segmentation-table: venv
+	MUJOCO_GL=egl $(BIN)/python benchmarks/segmentation.py
+
+# docs/presets.md from src/digail/presets/*.toml (tests/test_presets.py checks it is up to date)
+presets-doc: venv
+	$(BIN)/python scripts/presets_doc.py
 
 lint: venv
 	$(BIN)/ruff check src tests benchmarks

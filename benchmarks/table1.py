@@ -52,6 +52,8 @@ from typing import Any
 
 import numpy as np
 
+from digail import paper
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent / "runs" / "table1"
 OUT = HERE / "results" / "table1.json"
@@ -67,12 +69,8 @@ ENVS: dict[str, dict[str, Any]] = {
     "walker2d": dict(env="Walker2d-v5", demos="digail/walker2d/expert-v0", budget=3_000_000, batch=8192,
                      eval_every=12),
 }
-PAPER = {  # the paper's Table 1 (v0 / v2 envs): mean +- std return over 300 episodes; it reports no expert row
-    "pendulum": {"gail": (-121.42, 94.13), "vae": (-142.89, 95.57), "digail": (-125.39, 103.75)},
-    "invertedpendulum": {"gail": (1000.0, 15.23), "vae": (218.8, 7.95), "digail": (1000.0, 14.97)},
-    "hopper": {"gail": (3623.4, 51.0), "vae": (499.1, 86.2), "digail": (3662.1, 21.7)},
-    "walker2d": {"gail": (4858.0, 301.7), "vae": (1549.5, 793.7), "digail": (5083.9, 356.3)},
-}
+PAPER = {name: paper.table("table1")[spec["env"]] for name, spec in ENVS.items()}
+"""the paper's Table 1 (`digail/paper.toml`): mean +- std return over 300 episodes; it reports no expert row"""
 BC_WEIGHT = 1.0
 METHODS = {
     "vae": [],

@@ -2,7 +2,8 @@
 
     python benchmarks/throughput.py [--env Hopper-v5] [--num-envs 8] [--batch 4096] [--iterations 3] [--rounds 5]
 
-Writes benchmarks/throughput.json with environment steps per second:
+Writes runs/bench/throughput.json (`--out`; what `make bench` runs; the published measurements are
+benchmarks/results/throughput*.json, copied there on purpose) with environment steps per second:
 - random_sps: the single-process vector env stepping random actions (the one-core ceiling of the old trainer);
   random_sps_<backend>: the same on every training backend (`digail.envs.vector`);
 - rollout_sps: digail's rollout on the single-process (sync) env (macro-policy q + sub-task policy pi + value), no
@@ -74,7 +75,7 @@ def main() -> None:
     parser.add_argument("--codes", type=int, default=4)
     parser.add_argument("--rounds", type=int, default=5, help="interleaved repetitions; medians are reported")
     parser.add_argument("--vae-epochs", type=int, default=2, help="VAE pre-training epochs per round")
-    parser.add_argument("--out", default=str(Path(__file__).with_name("throughput.json")))
+    parser.add_argument("--out", default="runs/bench/throughput.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -224,6 +225,7 @@ def main() -> None:
     results["note"] = ("medians over interleaved rounds; train_sps counts DI-GAIL's extra work (discriminator, q, "
                        "bonus) that SB3 PPO does not do; quote ratios from one run, absolute numbers drift +-25% on "
                        "a shared machine (loadavg: the machine's load when the run started, other jobs included).")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in results.items()}, indent=2))
 

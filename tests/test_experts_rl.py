@@ -18,8 +18,8 @@ import digail  # noqa: F401  (registers the envs)
 from digail.checkpoint import run_config
 from digail.cli import main
 from digail.commands.expert import ExpertArgs, expert_command
-from digail.envs.registry import ENV_SPECS
 from digail.errors import UserError
+from digail.experts.recipes import RECIPES
 from digail.experts.rl import (
     ExpertSpec,
     build_sb3_model,
@@ -160,15 +160,15 @@ def test_training_checkpoints_resumes_and_evaluates(tmp_path: Path, monkeypatch:
                                                     algo: str) -> None:
     """A short run, then --resume for as much again: steps carry over and eval.json holds 50 episodes."""
     out = tmp_path / "pendulum"
-    pendulum = ENV_SPECS["Pendulum-v1"]
-    assert pendulum.rl_expert is not None and pendulum.rl_expert.algo == "sac"
+    pendulum = RECIPES["Pendulum-v1"]
+    assert pendulum.algo == "sac"
     if algo == "ppo":  # one PPO rollout per run
         recipe = PPO_GSDE
         rollout = PPO_GSDE.n_envs * PPO_GSDE.ppo["n_steps"]
     else:  # SAC: past learning_starts, so gradient steps run before the first checkpoint
-        recipe = dataclasses.replace(pendulum.rl_expert, eval_every=150, eval_episodes=2)
+        recipe = dataclasses.replace(pendulum, eval_every=150, eval_episodes=2)
         rollout = 200
-    monkeypatch.setitem(ENV_SPECS, "Pendulum-v1", dataclasses.replace(pendulum, rl_expert=recipe))
+    monkeypatch.setitem(RECIPES, "Pendulum-v1", recipe)
     expert_command(ExpertArgs(env="Pendulum-v1", out=out, steps=rollout))
     assert (out / "checkpoints" / f"step_{rollout}.pt").is_file()
     first = json.loads((out / "eval.json").read_text())

@@ -5,10 +5,10 @@ import pytest
 import torch
 
 from digail.algos.directed_info_gail import DirectedInfoGAIL
+from digail.algos.fast.inference import ActorCritic, CodeMLP, log_softmax
 from digail.config import PPOConfig, TrainConfig
 from digail.envs import make_env
 from digail.nets.critic import ValueNet
-from digail.nets.fast import ActorCritic, CodeMLP, log_softmax
 from digail.nets.mlp import one_hot
 from digail.nets.policy import ActionSpec, SubtaskPolicy
 from digail.nets.vae import HierarchicalPolicy, MacroPolicy
@@ -182,3 +182,18 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, decoder_
                     assert int(b["codes"][t + 1, i]) == code, (i, t)
     # the replayed episodes really replay (first half), the others follow q
     assert trainer.n_replay == N // 2 and all(d >= 0 for i in range(N // 2) for d in demo_of[i])
+
+
+def test_every_log_std_clamp_uses_the_policy_bounds() -> None:
+    """The TorchScript gradients repeat `LOG_STD_BOUNDS` (they cannot read module constants): the same range."""
+    import inspect
+    import re
+
+    from digail.algos import polish
+    from digail.algos.fast import ppo_grad, vae_grad
+    from digail.nets.policy import LOG_STD_BOUNDS
+
+    for module in (ppo_grad, vae_grad, polish):
+        found = re.findall(r"clamp\(\s*(-?[\d.]+)\s*,\s*(-?[\d.]+)\s*\)", inspect.getsource(module))
+        assert found, f"{module.__name__} no longer clamps a log-std: drop it from this check"
+        assert {(float(a), float(b)) for a, b in found} == {LOG_STD_BOUNDS}, module.__name__

@@ -73,8 +73,8 @@ def test_lean_step_equals_clip_grad_norm_and_torch_adam():
     including the first step (state creation), a second parameter group and a parameter left without a grad."""
     from torch import nn
 
+    from digail.algos.fast.step import LeanStep
     from digail.algos.gail import adam
-    from digail.algos.ppo import LeanStep
 
     nets = [_nets(), _nets()]
     opts = [adam([{"params": list(p.parameters()), "lr": 1e-3}, {"params": list(v.parameters())}], lr=3e-3)

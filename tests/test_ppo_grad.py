@@ -12,10 +12,10 @@ from torch import nn
 
 from digail.algos.aux_losses import anchor_loss, bc_loss
 from digail.algos.expert_data import ExpertData
+from digail.algos.fast.ppo_grad import PPOGrad, _minibatch_grads, plain_mlp_layers
+from digail.algos.fast.scripting import scripted
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, minibatch_loss, ppo_update
-from digail.algos.ppo_grad import PPOGrad, _minibatch_grads, plain_mlp_layers
-from digail.algos.scripting import scripted
 from digail.config import PPOConfig
 from digail.nets.critic import ValueNet
 from digail.nets.policy import ActionSpec, SubtaskPolicy

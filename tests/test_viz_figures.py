@@ -1,4 +1,5 @@
-"""Every figure function writes a non-empty PNG of the size its docstring promises (figure inches x DPI)."""
+"""Every figure function writes a non-empty PNG of the size its docstring promises (figure inches x DPI), and
+draws its data: other data give another picture, and each code shown appears in its colour."""
 
 from __future__ import annotations
 
@@ -23,6 +24,23 @@ def _size(path) -> tuple[int, int]:
         arr = np.asarray(img.convert("L"))
         assert arr.min() < 200, "the figure is blank"
         return img.size
+
+
+def _pixels(path) -> np.ndarray:
+    with Image.open(path) as img:
+        return np.asarray(img.convert("RGB"), np.int16)
+
+
+def _has_colour(path, code: int, tol: int = 6) -> bool:
+    """Some pixel of the figure is drawn in `code`'s colour."""
+    rgb = np.round(np.asarray(F.code_colour(code)[:3]) * 255).astype(np.int16)
+    return bool((np.abs(_pixels(path) - rgb).max(axis=-1) <= tol).any())
+
+
+def _differ(a, b, share: float = 0.002) -> bool:
+    """The two figures (same size) differ in more than `share` of their pixels."""
+    pa, pb = _pixels(a), _pixels(b)
+    return pa.shape == pb.shape and float((pa != pb).any(axis=-1).mean()) > share
 
 
 def _px(w: float, h: float) -> tuple[int, int]:
@@ -79,6 +97,14 @@ def test_segmentation_pair_and_planar(tmp_path):
                                                                              "without"), title="two VAEs\nline two")
     assert _size(titled) == _px(10, 7)
     assert _size(F.planar_trajectories(eps, tmp_path / "gen.png", title="t")) == _px(10, 4.6)
+    # the content: both codes drawn in their colours on the left, only code 0 on the right; other paths or other
+    # codes, another picture
+    assert _has_colour(tmp_path / "pair.png", 0) and _has_colour(tmp_path / "pair.png", 1)
+    assert not _has_colour(F.segmentation_pair(obs, b, b, tmp_path / "zeros.png"), 1)
+    flipped = [1 - c for c in a]
+    assert _differ(tmp_path / "pair.png", F.segmentation_pair(obs, flipped, b, tmp_path / "flipped.png"))
+    moved = [(o * np.array([1.0, 0.5]), c) for o, c in eps]
+    assert _differ(tmp_path / "gen.png", F.planar_trajectories(moved, tmp_path / "moved.png", title="t"))
 
 
 def test_code_strips_pendulum_and_pca(tmp_path):
@@ -86,6 +112,9 @@ def test_code_strips_pendulum_and_pca(tmp_path):
     codes = [rng.integers(0, 4, 50) for _ in range(3)]
     path = F.code_strips({"demonstrations": codes, "rollouts": codes[:2]}, tmp_path / "strips.png")
     assert _size(path) == _px(9, 1.0 + 0.3 * 5 + 0.6 * 2)
+    assert all(_has_colour(path, k) for k in range(4))
+    shuffled = [rng.permutation(c) for c in codes]
+    assert _differ(path, F.code_strips({"demonstrations": shuffled, "rollouts": shuffled[:2]}, tmp_path / "s2.png"))
     theta = rng.uniform(-np.pi, np.pi, (3, 51))
     obs = [np.column_stack([np.cos(t), np.sin(t), rng.normal(size=51)]) for t in theta]
     assert _size(F.pendulum_code_map(obs, codes, tmp_path / "pend.png")) == _px(6, 4.5)
@@ -117,6 +146,8 @@ def test_learning_curves_single_and_multi(tmp_path):
     assert _size(one) == _px(3.4 * 5, 3.0)
     assert _size(F.learning_curves(runs["gail"][0], tmp_path / "g.png")) == _px(3.4 * 3, 3.0)
     assert _size(F.learning_curves_multi(runs, tmp_path / "multi.png")) == _px(3.6 * 5, 3.2)
+    _metrics(tmp_path / "shifted", range(64, 64 * 20, 64), offset=40)
+    assert _differ(one, F.learning_curves(tmp_path / "shifted", tmp_path / "shifted.png"))
     assert F.learning_curves(tmp_path / "nothing") is None
     # without evaluations during training, the normalised return comes from the training episodes and eval.json
     (runs["gail"][0] / "eval.json").write_text('{"normalized_return": 0.9, "expert": {"mean_return": -50.0}}')

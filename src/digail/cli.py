@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import importlib
-import keyword
 import os
 import re
 import signal
 import sys
 from collections.abc import Iterator, Sequence
+from types import ModuleType
 from typing import Any
 
 import tyro
@@ -40,9 +39,64 @@ COMMANDS: dict[str, tuple[str, str]] = {
 Python keyword: `import_`)"""
 
 
+def _module(name: str) -> ModuleType:
+    """The module of subcommand `name`, imported only now (a command's heavy imports wait until it runs). Each
+    import is written out, not built from a string, so that the layer contract sees `cli` above `commands`."""
+    match name:
+        case "demos":
+            from digail.commands import demos
+
+            return demos
+        case "pretrain":
+            from digail.commands import pretrain
+
+            return pretrain
+        case "segment":
+            from digail.commands import segment
+
+            return segment
+        case "train":
+            from digail.commands import train
+
+            return train
+        case "evaluate":
+            from digail.commands import evaluate
+
+            return evaluate
+        case "compose":
+            from digail.commands import compose
+
+            return compose
+        case "run":
+            from digail.commands import run
+
+            return run
+        case "expert":
+            from digail.commands import expert
+
+            return expert
+        case "video":
+            from digail.commands import video
+
+            return video
+        case "report":
+            from digail.commands import report
+
+            return report
+        case "sweep":
+            from digail.commands import sweep
+
+            return sweep
+        case "import":
+            from digail.commands import import_
+
+            return import_
+    raise KeyError(name)
+
+
 def _command(name: str) -> tuple[Any, Any, Any]:
     """The argument class, the function and the optional `defaults(argv)` of subcommand `name`."""
-    module = importlib.import_module(f"digail.commands.{name}{'_' if keyword.iskeyword(name) else ''}")
+    module = _module(name)
     args_cls, fn = COMMANDS[name]
     return getattr(module, args_cls), getattr(module, fn), getattr(module, "defaults", None)
 
@@ -88,6 +142,7 @@ def _main(argv: Sequence[str] | None) -> int:
 
     set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     cls, handler, defaults = _command(name)
+    rest = _renamed_flags(name, rest, getattr(_module(name), "ALIASES", {}))
     try:
         with _terminate_as_interrupt():
             default = defaults(rest) if defaults is not None else None
@@ -112,6 +167,19 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; {fix}.", file=sys.stderr)
         return 2
     return 0
+
+
+def _renamed_flags(name: str, argv: list[str], aliases: dict[str, str]) -> list[str]:
+    """`argv` with a command's old flag spellings (`ALIASES` in its module: old -> new) replaced by the new ones,
+    each announced once on stderr."""
+    out = []
+    for tok in argv:
+        flag, eq, value = tok.partition("=")
+        if flag in aliases:
+            print(f"digail {name}: {flag} is deprecated; use {aliases[flag]}.", file=sys.stderr)
+            tok = aliases[flag] + eq + value
+        out.append(tok)
+    return out
 
 
 _DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}

@@ -1,4 +1,5 @@
-"""Configuration: frozen dataclasses, one preset per environment (paper Table 3) and a tiny SMOKE preset.
+"""Configuration: frozen dataclasses, and the presets (`presets/<name>.toml`: each environment's settings, the
+paper's own per environment, and a tiny `smoke`).
 
 Every field is typed, defaulted and documented; tyro turns these classes into the command line, and the resolved
 config is written as `config.json` into every run folder.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
@@ -39,6 +41,15 @@ def check_at_least(value: int | None, flag: str, low: int = 1) -> None:
         _require(isinstance(value, int) and value >= low, flag, f"at least {low}", value)
 
 
+def check_codes(codes: int) -> None:
+    """The number of sub-task codes K: at least 1 (`--codes`)."""
+    _require(isinstance(codes, int) and not isinstance(codes, bool) and codes >= 1, "--codes", "at least 1", codes)
+
+
+FINAL_EVAL_SEED = 10_000
+"""seed of the first episode of every final evaluation (episode i uses seed + i); training never uses it"""
+
+
 def _finite(x: float) -> bool:
     return x == x and x not in (float("inf"), float("-inf"))
 
@@ -66,15 +77,13 @@ def _check_numbers(cfg: Any, prefix: str, at_least: dict[str, int], non_negative
 class VAEConfig:
     """VAE pre-training (paper section 3.1 and appendix): macro-policy q, prior p, sub-task policy pi."""
 
-    codes: int = 4
-    """number of sub-task codes K"""
+    codes: Annotated[int, tyro.conf.Suppress] = 4
+    """number of sub-task codes K (the command line's `--codes`)"""
     epochs: int | None = None
     """passes over the demonstrations (None: as many as give about `steps` gradient steps, so the work follows the
     number of updates rather than the size of the data)"""
     steps: int = 0
-    """VAE gradient steps of a training whose `epochs` is None. 0 by default: after the `init` start the ELBO's
-    own training measured no better on the segmentation benchmark and worse on one task (unequal: accuracy 0.99
-    -> 0.84 with 500 steps; docs/experiments.md), so the default keeps the start's q and pi"""
+    """VAE gradient steps of a training whose `epochs` is None (0: keep the `init` start's q and pi as they are)"""
     batch_size: int = 32
     """demonstrations per gradient step"""
     lr: float = 3e-4
@@ -96,7 +105,7 @@ class VAEConfig:
     """straight-through hard one-hot samples in the forward pass"""
     bptt: bool = False
     """also backpropagate through q's previous-code input (the exact gradient of the sequential samples); the
-    default stops the gradient there, which measured faster and less prone to collapsing onto one code"""
+    default stops the gradient there (faster, and less prone to collapsing onto one code)"""
     learn_prior: bool = True
     """learn the conditional prior p(c_t | c_{t-1}); False keeps it uniform (the authors' code)"""
     decoder_obs: tuple[int, int] | None = None
@@ -122,20 +131,19 @@ class VAEConfig:
     """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under
     the hard-EM start's linear sub-task policies (fast; the smallest K within one standard error of the best is
     kept), or `vae`, that of a whole VAE trained per K (lowest wins). The VAE's network policies explain the actions
-    with too few codes where the state reveals the sub-task (docs/experiments.md)"""
+    with too few codes where the state reveals the sub-task"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
-    switching linear sub-task policies (`digail.algos.segment_init`; without it the VAE collapsed onto one code on
-    both benchmark tasks it was run on), `none` starts from random weights (the paper)"""
+    switching linear sub-task policies (`digail.algos.segment_init`), `none` starts from random weights (the
+    paper)"""
     init_variance: Literal["shared", "per-code"] = "shared"
-    """`em` with continuous actions: one action variance per dimension shared by the codes, or one per code (the
-    first version, which split Fetch's moving from holding still; `digail.algos.segment_init`)"""
+    """`em` with continuous actions: one action variance per dimension shared by the codes, or one per code
+    (`digail.algos.segment_init`)"""
     init_switch_costs: Literal["learned", "fixed"] = "learned"
     """`em`: charge each switch by a macro-policy learned from the state, and also start from every demonstration
-    cut into K pieces where its actions change (`learned`), or log T + log(K - 1) nats per switch and the earlier
-    starts (`fixed`, what the presets' runs used). Fixed when the expert waits in place before a switch
-    (`digail.algos.segment_init`, README)"""
+    cut into K pieces where its actions change (`learned`), or log T + log(K - 1) nats per switch (`fixed`).
+    Fixed suits an expert that waits in place before a switch (`digail.algos.segment_init`)"""
     init_pieces: Literal["steps", "env"] = "steps"
     """`em`: where the start's codes may change: at any step (`steps`, Viterbi over the switches), or only between
     the pieces the environment cuts a demonstration into (`env`, one code per piece: Four Rooms' room visits,
@@ -148,8 +156,8 @@ class VAEConfig:
     per code, as a leg of a course is; small: state-dependent sub-tasks such as heading for a corridor)"""
     init_outlier_share: float = 1e-3
     """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
-    which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: the plain
-    Gaussian the presets' runs used)"""
+    which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: a plain
+    Gaussian)"""
     init_steps: int = 6000
     """gradient steps fitting q and pi to the `init` segmentation (Adam at `polish_lr`, cosine-decayed)"""
     polish_steps: int = 0
@@ -168,7 +176,8 @@ class VAEConfig:
     near the end of a sub-task, not only exactly where the expert switched"""
 
     def __post_init__(self) -> None:
-        _check_numbers(self, "--vae.", dict(codes=1, steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
+        check_codes(self.codes)
+        _check_numbers(self, "--vae.", dict(steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
                                             q_anticipate=0, restarts=1, init_steps=0),
                        ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr", "init_ridge",
                         "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction"))
@@ -250,10 +259,8 @@ class PPOConfig:
     target_kl: float | None = None
     """stop the epoch loop early once the approximate KL exceeds this (None: never)"""
     compile: bool = False
-    """compile the minibatch loss and its backward with `torch.compile`: for 2x64 nets on CPU a minibatch's
-    forward and backward run about 1.6x faster, a whole Hopper-sized update about 1.25x (measured), after a
-    one-off compile of ~10-30 s, so the long MuJoCo presets set it. Falls back to eager, with a warning, where
-    this machine cannot compile"""
+    """compile the minibatch loss and its backward with `torch.compile` (a one-off compile of some seconds that
+    pays on long runs). Falls back to eager, with a warning, where this machine cannot compile"""
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.ppo.", dict(num_envs=1, batch_size=1, epochs=1, minibatch_size=1),
@@ -356,7 +363,7 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class Preset:
-    """Paper Table 3 settings for one environment."""
+    """A complete setting of the VAE and the trainer (an environment's, the paper's, or the defaults)."""
 
     vae: VAEConfig
     train: TrainConfig
@@ -364,107 +371,128 @@ class Preset:
     """episodes for `digail evaluate` (paper: 300)"""
 
 
-def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eval_episodes: int = 300) -> Preset:
-    return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)), eval_episodes)
+PRESET_DIR = Path(__file__).resolve().parent / "presets"
+"""One TOML file per preset: `<name>.toml` states what departs from the defaults (or from the preset it
+`extends`), each departure as `field = { value = ..., why = "one line", see = "where it was measured" }` under the
+table of its config (`[vae]`, `[train]`, `[train.ppo]`; `Preset`'s own fields at the top)."""
 
 
-VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none")
-"""The VAE defaults the presets were tuned and their long runs started with, before the defaults were chosen on
-the segmentation benchmark (issue 14, `benchmarks/segmentation.py`): every environment preset pins them, so its
-runs stay what docs/experiments.md measured; the new defaults serve data without a preset"""
+@dataclass(frozen=True)
+class Departure:
+    """One setting of a preset that differs from what it builds on."""
 
-EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed",
-                              init_outlier_share=0.0)
-"""The VAE of Pendulum, Hopper, Walker2d and Fetch (docs/experiments.md, "Table 1: the VAE from the hard-EM
-segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed and its costs
-not capped, as the runs were made), no ELBO epochs. The paper's 1000-2000
-ELBO epochs let KL(q || p) fall to 0 there, from the EM start too: codes independent of the motion. The paper's
-VAE: `--vae.init none --vae.epochs 2000 --vae.tau-decay 3e-3` (1000 on Pendulum)"""
-
-TABLE1_EM_VAE: dict[str, Any] = dict(EM_VAE, init_variance="per-code")
-"""Table 1's runs started before the hard EM shared its action variance across codes (issue 14): every seed of
-the table keeps the variance per code, so that all three are the same method"""
-
-PRESETS: dict[str, Preset] = {
-    # Paper Table 3: DI-GAIL epochs / batch / posterior lambda, VAE epochs / batch. Why each departure from the
-    # paper: docs/experiments.md. The long MuJoCo runs compile the PPO loss (`PPOConfig.compile`).
-    "four-rooms": _preset(
-        dict(**VAE_BEFORE_ISSUE_14, codes=4, epochs=500, batch_size=32, polish_steps=20000),
-        # the episode ends at the apple: a step cost log D, not a survival bonus that would teach avoiding it
-        dict(iterations=1000, bonus_weight=0.1, reward="negative"),
-        # no entropy bonus and a decaying rate let the final (deterministic) policy settle out of its loops
-        dict(batch_size=256, minibatch_size=64, ent_coef=0.0, anneal_lr=True),
-    ),
-    "circle-world": _preset(
-        # the default VAE (hard-EM start, no ELBO epochs) segments as the tuned ELBO VAE did, 2x sooner; the polish
-        # with q noise and one step of anticipation lets the macro-policy switch when the agent passes near the
-        # origin, not only exactly on it (fixed switch costs, costs not capped: the committed runs' start)
-        dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed",
-             init_outlier_share=0.0),
-        # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
-        dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
-        dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),
-    ),
-    "pendulum": _preset(
-        TABLE1_EM_VAE,
-        dict(iterations=2000, bonus_weight=0.01),
-        # PPO stops an update once its KL passes 0.02: without it the policy's std shrank until one update moved
-        # it by KL 9-21 and Directed-Info GAIL fell from -97 to -794 over 300 episodes (docs/experiments.md)
-        dict(batch_size=1024, minibatch_size=256, target_kl=0.02),
-    ),
-    "invertedpendulum": _preset(
-        # the paper's ELBO VAE (codes collapse, but its policy balances: 1000 against the EM VAE's 451)
-        dict(**VAE_BEFORE_ISSUE_14, codes=4, epochs=1000, batch_size=16),
-        # falling ends the episode and the discriminator pays almost nothing, so the paper's never-positive bonus
-        # taught falling (a fresh policy: 4 steps); log K lifts it to >= 0 for an uninformative q, and a fresh
-        # policy balanced on every episode where one from the VAE still fell in some (docs/experiments.md)
-        dict(iterations=2000, bonus_weight=0.01, bonus_code_entropy=True, init_from_vae=False),
-        # the pendulum's, and learning rates decayed to 0: with a constant rate the deterministic policy kept
-        # dropping from 1000 to 150-850 between evaluations and ended wherever the last update left it
-        dict(batch_size=1024, minibatch_size=256, target_kl=0.02, anneal_lr=True),
-    ),
-    "hopper": _preset(
-        TABLE1_EM_VAE,
-        dict(iterations=5000, bonus_weight=0.01),
-        dict(batch_size=4096, minibatch_size=512, compile=True),
-    ),
-    "walker2d": _preset(
-        TABLE1_EM_VAE,
-        dict(iterations=5000, bonus_weight=0.001),
-        dict(batch_size=8192, minibatch_size=1024, compile=True),
-    ),
-    "fetch": _preset(
-        # the ELBO VAE's codes collapsed (NMI 0.021 against the phases); the EM one's follow them (docs/fetch.md)
-        EM_VAE,
-        dict(iterations=2000, bonus_weight=0.01, bc_weight=0.0),
-        dict(batch_size=4096, minibatch_size=512, compile=True),
-        eval_episodes=100,  # the paper's Table 2
-    ),
-    # The defaults themselves: what an env without a preset gets (`--preset default` asks for them anywhere).
-    "default": Preset(VAEConfig(), TrainConfig()),
-    # A few seconds end to end on every env: for tests and trying the commands.
-    "smoke": _preset(
-        dict(**VAE_BEFORE_ISSUE_14, codes=2, epochs=5, batch_size=8),
-        dict(iterations=2, checkpoint_every=1, value_warmup=0),
-        dict(num_envs=2, batch_size=64, epochs=2, minibatch_size=32),
-        eval_episodes=5,
-    ),
-}
-
-# Four Rooms with codes that follow the next corridor (issue 14, item 5; docs/experiments.md, "One code per room
-# visit"): the four-rooms preset with the room-visit start, one code per label value and twice the iterations
-# (NMI 0.575 / 0.556 / 0.575, success 0.980 / 0.977 / 0.967 on seeds 0 1 2; the preset's own codes carry nothing)
-PRESETS["four-rooms-subtasks"] = Preset(
-    dataclasses.replace(PRESETS["four-rooms"].vae, codes=5, init="em", epochs=0, init_pieces="env", init_obs=(0, 26),
-                        init_ridge=0.01),
-    dataclasses.replace(PRESETS["four-rooms"].train, iterations=2000), PRESETS["four-rooms"].eval_episodes)
+    key: str
+    """dotted field path from `Preset`, e.g. `train.ppo.batch_size`"""
+    value: Any
+    why: str
+    """the reason, one line"""
+    see: str
+    """where it was measured (a docs link), or the source it comes from"""
 
 
-def get_preset(name: str) -> Preset:
-    """The preset called `name` (`digail.envs.registry.preset_for` finds an env's own)."""
+@dataclass(frozen=True)
+class PresetFile:
+    """A preset as its file states it."""
+
+    name: str
+    about: str
+    extends: str | None
+    departures: tuple[Departure, ...]
+
+
+def _departures(table: dict[str, Any], prefix: str, where: Path) -> list[Departure]:
+    out: list[Departure] = []
+    for key, entry in table.items():
+        if not isinstance(entry, dict):
+            raise UserError(f"{where}: {prefix}{key} must be a table {{ value = ..., why = ..., see = ... }} or a "
+                            "config's section.")
+        if "value" in entry:
+            if set(entry) != {"value", "why", "see"} or not str(entry["why"]).strip():
+                raise UserError(f"{where}: {prefix}{key} needs exactly value, a non-empty why and see.")
+            out.append(Departure(prefix + key, entry["value"], str(entry["why"]), str(entry["see"])))
+        else:
+            out += _departures(entry, f"{prefix}{key}.", where)
+    return out
+
+
+def read_preset_file(path: Path) -> PresetFile:
+    """The about line, base preset and departures of one preset file."""
+    import tomllib
+
+    with open(path, "rb") as f:
+        data = tomllib.load(f)
+    about, extends = data.pop("about", ""), data.pop("extends", None)
+    return PresetFile(path.stem, str(about), extends, tuple(_departures(data, "", path)))
+
+
+def _apply(obj: Any, values: dict[str, Any], where: str, prefix: str = "") -> Any:
+    """`obj` (a config dataclass) with the dotted `values` set, each nested config rebuilt once with all of its
+    own values (so its checks see the finished combination)."""
+    fields = {f.name: f for f in dataclasses.fields(obj)}
+    own: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    for key, value in values.items():
+        head, _, rest = key.partition(".")
+        if head not in fields:
+            raise UserError(f"preset {where}: unknown setting {prefix + key!r}; fix its name or remove it.")
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            own[head] = tuple(value) if isinstance(value, list) and "tuple" in str(fields[head].type) else value
+    for head, sub in nested.items():
+        current = getattr(obj, head)
+        if not dataclasses.is_dataclass(current):
+            raise UserError(f"preset {where}: {prefix + head} has no settings of its own.")
+        own[head] = _apply(current, sub, where, f"{prefix}{head}.")
+    return dataclasses.replace(obj, **own)
+
+
+def _load_presets(folder: Path) -> tuple[dict[str, Preset], dict[str, PresetFile]]:
+    files = {p.stem: read_preset_file(p) for p in sorted(folder.glob("*.toml"))}
+    built: dict[str, Preset] = {}
+
+    def build(name: str, seen: tuple[str, ...] = ()) -> Preset:
+        if name in built:
+            return built[name]
+        if name not in files or name in seen:
+            raise UserError(f"preset {seen[-1] if seen else name!r} extends {name!r}, which "
+                            f"{'extends it in turn' if name in seen else 'does not exist'}.")
+        spec = files[name]
+        base = build(spec.extends, (*seen, name)) if spec.extends else Preset(VAEConfig(), TrainConfig())
+        built[name] = _apply(base, {d.key: d.value for d in spec.departures}, name)
+        return built[name]
+
+    for name in files:
+        build(name)
+    return built, files
+
+
+PRESETS, PRESET_FILES = _load_presets(PRESET_DIR)
+"""Every preset by name (`PRESET_FILES`: what each file states, for the docs' table)."""
+
+
+PAPER = "paper"
+"""`--preset paper`: the paper's own settings of the run's environment, the preset `paper-<env's preset>`"""
+
+
+def preset_name(name: str, env_preset: str | None) -> str:
+    """The preset file `name` asks for: `paper` becomes the paper's settings of the env whose own preset is
+    `env_preset`; an unknown name is one `UserError` sentence."""
+    if name == PAPER:
+        if env_preset is None or f"{PAPER}-{env_preset}" not in PRESETS:
+            raise UserError("--preset paper needs an environment whose settings the paper's Table 3 gives ("
+                            + ", ".join(sorted(n[len(PAPER) + 1:] for n in PRESETS if n.startswith(PAPER + "-")))
+                            + "); pass --env or a dataset of one, or name the preset.")
+        name = f"{PAPER}-{env_preset}"
     if name not in PRESETS:
-        raise UserError(f"unknown preset {name!r}; choose one of {', '.join(sorted(PRESETS))}.")
-    return PRESETS[name]
+        raise UserError(f"unknown preset {name!r}; choose one of {', '.join(sorted([*PRESETS, PAPER]))}.")
+    return name
+
+
+def get_preset(name: str, env_preset: str | None = None) -> Preset:
+    """The preset called `name` (`paper`: that of the env whose own preset is `env_preset`;
+    `digail.envs.registry.preset_for` finds an env's own)."""
+    return PRESETS[preset_name(name, env_preset)]
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

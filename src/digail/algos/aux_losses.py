@@ -1,18 +1,37 @@
 """The policy's optional extra terms beside PPO's loss (`ppo_update(aux_losses=...)`): BC / L2 on the expert's
-pairs (the paper's Fetch experiment) and the anchor to the initial policy."""
+pairs (the paper's Fetch experiment) and the anchor to the initial policy.
+
+An aux term is any callable returning a scalar loss with its graph (`AuxLoss`). A term the hand-written PPO
+gradient (`digail.algos.fast.ppo_grad`) can compute itself also offers `hand_grad_terms` (`HandGradTerm`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 
+from digail.algos.batch import PPOBatch
 from digail.algos.expert_data import ExpertData
 from digail.nets.policy import SubtaskPolicy
 
-if TYPE_CHECKING:  # ppo_update recognises `AnchorLoss`, so ppo's modules import this one
-    from digail.algos.ppo import PPOBatch
+
+class AuxLoss(Protocol):
+    """An extra term of the policy's loss, evaluated once per minibatch."""
+
+    def __call__(self) -> torch.Tensor: ...
+
+
+class HandGradTerm(AuxLoss, Protocol):
+    """An aux term that the hand-written PPO gradient can compute itself: the squared distance between pi's
+    outputs and fixed targets on rows of the update's batch."""
+
+    def hand_grad_terms(self, policy: SubtaskPolicy, batch: PPOBatch
+                        ) -> tuple[Callable[[], torch.Tensor], torch.Tensor] | None:
+        """(a function drawing the next minibatch's rows, the targets on every row of `batch`), or None where the
+        term does not take that form for this policy and batch."""
+        ...
 
 
 def bc_loss(pi: SubtaskPolicy, expert: ExpertData, eye: torch.Tensor, batch_size: int, gen: torch.Generator, *,
@@ -32,8 +51,7 @@ class AnchorLoss:
     """The anchor term on `batch`'s own states: squared distance between pi's mean action (or logits) and the
     frozen initial policy `anchor`'s, on a fresh random subset of `batch_size` states per call.
 
-    A callable object rather than a closure so that `ppo_update` can recognise it and compute it inside its
-    hand-written gradient (`ppo_grad`), drawing the same random rows.
+    A `HandGradTerm`: `ppo_update`'s hand-written gradient can compute it itself, drawing the same random rows.
     """
 
     pi: SubtaskPolicy
@@ -45,6 +63,16 @@ class AnchorLoss:
     def rows(self) -> torch.Tensor:
         """The next call's random rows of `batch` (each call draws these, then evaluates on them)."""
         return torch.randint(len(self.batch), (self.batch_size,), generator=self.gen)
+
+    def hand_grad_terms(self, policy: SubtaskPolicy, batch: PPOBatch
+                        ) -> tuple[Callable[[], torch.Tensor], torch.Tensor] | None:
+        """`rows` and the anchor's outputs on all of `batch`, where this term is on `policy` and `batch` and its
+        anchor cannot move during the update (no parameter of it trains)."""
+        if self.pi is not policy or self.batch is not batch or any(p.requires_grad for p in self.anchor.parameters()):
+            return None
+        with torch.no_grad():
+            targets = self.anchor.net(self.anchor.inputs(batch.obs, batch.codes))
+        return self.rows, targets
 
     def __call__(self) -> torch.Tensor:
         idx = self.rows()

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from digail.algos.fast.inference import CodeMLP, log_softmax
 from digail.algos.gail import GAIL, RewardFn
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
-from digail.nets.fast import CodeMLP, log_softmax
 from digail.nets.vae import HierarchicalPolicy
 from digail.utils import seed_everything
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from digail.algos.ppo import LeanStep, maybe_compiled
+from digail.algos.fast.step import LeanStep
+from digail.algos.ppo import maybe_compiled
 from digail.nets.critic import Discriminator
 
 

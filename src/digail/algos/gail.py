@@ -165,7 +165,7 @@ class GAIL:
     @torch.no_grad()
     def collect(self) -> dict[str, torch.Tensor]:
         """One rollout of `steps_per_env` steps in every env (`collect_rollout`) as tensors on the device."""
-        from digail.nets.fast import ActorCritic, CodeMLP
+        from digail.algos.fast.inference import ActorCritic, CodeMLP
 
         obs_dim = self.model.obs_dim
         ac = ActorCritic(self.model.pi, self.value, obs_dim)

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from digail.algos.scripting import scripted
+from digail.algos.fast.scripting import scripted
 from digail.nets.mlp import mlp_apply
 from digail.nets.vae import MacroPolicy
 

@@ -12,9 +12,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from digail.algos.fast.scripting import scripted
+from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
-from digail.algos.ppo import LeanStep
-from digail.algos.scripting import scripted
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError

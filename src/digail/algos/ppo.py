@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import torch
 
-from digail.algos.aux_losses import AnchorLoss
-from digail.algos.ppo_grad import PPOGrad
+from digail.algos.batch import PPOBatch
+from digail.algos.fast import enabled as fast_path
+from digail.algos.fast.ppo_grad import PPOGrad
+from digail.algos.fast.step import LeanStep
 from digail.config import PPOConfig
 from digail.nets.critic import ValueNet
 from digail.nets.policy import SubtaskPolicy
@@ -40,21 +41,6 @@ def compute_gae(rews: torch.Tensor, values: torch.Tensor, terminated: torch.Tens
         adv_np[t] = gae
     adv = torch.from_numpy(adv_np).to(rews.device)
     return adv, adv + values
-
-
-@dataclass(frozen=True)
-class PPOBatch:
-    """Flattened rollout: `b_` tensors of length B (obs already normalised, codes one-hot)."""
-
-    obs: torch.Tensor
-    codes: torch.Tensor
-    acts: torch.Tensor
-    logp: torch.Tensor
-    adv: torch.Tensor
-    returns: torch.Tensor
-
-    def __len__(self) -> int:
-        return len(self.obs)
 
 
 def minibatch_loss(policy: SubtaskPolicy, value: ValueNet, x_pi: torch.Tensor, x_v: torch.Tensor,
@@ -121,59 +107,10 @@ def reset_compiled() -> None:
     _compile_failed = False
 
 
-class LeanStep:
-    """Gradient-norm clipping and Adam in a handful of foreach calls per step.
-
-    `nn.utils.clip_grad_norm_` and `torch.optim.Adam.step` spend most of their time for 2x64 nets in Python
-    bookkeeping (device grouping, state lookups, per-tensor norms): ~200 us per step against ~50 us for the
-    same kernels called directly (measured). This calls them directly on the optimiser's own state, so its
-    `state_dict` stays what torch saves and loads; anything it does not cover (not fused Adam, AMSGrad, weight
-    decay, state not yet created) takes the optimiser's own `step`.
-    """
-
-    def __init__(self, optimizer: torch.optim.Optimizer, max_norm: float | None) -> None:
-        self.optimizer, self.max_norm = optimizer, max_norm
-        self.params = [p for g in optimizer.param_groups for p in g["params"]]
-        self.groups: list[tuple[dict[str, Any], list[torch.Tensor], list[torch.Tensor], list[torch.Tensor],
-                                list[torch.Tensor]]] | None = None
-
-    def _lean_groups(self) -> bool:
-        opt = self.optimizer
-        if not isinstance(opt, torch.optim.Adam) or not hasattr(torch, "_fused_adam_"):
-            return False
-        groups = []
-        for g in opt.param_groups:
-            if not g.get("fused") or g["amsgrad"] or g["weight_decay"] or g["maximize"] or g["capturable"]:
-                return False
-            states = [opt.state.get(p, {}) for p in g["params"]]
-            if not all("exp_avg" in st for st in states):
-                return False
-            groups.append((g, list(g["params"]), [st["exp_avg"] for st in states],
-                           [st["exp_avg_sq"] for st in states], [st["step"] for st in states]))
-        self.groups = groups
-        return True
-
-    def __call__(self) -> None:
-        grads = [p.grad for p in self.params if p.grad is not None]
-        if grads and self.max_norm is not None:
-            total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads)))
-            torch._foreach_mul_(grads, (self.max_norm / (total + 1e-6)).clamp_(max=1.0))
-        if len(grads) < len(self.params) or (self.groups is None and not self._lean_groups()):
-            self.optimizer.step()  # creates the state on the first step; skips parameters without gradients
-            return
-        assert self.groups is not None
-        for g, params, exp_avgs, exp_avg_sqs, steps in self.groups:
-            beta1, beta2 = g["betas"]
-            torch._foreach_add_(steps, 1)
-            torch._fused_adam_(params, [cast(torch.Tensor, p.grad) for p in params], exp_avgs, exp_avg_sqs, [], steps,
-                               amsgrad=False, lr=g["lr"], beta1=beta1, beta2=beta2, weight_decay=0.0,
-                               eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
-
-
 def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Optimizer, batch: PPOBatch,
                cfg: PPOConfig, generator: torch.Generator,
                aux_losses: dict[str, tuple[Callable[[], torch.Tensor], float]] | None = None,
-               train_policy: bool = True, hand_grad: bool = True) -> dict[str, float]:
+               train_policy: bool = True, hand_grad: bool | None = None) -> dict[str, float]:
     """Clipped-surrogate PPO epochs over `batch`; returns mean losses and diagnostics.
 
     Pure apart from the parameters and optimiser it is handed: no hidden state, no env access. `aux_losses` maps
@@ -186,8 +123,8 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
     all its minibatches' advantages in one op, the diagnostics stay tensors until the epoch ends, and clipping
     and Adam run as direct foreach calls (`LeanStep`). `cfg.compile` also compiles the loss and its backward.
     Where it applies (a Gaussian policy and plain `mlp` nets, no aux term but the anchor, `cfg.compile` off,
-    `hand_grad` on) the loss and its gradient come from one scripted function instead (`ppo_grad.PPOGrad`):
-    a Circle-World update runs about 2.3x faster (measured), with the same numbers to float rounding.
+    `hand_grad` on, by default where `digail.algos.fast` is on) the loss and its gradient come from one scripted
+    function instead (`ppo_grad.PPOGrad`), with the same numbers to float rounding.
     """
     n = len(batch)
     mb = min(cfg.minibatch_size, n)
@@ -200,20 +137,24 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
     aux = {k: fw for k, fw in (aux_losses or {}).items() if fw[1] > 0} if train_policy else {}
     sums = dict.fromkeys(("policy", "value", "entropy", "approx_kl", "clip_frac", *(aux_losses or {})), 0.0)
     updates = 0
+    if hand_grad is None:
+        hand_grad = fast_path()
     grad_fn = PPOGrad(policy, value) if hand_grad and train_policy and not cfg.compile else None
-    # the hand-written gradient covers the anchor term alone among the aux terms; its frozen targets come once per
-    # update (the values per minibatch were the same, to float rounding), its rows are drawn per minibatch as before.
-    # That needs an anchor that cannot move during the update: no parameter of it trains
+    # the hand-written gradient computes an aux term itself only where the term says how (`hand_grad_terms`, the
+    # anchor's): its frozen targets once per update, its rows drawn per minibatch as the term would draw them
     anchor_name, (anchor_fn, anchor_coef) = next(iter(aux.items()), ("", (None, 0.0)))
-    own_anchor = (isinstance(anchor_fn, AnchorLoss) and anchor_fn.pi is policy and anchor_fn.batch is batch
-                  and not any(p.requires_grad for p in anchor_fn.anchor.parameters()))
-    if grad_fn is not None and grad_fn.applies and (not aux or (len(aux) == 1 and own_anchor)):
-        no_rows = x_pi[:0]  # pi's inputs and targets for no anchor rows (no anchor term)
-        # each step sets every covered gradient; one clear here leaves any other parameter's at None, not stale
-        optimizer.zero_grad(set_to_none=True)
-        with torch.no_grad():
-            targets = (anchor_fn.anchor.net(anchor_fn.anchor.inputs(batch.obs, batch.codes))
-                       if isinstance(anchor_fn, AnchorLoss) else no_rows)
+    no_rows = x_pi[:0]  # pi's inputs and targets for no anchor rows (no anchor term)
+    draw_rows, targets = None, no_rows
+    if grad_fn is not None and grad_fn.applies and len(aux) <= 1:
+        terms_of = getattr(anchor_fn, "hand_grad_terms", None)
+        terms = terms_of(policy, batch) if terms_of is not None else None
+        if aux and terms is None:
+            grad_fn = None
+        else:
+            # each step sets every covered gradient; one clear here leaves any other parameter's at None, not stale
+            optimizer.zero_grad(set_to_none=True)
+            if terms is not None:
+                draw_rows, targets = terms
     else:
         grad_fn = None
     for _ in range(cfg.epochs):
@@ -228,7 +169,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
         for i in range(n_mb):
             rows = slice(i * mb, (i + 1) * mb)
             if grad_fn is not None:
-                idx = anchor_fn.rows() if isinstance(anchor_fn, AnchorLoss) else None
+                idx = draw_rows() if draw_rows is not None else None
                 parts, log_ratio = grad_fn(e_pi[rows], e_v[rows], e_acts[rows], e_logp[rows], e_adv[i],
                                            e_returns[rows], no_rows if idx is None else x_pi[idx],
                                            no_rows if idx is None else targets[idx], cfg.clip, cfg.vf_coef,

@@ -60,12 +60,13 @@ def collect_rollout(envs: VectorEnv, ac: Any, state: RolloutState, steps: int, n
     """`steps` steps of every env from `state` (advanced in place): the on-policy batch as (T, N, ...) arrays.
 
     The hot path of training, so it runs in NumPy, where a step costs a few microseconds per array operation
-    instead of torch's dispatch per op: `ac` is a float32 weight snapshot of pi and V (`digail.nets.fast`, one
-    forward for both), the action noise is drawn from `np_rng` once, and the batch fills preallocated arrays.
+    instead of torch's dispatch per op: `ac` is a float32 weight snapshot of pi and V
+    (`digail.algos.fast.inference`, one forward for both), the action noise is drawn from `np_rng` once, and the
+    batch fills preallocated arrays.
 
     Args:
         envs: the vector env, positioned where `state` says.
-        ac: `digail.nets.fast.ActorCritic` snapshot.
+        ac: `digail.algos.fast.inference.ActorCritic` snapshot.
         state: the envs' current observations and codes, the macro-policy's state and the episode tallies.
         steps: T, steps per env.
         np_rng: the source of the action noise.

@@ -20,7 +20,7 @@ smoothing weights, an entropy bonus on q, the polish) are measured in docs/exper
 Speed: only the sampling chain is sequential (`digail.algos.gumbel`); the decoder, the KL, the smoothing and entropy
 terms are evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and
 masked. With soft samples and the gradient stopped at q's previous-code input (every preset), training takes the
-loss's gradient from `digail.algos.vae_grad` (one scripted pass, backpropagation by hand) instead of autograd.
+loss's gradient from `digail.algos.fast.vae_grad` (one scripted pass, backpropagation by hand) instead of autograd.
 """
 
 from __future__ import annotations
@@ -37,6 +37,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from digail.algos.fast import enabled as fast_path
+from digail.algos.fast.step import LeanStep
+from digail.algos.fast.vae_grad import VAEGrad
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.model_selection import (
     best_index,
@@ -47,9 +50,7 @@ from digail.algos.model_selection import (
 )
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
-from digail.algos.ppo import LeanStep
 from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve, piece_em_segmentation
-from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
 from digail.data.validation import check_demos
@@ -199,8 +200,6 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
         `(model, history)`: the trained model in eval mode and per-epoch lists `epoch`, `losses/total`,
         `losses/recon`, `losses/kl`, `losses/smooth` (per-step averages over the epoch), `vae/tau`, `time/s`.
     """
-    if cfg.codes < 1 or cfg.batch_size < 1:
-        raise UserError("VAE settings need codes >= 1 and batch_size >= 1.")
     obs_dim, action_spec = check_demos(trajs, action_spec)
     dev = resolve_device(str(device))
     if cfg.decoder_obs is not None and not 0 <= cfg.decoder_obs[0] < cfg.decoder_obs[1] <= obs_dim:
@@ -273,7 +272,7 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     # per-step Python work (`LeanStep`)
     adam_step = LeanStep(opt, cfg.max_grad_norm)
     # soft samples without bptt (every preset): the loss and its gradient in one scripted pass (`VAEGrad`)
-    fused = None if cfg.hard or cfg.bptt else FusedVAEStep(model, cfg)
+    fused = None if cfg.hard or cfg.bptt or not fast_path() else FusedVAEStep(model, cfg)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())

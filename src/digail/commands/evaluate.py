@@ -8,7 +8,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from digail.config import check_at_least, check_seed
+from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 
 
 @dataclass(frozen=True)
@@ -19,7 +19,7 @@ class EvaluateArgs:
     """run folder"""
     episodes: int | None = None
     """evaluation episodes (default: the env's preset's, paper: 300, Fetch 100 as its Table 2)"""
-    seed: int = 10_000
+    seed: int = FINAL_EVAL_SEED
     """seed of the first evaluation episode"""
     stochastic: bool = False
     """sample actions from pi instead of taking its mean / most likely action (the default, as in SB3)"""

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from digail.config import VAEConfig, check_at_least, check_seed, get_preset
+from digail.config import VAEConfig, check_at_least, check_codes, check_seed
 from digail.errors import UserError
 
 
@@ -40,9 +40,13 @@ class PretrainArgs:
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
-        if self.codes != "auto":
-            check_at_least(self.codes, "--codes")
+        if self.codes != "auto" and self.codes is not None:
+            check_codes(self.codes)
         check_at_least(self.max_codes, "--max-codes", 2)
+
+
+ALIASES = {"--vae.codes": "--codes"}
+"""old spellings of flags, still read (with a warning naming the new one)"""
 
 
 def defaults(argv: Sequence[str]) -> PretrainArgs:
@@ -66,7 +70,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
     from digail.data.validation import check_dataset_env
-    from digail.envs.registry import init_pieces_fn
+    from digail.envs.registry import init_pieces_fn, preset_for
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
     from digail.utils import atomic_dir, set_torch_threads
@@ -81,10 +85,8 @@ def pretrain_command(args: PretrainArgs) -> Path:
     env_id = dataset.env_id or "unknown-env"
     cfg = args.vae
     if args.preset is not None:
-        get_preset(args.preset)  # reports an unknown preset name
+        preset_for(dataset.env_id, args.preset)  # reports an unknown preset name
     if isinstance(args.codes, int):
-        if args.codes < 1:
-            raise UserError(f"--codes must be at least 1, got {args.codes}.")
         cfg = dataclasses.replace(cfg, codes=args.codes)
     run = new_run_dir(args.out, env_id, "vae", args.seed, args.force)
     action_spec = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None

@@ -161,10 +161,10 @@ def run_command(args: RunArgs) -> Path:
         run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run")
         held = fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
     with held:  # the folder is this command's until the end: a second writer is refused, --force included
-        return _run_stages(args, run_dir, resuming, preset, device)
+        return _run_stages(args, run_dir, resuming, preset, device, checked)
 
 
-def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, device: Any) -> Path:
+def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, device: Any, checked: Any) -> Path:
     """Every stage of `run_command` in its (held) run folder; finished stages of an interrupted run are kept."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.algos.vae_pretrain import auto_epochs, pretrain

@@ -9,7 +9,7 @@ from typing import Literal
 
 import numpy as np
 
-from digail.config import TrainConfig, check_seed
+from digail.config import FINAL_EVAL_SEED, TrainConfig, check_seed
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.vae import HierarchicalPolicy
@@ -149,7 +149,7 @@ def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[Hierarchical
         return None
     from digail.eval.returns import evaluate, expert_summary
 
-    seed = 10_000
+    seed = FINAL_EVAL_SEED
     expert = expert_summary(env_id, cfg.eval_episodes, seed)
     denom = expert["mean_return"] if expert is not None else 0.0
 

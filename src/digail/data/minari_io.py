@@ -21,14 +21,13 @@ import json
 import os
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from digail.data.trajectory import SUBTASK_KEY, Trajectory
+from digail.data.trajectory import SUBTASK_KEY, Dataset, Trajectory
 from digail.data.validation import check_actions, read_labels
 from digail.errors import UserError
 from digail.utils import one_line
@@ -39,36 +38,6 @@ SHIPPED_ROOT = Path(__file__).resolve().parent.parent / "datasets"
 
 ObsHook = Callable[[Any, gym.Space], np.ndarray]
 """Turns one episode's stored observations (array, dict of arrays, ...) into a `(T + 1, d)` array."""
-
-
-@dataclass(frozen=True)
-class Dataset:
-    """Demonstrations read from a Minari dataset, validated against its own spaces."""
-
-    trajs: list[Trajectory]
-    """episodes in stored order"""
-    env_id: str | None
-    """id of the environment the data was collected in (from the stored env spec), or None"""
-    observation_space: gym.Space
-    """observation space of `trajs` (after any flattening hook)"""
-    action_space: gym.Space
-    """action space of the data (Box: float32 actions, Discrete: int64 indices)"""
-    dataset_id: str
-    """Minari dataset id recorded in the metadata"""
-    path: Path
-    """the dataset folder (the one holding `data/`)"""
-    metadata: dict[str, Any] = field(default_factory=dict, repr=False)
-    """raw `metadata.json` content (includes digail's own record under the key "digail" when we wrote it)"""
-
-    @property
-    def has_labels(self) -> bool:
-        """Whether every episode carries oracle sub-task labels."""
-        return all(t.subtasks is not None for t in self.trajs)
-
-    @property
-    def num_steps(self) -> int:
-        """Total transitions over all episodes."""
-        return sum(len(t) for t in self.trajs)
 
 
 # --------------------------------------------------------------------------------------------- locations

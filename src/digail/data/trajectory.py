@@ -1,9 +1,12 @@
-"""The in-memory demonstration type."""
+"""The in-memory demonstration types: one episode (`Trajectory`) and a loaded dataset (`Dataset`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 SUBTASK_KEY = "subtask"
@@ -68,3 +71,33 @@ class Trajectory:
     def discrete(self) -> bool:
         """Whether the actions are integer indices."""
         return bool(np.issubdtype(np.asarray(self.acts).dtype, np.integer))
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Demonstrations read from a Minari dataset, validated against its own spaces."""
+
+    trajs: list[Trajectory]
+    """episodes in stored order"""
+    env_id: str | None
+    """id of the environment the data was collected in (from the stored env spec), or None"""
+    observation_space: gym.Space
+    """observation space of `trajs` (after any flattening hook)"""
+    action_space: gym.Space
+    """action space of the data (Box: float32 actions, Discrete: int64 indices)"""
+    dataset_id: str
+    """Minari dataset id recorded in the metadata"""
+    path: Path
+    """the dataset folder (the one holding `data/`)"""
+    metadata: dict[str, Any] = field(default_factory=dict, repr=False)
+    """raw `metadata.json` content (includes digail's own record under the key "digail" when we wrote it)"""
+
+    @property
+    def has_labels(self) -> bool:
+        """Whether every episode carries oracle sub-task labels."""
+        return all(t.subtasks is not None for t in self.trajs)
+
+    @property
+    def num_steps(self) -> int:
+        """Total transitions over all episodes."""
+        return sum(len(t) for t in self.trajs)

@@ -6,18 +6,15 @@ Every failure is one `UserError` sentence naming the episode (`where`) and the f
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from digail.data.trajectory import SUBTASK_KEY, Trajectory
+from digail.data.trajectory import SUBTASK_KEY, Dataset, Trajectory
 from digail.envs.registry import make_env
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec
-
-if TYPE_CHECKING:
-    from digail.data.minari_io import Dataset
 
 
 def check_actions(where: str, acts: np.ndarray, space: gym.Space) -> np.ndarray:

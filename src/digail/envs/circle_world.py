@@ -310,13 +310,12 @@ class CircleWorldVecEnv:
     Args:
         env_id: the registered id (its time limit and keyword arguments apply, e.g. `max_episode_steps`).
         num_envs: N.
-        **kwargs: passed to `digail.envs.registry.make_env` (and so to `CircleWorldEnv`).
+        **kwargs: passed to `gym.make` (and so to `CircleWorldEnv`).
     """
 
     def __init__(self, env_id: str, num_envs: int, **kwargs: Any) -> None:
-        from digail.envs.registry import make_env
-
-        self._probe = make_env(env_id, **kwargs)
+        # made through the registry's entry, which names this class: the id is registered by then
+        self._probe = gym.make(env_id, **kwargs)
         env = self._probe.unwrapped
         if not isinstance(env, CircleWorldEnv):
             raise UserError(f"CircleWorldVecEnv steps Circle-World only, not {env_id!r}.")

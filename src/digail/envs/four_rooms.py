@@ -328,13 +328,12 @@ class FourRoomsVecEnv:
     Args:
         env_id: the registered id (its time limit and keyword arguments apply, e.g. `max_episode_steps`).
         num_envs: N.
-        **kwargs: passed to `digail.envs.registry.make_env`.
+        **kwargs: passed to `gym.make`.
     """
 
     def __init__(self, env_id: str, num_envs: int, **kwargs: Any) -> None:
-        from digail.envs.registry import make_env
-
-        self._probe = make_env(env_id, **kwargs)
+        # made through the registry's entry, which names this class: the id is registered by then
+        self._probe = gym.make(env_id, **kwargs)
         if not isinstance(self._probe.unwrapped, FourRoomsEnv):
             raise UserError(f"FourRoomsVecEnv steps Four Rooms only, not {env_id!r}.")
         spec = self._probe.spec

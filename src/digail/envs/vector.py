@@ -31,7 +31,7 @@ from typing import Any, Literal, Protocol
 import gymnasium as gym
 import numpy as np
 
-from digail.envs.registry import env_spec, make_env, resolve
+from digail.envs.registry import env_spec, make_env
 from digail.errors import UserError
 
 __all__ = ["Backend", "EnvpoolVecEnv", "SubprocVecEnv", "VecEnv", "VectorEnv", "make_vec_env", "resolve_backend"]
@@ -474,7 +474,7 @@ def make_vec_env(env_id: str, num_envs: int, backend: Backend = "auto", *, worke
     if chosen == "sync":
         spec = env_spec(env_id)
         if spec is not None and spec.batched is not None:  # the env's own array implementation, same numbers
-            return resolve(spec.batched)(env_id, num_envs)  # type: ignore[no-any-return]
+            return spec.batched(env_id, num_envs)  # type: ignore[no-any-return]
         return VecEnv.of(env_id, num_envs)
     if chosen == "subproc":
         return SubprocVecEnv(env_id, num_envs, workers=workers or None, infos=infos)

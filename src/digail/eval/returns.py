@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from digail.algos.decode import hierarchical_act
+from digail.config import FINAL_EVAL_SEED
 from digail.envs import make_env
 from digail.envs.actions import env_action_fn
 from digail.envs.episodes import Episode, play_batch, play_episodes
@@ -158,7 +159,7 @@ def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | No
     return result
 
 
-def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: int = 10_000,
+def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: int = FINAL_EVAL_SEED,
              deterministic: bool = True, with_expert: bool = True) -> dict[str, Any]:
     """Closed-loop evaluation; adds `normalized_return` (agent / expert mean return) when an expert exists."""
     eps = run_episodes(model, env_id, episodes, seed, deterministic=deterministic)

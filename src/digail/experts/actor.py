@@ -12,9 +12,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from digail.envs.registry import rl_expert_envs
 from digail.errors import UserError
-from digail.experts.recipes import EXPERT_FORMAT, shipped_expert_path
+from digail.experts.recipes import EXPERT_FORMAT, rl_expert_envs, shipped_expert_path
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU}
 

@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from digail.config import FINAL_EVAL_SEED
 from digail.envs.fetch import FETCH_ENV_ID, GOAL, GRIP_POS, OBJECT_POS, FlatFetchPickAndPlace, Phase
 
 GAIN = 10.0
@@ -55,7 +56,7 @@ def fetch_expert(env: gym.Env) -> np.ndarray:
     return fetch_action(base.phase, base.last_obs)
 
 
-def evaluate_fetch_expert(episodes: int = 50, seed: int = 10_000) -> dict[str, Any]:
+def evaluate_fetch_expert(episodes: int = 50, seed: int = FINAL_EVAL_SEED) -> dict[str, Any]:
     """Success rate and returns of the scripted controller over `episodes` episodes (episode i: seed + i).
 
     Also counts the episodes whose phase labels do not run 0 -> 1 -> 2 -> 3 one stage at a time.

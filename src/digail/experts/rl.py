@@ -20,12 +20,11 @@ Two formats live side by side:
   holds `expert.pt` (the latest export) and `best_expert.pt` (the best periodic evaluation); the shipped
   ones are copies of `best_expert.pt` in `digail/experts/weights/`.
 
-Split by concept: `recipes` (an env's recipe, `EnvSpec.rl_expert` in the env registry), `actor` (the SB3-free
+Split by concept: `recipes` (an env's recipe, `RECIPES`), `actor` (the SB3-free
 exported actor), `sb3` (training), `shipping`; this module keeps every public name importable from one place.
 Why each recipe: docs/experiments.md#rl-experts.
 """
 
-from digail.envs.registry import ExpertSpec, rl_expert_envs
 from digail.experts.actor import (
     ExpertActor,
     evaluate_expert,
@@ -40,6 +39,8 @@ from digail.experts.recipes import (
     FINAL_EVAL_SEED,
     PERIODIC_EVAL_SEED,
     WEIGHTS_DIR,
+    ExpertSpec,
+    rl_expert_envs,
     safe_name,
     shipped_expert_path,
     spec_for,

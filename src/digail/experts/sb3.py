@@ -16,13 +16,13 @@ import numpy as np
 
 from digail.checkpoint import load_weights, run_config, write_run_config
 from digail.config import to_dict
-from digail.envs.registry import ExpertSpec
 from digail.errors import UserError
 from digail.experts.actor import ACTIVATIONS, evaluate_expert, export_expert, load_expert, load_expert_actor
 from digail.experts.recipes import (
     FINAL_EVAL_EPISODES,
     FINAL_EVAL_SEED,
     PERIODIC_EVAL_SEED,
+    ExpertSpec,
     safe_name,
     spec_for,
 )
@@ -308,7 +308,7 @@ class ExpertRun:
     """One expert training run (what `digail expert` asks for)."""
 
     env: str
-    """environment id whose registry entry has an RL expert recipe (`EnvSpec.rl_expert`)"""
+    """environment id with an RL expert recipe (`digail.experts.recipes.RECIPES`)"""
     out: Path | None = None
     """expert folder (default: experts_work/<env>)"""
     steps: int | None = None

@@ -1,7 +1,7 @@
 """Scripted experts: closed-form controllers that read the env's true state (through `env.unwrapped`).
 
-Each expert is a function `expert(env) -> action` for the env's current state; an env's registry entry names its
-expert (`digail.envs.registry.EnvSpec.scripted_expert`) and `get_scripted_expert` finds it. They are
+Each expert is a function `expert(env) -> action` for the env's current state; `SCRIPTED_EXPERTS` says which env
+each drives and `get_scripted_expert` finds it. They are
 deterministic, so demonstrations recorded from a seeded env are reproducible.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 
 from digail.envs.circle_world import CircleWorldEnv, reference_point
 from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
-from digail.envs.registry import env_spec, resolve
+from digail.experts.fetch import fetch_expert
 
 
 def _unwrapped(env: gym.Env, cls: type) -> Any:
@@ -52,11 +52,14 @@ def circle_expert(env: gym.Env) -> np.ndarray:
     return (offset / norm).astype(np.float32)
 
 
+SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
+    "digail/FourRooms-v0": four_rooms_expert,
+    "digail/CircleWorld-v0": circle_expert,
+    "digail/FetchPickAndPlace-v4": fetch_expert,
+}
+"""env id -> its scripted expert"""
+
+
 def get_scripted_expert(env_id: str) -> Callable[[gym.Env], Any] | None:
-    """The scripted expert `env_id`'s registry entry names (`EnvSpec.scripted_expert`), or None when the env has
-    none (use an RL expert instead)."""
-    spec = env_spec(env_id)
-    if spec is None or spec.scripted_expert is None:
-        return None
-    expert: Callable[[gym.Env], Any] = resolve(spec.scripted_expert)
-    return expert
+    """The scripted expert of `env_id`, or None when the env has none (use an RL expert instead)."""
+    return SCRIPTED_EXPERTS.get(env_id)

@@ -14,6 +14,11 @@ from torch.distributions import Categorical, Distribution, Independent, Normal
 
 from digail.nets.mlp import mlp
 
+LOG_STD_BOUNDS = (-5.0, 2.0)
+"""the Gaussian policy's log-std is clamped to this range wherever it is used (std 0.0067 .. 7.4); the
+TorchScript gradients (`digail.algos.fast.ppo_grad`, `vae_grad`, `polish`) cannot read module constants and repeat
+it, which `tests/test_fast.py` checks"""
+
 
 @dataclass(frozen=True)
 class ActionSpec:
@@ -70,7 +75,7 @@ class SubtaskPolicy(nn.Module):
         out = self.net(self.inputs(obs_n, code_1h))
         if self.action.discrete:
             return Categorical(logits=out, validate_args=False)  # argument checks cost more than the net here
-        std = self.log_std.clamp(-5.0, 2.0).exp().expand_as(out)
+        std = self.log_std.clamp(*LOG_STD_BOUNDS).exp().expand_as(out)
         return Independent(Normal(out, std, validate_args=False), 1, validate_args=False)
 
     def log_prob_entropy(self, obs_n: torch.Tensor, code_1h: torch.Tensor, acts: torch.Tensor
@@ -89,7 +94,7 @@ class SubtaskPolicy(nn.Module):
         if self.action.discrete:
             logp_all = torch.log_softmax(out, -1)
             return logp_all.gather(-1, acts.long()[..., None]).squeeze(-1), -(logp_all.exp() * logp_all).sum(-1)
-        log_std = self.log_std.clamp(-5.0, 2.0)
+        log_std = self.log_std.clamp(*LOG_STD_BOUNDS)
         z = (acts - out) * torch.exp(-log_std)
         log_std_sum = log_std.sum()
         logp = -0.5 * z.pow(2).sum(-1) - log_std_sum - 0.5 * self.action.dim * LOG_2PI

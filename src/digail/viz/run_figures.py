@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.config import FINAL_EVAL_SEED
 from digail.viz import figures as F
 from digail.viz.video import play_episodes
 
@@ -44,7 +45,7 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
                       demo_codes: Sequence[np.ndarray], *, schedule: Sequence[int] | None = None,
                       schedule_text: str = "",
                       pair: tuple[Sequence[np.ndarray], Sequence[np.ndarray], tuple[str, str], str] | None = None,
-                      episodes: int = 6, seed: int = 10_000) -> list[Path]:
+                      episodes: int = 6, seed: int = FINAL_EVAL_SEED) -> list[Path]:
     """Draw the run's figures into RUN/figures; returns the paths written.
 
     Args:

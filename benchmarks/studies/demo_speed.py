@@ -1,12 +1,13 @@
 """`make demo` (that is `digail run`, Circle-World by default) of this checkout against another commit's code, side
 by side in one run.
 
-    python benchmarks/demo_speed.py [--baseline 57dc4a4] [--rounds 2] [--seed 0] [--env digail/CircleWorld-v0]
+    python benchmarks/studies/demo_speed.py --baseline REV [--rounds 2] [--seed 0] [--env digail/CircleWorld-v0]
 
 Each round runs the whole pipeline once with the baseline's `src` (extracted with `git archive`) and once with this
 checkout's, in fresh processes and alternating which goes first, so that a shared machine's drifting load hits both
 alike; one torch thread each (`OMP_NUM_THREADS=1`), run folders in a temporary directory. Writes
-benchmarks/demo_speed.json: each side's wall-clock seconds per round and stage (`timings.json` of the run folder),
+runs/bench/demo_speed.json (`--out`; published: benchmarks/results/demo_speed*.json): each side's
+wall-clock seconds per round and stage (`timings.json` of the run folder),
 the medians, the new-over-old speed-up (median of per-round ratios) and the headline results of every run
 (evaluation, segmentation, composition), so that "the same results" can be checked.
 """
@@ -25,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 RESULT_KEYS = {"eval.json": ("", ("mean_return", "order_correct_rate", "radius_error", "success_rate")),
                "segmentation.json": ("seg_", ("accuracy", "nmi", "boundary_f1")),
                "compose.json": ("composed_", ("order_reversed_rate",))}
@@ -53,14 +54,14 @@ def run_side(src: Path, out: Path, args: argparse.Namespace, extra: list[str]) -
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", default="57dc4a4", help="git revision to compare against")
+    parser.add_argument("--baseline", required=True, help="git revision to compare against (e.g. main)")
     parser.add_argument("--env", default="digail/CircleWorld-v0")
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--new-no-smoothing-pair", action="store_true",
                         help="run this checkout with --no-smoothing-pair: the baseline's work where the baseline "
                              "predates the second VAE (57dc4a4 does)")
-    parser.add_argument("--out", default=str(Path(__file__).with_name("demo_speed.json")))
+    parser.add_argument("--out", default="runs/bench/demo_speed.json")
     args = parser.parse_args()
 
     samples: dict[str, list[dict[str, Any]]] = {"old": [], "new": []}
@@ -92,6 +93,7 @@ def write_results(args: argparse.Namespace, samples: dict[str, list[dict[str, An
     results["results"] = {name: [{k: v for k, v in s.items() if k not in ("wall_s", "stages")} for s in runs]
                           for name, runs in samples.items()}
     results["samples"] = samples
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "samples"}, indent=2), flush=True)
 

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from digail.algos.scripting import scripted
+from digail.algos.fast.scripting import scripted
 from digail.nets.critic import ValueNet
 from digail.nets.policy import SubtaskPolicy
 

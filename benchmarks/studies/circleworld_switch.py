@@ -1,7 +1,7 @@
 """Why Circle-World's closed-loop order fails: the macro-policy switches only when the agent comes back almost
 exactly onto the origin. The numbers behind the README's Circle-World paragraph.
 
-    python benchmarks/circleworld_switch.py RUN [RUN ...] [--episodes 300]
+    python benchmarks/studies/circleworld_switch.py RUN [RUN ...] [--episodes 300]
 
 RUN is a `digail pretrain` or `digail train` run on digail/circleworld/expert-v0. For each, prints
 1. q's probability of switching to the second code, with the first code as the previous one, on a grid of

@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from digail.algos.scripting import scripted
+from digail.algos.fast.scripting import scripted
 from digail.nets.vae import HierarchicalPolicy
 
 

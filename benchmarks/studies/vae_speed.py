@@ -1,13 +1,14 @@
 """VAE pre-training and polish speed of this checkout against another commit's code, side by side in one run.
 
-    python benchmarks/vae_speed.py [--baseline 57dc4a4] [--dataset digail/circleworld/expert-v0]
+    python benchmarks/studies/vae_speed.py --baseline REV [--dataset digail/circleworld/expert-v0]
         [--preset circle-world] [--epochs N] [--polish-steps N] [--rounds 3]
 
 Each round runs the baseline's `src` (extracted with `git archive`) and this checkout's in fresh subprocesses,
 one after the other, so that a shared machine's drifting load hits both alike: `pretrain` with each side's own
 version of the preset (its hard-EM start where it has one; `--epochs` overrides the epochs), then `polish` for
 `--polish-steps` (default: the preset's; 0: none), one torch thread. Round r uses seed `--seed` + r, so that three
-rounds score three seeds. Writes benchmarks/vae_speed.json: each side's epochs, start and seconds of pre-training
+rounds score three seeds. Writes runs/bench/vae_speed.json (`--out`; the published measurements are
+benchmarks/results/vae_speed*.json): each side's epochs, start and seconds of pre-training
 and polish (medians over rounds), the new-over-old speed-ups (medians of per-round ratios, wall clock and the
 process's CPU time), a hash of each side's final weights (equal hashes: the same numbers bit for bit) and, where
 the demonstrations carry oracle labels, each side's segmentation scores per seed (causal decoding after the
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 CHILD = r"""
 import hashlib, json, sys, time
@@ -73,14 +74,14 @@ def run_side(src: Path, args: argparse.Namespace, seed: int) -> dict[str, float 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", default="57dc4a4", help="git revision to compare against")
+    parser.add_argument("--baseline", required=True, help="git revision to compare against (e.g. main)")
     parser.add_argument("--dataset", default="digail/circleworld/expert-v0")
     parser.add_argument("--preset", default="circle-world")
     parser.add_argument("--epochs", type=int, default=-1, help="VAE epochs (-1: the preset's)")
     parser.add_argument("--polish-steps", type=int, default=-1, help="polish steps (-1: the preset's)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=str(Path(__file__).with_name("vae_speed.json")))
+    parser.add_argument("--out", default="runs/bench/vae_speed.json")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -127,6 +128,7 @@ def main() -> None:
         for key in ("accuracy", "nmi", "boundary_f1"):
             results[f"seg_{key}"] = {k: col(k, key).round(4).tolist() for k in sides}
     results["samples"] = samples
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "samples"}, indent=2))
 

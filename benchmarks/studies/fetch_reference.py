@@ -2,7 +2,7 @@
 `digail evaluate` measures an agent (100 episodes from seed 10000, dense `mean_return`, sparse return, success,
 grasp and lift rates).
 
-    python benchmarks/fetch_reference.py
+    python benchmarks/studies/fetch_reference.py
 """
 
 from __future__ import annotations

@@ -1,14 +1,16 @@
 """Does overlapping the policy's inference with the workers' stepping pay on this machine? Measured, not assumed.
 
-    python benchmarks/overlap.py [--env Hopper-v5] [--num-envs 8] [--steps 256] [--rounds 5]
+    python benchmarks/studies/overlap.py [--env Hopper-v5] [--num-envs 8] [--steps 256] [--rounds 5]
 
 Two rollout loops on the subprocess backend, the same total envs and the rollout's per-step inference (q, then pi
-and V on NumPy snapshots, `digail.nets.fast`, of an untrained 4-code model; speed does not depend on the weights):
+and V on NumPy snapshots, `digail.algos.fast.inference`, of an untrained 4-code model; speed does not depend on
+the weights):
 - `lockstep`: one `SubprocVecEnv` of N envs (one worker per core); each step the main process infers for all N,
   then waits for all N to step (the trainer's loop);
 - `halves`: two `SubprocVecEnv`s of N/2 envs (half the workers each); while one half steps, the main process infers
   the other half's next actions, so inference hides behind stepping where a core is free for it.
-Writes benchmarks/overlap.json: steps per second (medians over interleaved rounds), halves_over_lockstep (median of
+Writes runs/bench/overlap.json (`--out`; the published measurement is benchmarks/results/overlap.json):
+steps per second (medians over interleaved rounds), halves_over_lockstep (median of
 per-round ratios), and the main process's inference share of a lockstep step (the most overlap could hide).
 """
 
@@ -32,13 +34,13 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=8)
     parser.add_argument("--steps", type=int, default=256, help="steps per env and round")
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--out", default=str(Path(__file__).with_name("overlap.json")))
+    parser.add_argument("--out", default="runs/bench/overlap.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
+    from digail.algos.fast.inference import ActorCritic, CodeMLP
     from digail.envs.vector import SubprocVecEnv, cpu_count
     from digail.nets.critic import ValueNet
-    from digail.nets.fast import ActorCritic, CodeMLP
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
 
@@ -105,6 +107,7 @@ def main() -> None:
                "halves_over_lockstep": float(np.median(np.array(samples["halves"]) / np.array(samples["lockstep"]))),
                "lockstep_inference_share": float(np.median(np.array(infer_s) / np.array(walls))),
                "samples": samples}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")
     print(json.dumps({k: v for k, v in results.items() if k != "samples"}, indent=2))
 

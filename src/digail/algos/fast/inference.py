@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from digail.nets.critic import ValueNet
-from digail.nets.policy import LOG_2PI, SubtaskPolicy
+from digail.nets.policy import LOG_2PI, LOG_STD_BOUNDS, SubtaskPolicy
 
 
 def _linears(seq: nn.Sequential) -> list[nn.Linear]:
@@ -86,7 +86,7 @@ class ActorCritic:
         self.act_dim = pi.action.dim
         if not self.discrete:
             with torch.no_grad():
-                log_std = pi.log_std.detach().clamp(-5.0, 2.0)
+                log_std = pi.log_std.detach().clamp(*LOG_STD_BOUNDS)
                 self.std = _np(log_std.exp())
                 self.logp_const = np.float32(-log_std.sum() - 0.5 * self.act_dim * LOG_2PI)
 

@@ -1,6 +1,6 @@
 """Why PPO fine-tuning loses Circle-World's drawing: the numbers behind the README's Circle-World paragraph.
 
-    python benchmarks/circleworld_drift.py VAE_RUN [--updates 25] [--episodes 50]
+    python benchmarks/studies/circleworld_drift.py VAE_RUN [--updates 25] [--episodes 50]
 
 VAE_RUN is a `digail pretrain` run on digail/circleworld/expert-v0. Prints
 1. how the radius of the drawn circle depends on the direction of the first step (geometry, no learning);

@@ -1,0 +1,38 @@
+"""The fast path, and the one switch between it and the reference path.
+
+The reference path is autograd and torch's own optimiser step; the fast path is what pays at the small nets
+digail trains, each piece measured and tied to the reference by an equivalence test (the contract):
+
+- `inference`: NumPy forward passes of pi, V and q for the rollouts (tests/test_fast.py);
+- `step.LeanStep`: gradient clipping and fused Adam as direct foreach calls (tests/test_ppo.py, bit for bit);
+- `ppo_grad`, `vae_grad`, `scripting`: the PPO minibatch's and the VAE's loss with a hand-written gradient in one
+  TorchScript function (tests/test_ppo_grad.py, tests/test_vae.py, to float rounding).
+
+`DIGAIL_REFERENCE=1` in the environment (or `reference()` in code) turns the optimiser step and the hand-written
+gradients off everywhere: every update then runs through autograd and `torch.optim`, slower, with the same
+numbers to float rounding.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+
+_forced_reference = False
+
+
+def enabled() -> bool:
+    """Whether the fast path runs (not `DIGAIL_REFERENCE=1`, not inside `reference()`)."""
+    return not _forced_reference and os.environ.get("DIGAIL_REFERENCE", "0") in ("", "0")
+
+
+@contextlib.contextmanager
+def reference() -> Iterator[None]:
+    """Run the block on the reference path (for the equivalence tests)."""
+    global _forced_reference
+    before, _forced_reference = _forced_reference, True
+    try:
+        yield
+    finally:
+        _forced_reference = before

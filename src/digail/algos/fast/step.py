@@ -1,0 +1,63 @@
+"""The optimiser step of every trainer: gradient-norm clipping and fused Adam as direct foreach calls."""
+
+from __future__ import annotations
+
+from typing import Any, cast
+
+import torch
+
+from digail.algos.fast import enabled
+
+
+class LeanStep:
+    """Gradient-norm clipping and Adam in a handful of foreach calls per step.
+
+    `nn.utils.clip_grad_norm_` and `torch.optim.Adam.step` spend most of their time for 2x64 nets in Python
+    bookkeeping (device grouping, state lookups, per-tensor norms): ~200 us per step against ~50 us for the
+    same kernels called directly. This calls them directly on the optimiser's own state, so its
+    `state_dict` stays what torch saves and loads; anything it does not cover (not fused Adam, AMSGrad, weight
+    decay, state not yet created) takes the optimiser's own `step`.
+    """
+
+    def __init__(self, optimizer: torch.optim.Optimizer, max_norm: float | None) -> None:
+        self.optimizer, self.max_norm = optimizer, max_norm
+        self.params = [p for g in optimizer.param_groups for p in g["params"]]
+        self.groups: list[tuple[dict[str, Any], list[torch.Tensor], list[torch.Tensor], list[torch.Tensor],
+                                list[torch.Tensor]]] | None = None
+
+    def _lean_groups(self) -> bool:
+        opt = self.optimizer
+        if not isinstance(opt, torch.optim.Adam) or not hasattr(torch, "_fused_adam_"):
+            return False
+        groups = []
+        for g in opt.param_groups:
+            if not g.get("fused") or g["amsgrad"] or g["weight_decay"] or g["maximize"] or g["capturable"]:
+                return False
+            states = [opt.state.get(p, {}) for p in g["params"]]
+            if not all("exp_avg" in st for st in states):
+                return False
+            groups.append((g, list(g["params"]), [st["exp_avg"] for st in states],
+                           [st["exp_avg_sq"] for st in states], [st["step"] for st in states]))
+        self.groups = groups
+        return True
+
+    def __call__(self) -> None:
+        if not enabled():  # the reference: torch's own clipping and optimiser step (the same numbers)
+            if self.max_norm is not None:
+                torch.nn.utils.clip_grad_norm_(self.params, self.max_norm, foreach=True)
+            self.optimizer.step()
+            return
+        grads = [p.grad for p in self.params if p.grad is not None]
+        if grads and self.max_norm is not None:
+            total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads)))
+            torch._foreach_mul_(grads, (self.max_norm / (total + 1e-6)).clamp_(max=1.0))
+        if len(grads) < len(self.params) or (self.groups is None and not self._lean_groups()):
+            self.optimizer.step()  # creates the state on the first step; skips parameters without gradients
+            return
+        assert self.groups is not None
+        for g, params, exp_avgs, exp_avg_sqs, steps in self.groups:
+            beta1, beta2 = g["betas"]
+            torch._foreach_add_(steps, 1)
+            torch._fused_adam_(params, [cast(torch.Tensor, p.grad) for p in params], exp_avgs, exp_avg_sqs, [], steps,
+                               amsgrad=False, lr=g["lr"], beta1=beta1, beta2=beta2, weight_decay=0.0,
+                               eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
