@@ -6,10 +6,13 @@ setting was tuned for.
     python benchmarks/segmentation.py --set vae.smoothing-weight=0.3 ...   (extra flags for every `digail pretrain`)
 
 Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once per seed 0 with Minari's API by
-`digail.data.courses.record_course` into `--data`, default runs/segbench/datasets), and three shipped data sets:
-Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor or the apple) and the Fetch phases (K = 4: reach,
-grasp, carry, place). The shipped ones run with `--preset default`, the settings an env without a preset gets,
-so every task sees the same defaults. Each (task, seed) runs exactly what a user types:
+`digail.data.courses.record_course` into `--data`, default runs/segbench/datasets), among them the harder ones
+(curved legs joined smoothly, legs that weave, distractor dimensions, episodes that start in a random sub-task,
+eight short sub-tasks); three shipped data sets: Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor
+or the apple) and the Fetch phases (K = 4: reach, grasp, carry, place); and Hopper's gait phase (K = 4: the shipped
+Hopper demonstrations' first 8 episodes labelled by `digail.eval.gait.gait_phase`, written once into `--data`).
+The shipped ones run with `--preset default`, the settings an env without a preset gets, so every task sees the
+same defaults. Each (task, seed) runs exactly what a user types:
 
     digail pretrain --demos D --codes K --seed S --out R/<task>_sS [--preset default]
     digail segment R/<task>_sS
@@ -33,6 +36,7 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shlex
@@ -60,11 +64,35 @@ SHIPPED: dict[str, dict[str, Any]] = {
                   description="FetchPickAndPlace phases reach / grasp / carry / place (shipped, 25 000 steps)"),
 }
 
+DERIVED: dict[str, dict[str, Any]] = {
+    "hopper-gait": dict(source="digail/hopper/expert-v0", env="Hopper-v5", episodes=8, codes=4,
+                        description="Hopper's gait phase: 4 sectors of the hip's phase portrait (shipped Hopper "
+                                    "demonstrations, first 8 episodes, about 8 000 steps)"),
+}
+"""shipped data sets relabelled with a phase computed from the observation (written into `--data` once)"""
+
 KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode", "time_s")
 
 
 def task_names() -> list[str]:
-    return [*COURSES, *SHIPPED]
+    return [*COURSES, *SHIPPED, *DERIVED]
+
+
+def derived_dataset(name: str, data_root: Path) -> Path:
+    """The folder of derived task `name`'s data set: the source's first episodes with their phase as the label."""
+    from digail.data.minari_io import load_dataset
+    from digail.data.minari_write import write_dataset
+    from digail.eval.gait import gait_phase, phase_stats
+
+    spec = DERIVED[name]
+    folder = (data_root / f"segbench-{name}").resolve()
+    if (folder / "data" / "metadata.json").is_file():
+        return folder
+    trajs = load_dataset(spec["source"]).trajs[:spec["episodes"]]
+    stats = phase_stats([t.obs for t in trajs], spec["env"])
+    labelled = [dataclasses.replace(t, subtasks=gait_phase(t.obs, spec["env"], stats, spec["codes"])) for t in trajs]
+    write_dataset(labelled, folder, spec["env"], f"segbench/{name}-v0", description=spec["description"])
+    return folder
 
 
 def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
@@ -72,6 +100,8 @@ def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     if name in COURSES:
         folder = record_course(name, data_root, seed=0)
         return str(folder), COURSES[name].codes, False, COURSES[name].description
+    if name in DERIVED:
+        return str(derived_dataset(name, data_root)), DERIVED[name]["codes"], True, DERIVED[name]["description"]
     spec = SHIPPED[name]
     return spec["demos"], spec["codes"], True, spec["description"]
 
@@ -201,7 +231,6 @@ def figure(results: Path, runs: Path, data_root: Path, out: Path, episodes: int 
 
 def measure(args: argparse.Namespace, out: Path) -> None:
     """`--measure restarts` or `--measure codes` (module docstring)."""
-    import dataclasses
 
     from digail.algos.decode import segment_many
     from digail.algos.model_selection import description_length, heldout_split
