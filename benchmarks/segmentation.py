@@ -30,7 +30,11 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
         of the table's seed 0: oracle labels against the codes for three demonstrations per task)
     python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
         per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
-        (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion
+        (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion;
+        `--curve-only` computes the curve and the choice exactly as `--codes auto` does but skips training the
+        chosen K's VAE afterwards (which does not change the choice)
+    python benchmarks/segmentation.py --measure codes-figure --out benchmarks/results/segmentation_codes_auto.json
+        -> results/figures/segmentation_codes.png: every task's curve of seed 0, the choice and the true K
 """
 
 from __future__ import annotations
@@ -147,11 +151,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                         help="extra `digail pretrain` flags for every task, e.g. vae.smoothing-weight=0.3")
-    parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure"], default="table")
+    parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure", "codes-figure"],
+                        default="table")
     parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
+    parser.add_argument("--curve-only", action="store_true",
+                        help="--measure codes: only the K curve and the choice, without training the chosen K")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     extra = extra_flags(args)
+    if args.measure == "codes-figure":
+        from digail.viz.figures import codes_curve
+
+        tasks = json.loads(args.out.read_text())["tasks"]
+        codes_curve({f"{name} seed 0": t["seeds"][0]["curve"] for name, t in tasks.items()},
+                    HERE / "results" / "figures" / "segmentation_codes.png",
+                    truth={f"{name} seed 0": t["seeds"][0]["true_codes"] for name, t in tasks.items()})
+        return
     if args.measure == "figure":
         figure(args.out, args.runs, args.data, HERE / "results" / "figures" / "segmentation_benchmark.png")
         return
@@ -234,7 +249,7 @@ def measure(args: argparse.Namespace, out: Path) -> None:
 
     from digail.algos.decode import segment_many
     from digail.algos.model_selection import description_length, heldout_split
-    from digail.algos.vae_pretrain import pretrain
+    from digail.algos.vae_pretrain import codes_curve, k_criterion, pretrain
     from digail.config import VAEConfig
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import segmentation_metrics
@@ -250,7 +265,27 @@ def measure(args: argparse.Namespace, out: Path) -> None:
         demos, codes, shipped, _ = task_data(name, args.data)
         rows = []
         for seed in args.seeds:
-            if args.measure == "codes":
+            if args.measure == "codes" and args.curve_only:
+                # the K `--codes auto` chooses (`vae_pretrain.codes_curve`, what `select_codes` decides by),
+                # without training the chosen K's VAE afterwards
+                ds = load_dataset(demos)
+                cfg = VAEConfig()
+                for item in args.set:  # vae.FIELD=VALUE, cast to the field's current type
+                    key, value = item.split("=", 1)
+                    field = key.removeprefix("vae.").replace("-", "_")
+                    cast = float if getattr(cfg, field) is None else type(getattr(cfg, field))
+                    cfg = dataclasses.replace(cfg, **{field: cast(value)})
+                discrete = ActionSpec.from_space(ds.action_space).discrete
+                t0 = time.perf_counter()
+                curve, pick = codes_curve(ds.trajs, cfg, list(range(2, 9)), discrete, seed=seed)
+                chosen = int(curve[pick]["codes"])
+                truth = len(np.unique(np.concatenate([t.subtasks for t in ds.trajs])))
+                rows.append({"seed": seed, "true_codes": truth, "chosen": chosen, "hit": chosen == truth,
+                             "criterion": k_criterion(cfg, discrete), "curve": curve,
+                             "time_s": round(time.perf_counter() - t0, 1)})
+                print(f"== {name} seed {seed}: K = {chosen} (true {truth}) "
+                      + " ".join(f"{c['dl_per_step']:.3f}" for c in curve), flush=True)
+            elif args.measure == "codes":
                 run = args.runs / f"{name}_auto_s{seed}"
                 cmd = ["pretrain", "--demos", demos, "--codes", "auto", "--seed", str(seed), "--out", str(run),
                        "--force", *(["--preset", "default"] if shipped else []), *extra_flags(args)]

@@ -118,11 +118,15 @@ class VAEConfig:
     (`digail.algos.model_selection`: no labels needed)"""
     heldout_fraction: float = 0.2
     """share of the demonstrations held out to choose among restarts (and K with `--codes auto`)"""
-    k_criterion: Literal["linear", "vae"] = "linear"
-    """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under
-    the hard-EM start's linear sub-task policies (fast; the smallest K within one standard error of the best is
-    kept), or `vae`, that of a whole VAE trained per K (lowest wins). The VAE's network policies explain the actions
-    with too few codes where the state reveals the sub-task (docs/experiments.md)"""
+    k_criterion: Literal["auto", "linear", "rff", "vae"] = "auto"
+    """how `--codes auto` scores each K on the held-out demonstrations: `auto`, `rff` for continuous actions and
+    `linear` for discrete ones (where random features let one code follow the state through several sub-tasks);
+    `rff`, the description length under
+    switching sub-task policies that are smooth functions of the state (random Fourier features; fast, the
+    smallest K within one standard error of the best is kept), `linear`, the same with policies linear in the
+    state (the earlier default: it cuts curved sub-tasks such as Circle-World's circles into arcs), or `vae`, that
+    of a whole VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes
+    where the state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -143,9 +147,13 @@ class VAEConfig:
     init_obs: tuple[int, int] | None = None
     """`em`: observation features [start, stop) the start's linear sub-task policies see (None: all), e.g. (0, 26)
     in Four Rooms, the agent's position, so that a code is a field over the cells"""
-    init_ridge: float = 1.0
-    """`em`: ridge on the state weights of the start's linear sub-task policies (large: about one constant action
-    per code, as a leg of a course is; small: state-dependent sub-tasks such as heading for a corridor)"""
+    init_model: Literal["linear", "rff"] = "linear"
+    """`em`: what a sub-task policy of the start is linear in: the normalised state (`linear`), or the state and
+    random Fourier features of it (`rff`, a smooth function of the state; `segment_init.MODELS`)"""
+    init_ridge: float | None = None
+    """`em`: ridge on the state weights of the start's sub-task policies (large: about one constant action per
+    code, as a straight leg of a course is; small: actions that turn with the state, such as a curved path or
+    heading for a corridor). None: `segment_init.default_ridge`, 0.01 for continuous actions and 1.0 for discrete"""
     init_outlier_share: float = 1e-3
     """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
     which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: the plain
@@ -186,10 +194,12 @@ class VAEConfig:
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
                  self.hidden)
-        _require(_finite(self.init_ridge) and self.init_ridge > 0, "--vae.init-ridge", "positive", self.init_ridge)
+        _require(self.init_ridge is None or (_finite(self.init_ridge) and self.init_ridge > 0), "--vae.init-ridge",
+                 "positive", self.init_ridge)
         _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
+        _require(self.init_model in ("linear", "rff"), "--vae.init-model", "linear or rff", self.init_model)
         if self.init_obs is not None:
             lo, hi = self.init_obs
             _require(0 <= lo < hi, "--vae.init-obs", "a range START STOP with 0 <= START < STOP", self.init_obs)
@@ -368,13 +378,14 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eva
     return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)), eval_episodes)
 
 
-VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none")
+VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none", init_model="linear", init_ridge=1.0,
+                                          k_criterion="linear")
 """The VAE defaults the presets were tuned and their long runs started with, before the defaults were chosen on
 the segmentation benchmark (issue 14, `benchmarks/segmentation.py`): every environment preset pins them, so its
 runs stay what docs/experiments.md measured; the new defaults serve data without a preset"""
 
 EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed",
-                              init_outlier_share=0.0)
+                              init_outlier_share=0.0, init_model="linear", init_ridge=1.0, k_criterion="linear")
 """The VAE of Pendulum, Hopper, Walker2d and Fetch (docs/experiments.md, "Table 1: the VAE from the hard-EM
 segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed and its costs
 not capped, as the runs were made), no ELBO epochs. The paper's 1000-2000
@@ -400,7 +411,7 @@ PRESETS: dict[str, Preset] = {
         # with q noise and one step of anticipation lets the macro-policy switch when the agent passes near the
         # origin, not only exactly on it (fixed switch costs, costs not capped: the committed runs' start)
         dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed",
-             init_outlier_share=0.0),
+             init_outlier_share=0.0, init_model="linear", init_ridge=1.0, k_criterion="linear"),
         # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
         dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
         dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),

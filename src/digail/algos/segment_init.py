@@ -65,6 +65,67 @@ OUTLIER_SHARE = 1e-3
 docstring, "Capped costs")."""
 
 
+MODELS = ("linear", "rff")
+"""the sub-task policy models of the start (`VAEConfig.init_model`; module docstring, "Sub-task models")"""
+
+
+class _FeatureMap:
+    """What a sub-task policy sees of the normalised state: `linear`, [s_n, 1]; `rff`, [s_n, z(s_n), 1] with
+    `n_features` random Fourier features z_j = sqrt(2) cos(w_j . s_n + b_j), w_j ~ N(0, I / h^2), b_j ~ U(0, 2 pi),
+    whose bandwidth h is `bandwidth_scale` times the median distance between states (the median heuristic), so
+    a policy linear in them is a smooth function of the state at the scale the states spread over. The random
+    features are drawn from a generator of their own, seeded by `seed`, and fitted once on the demonstrations the
+    model is fitted to (the held-out ones of the K curve are mapped with the same features)."""
+
+    def __init__(self, model: str, n_features: int = 64, bandwidth_scale: float = 0.5, seed: int = 0,
+                 feature_ridge: float | None = None) -> None:
+        self.feature_ridge = feature_ridge
+        if model not in MODELS:
+            raise ValueError(f"unknown sub-task model {model!r}; choose one of {', '.join(MODELS)}.")
+        self.model, self.n_features, self.bandwidth_scale, self.seed = model, n_features, bandwidth_scale, seed
+        self.freq = np.zeros((0, 0))
+        self.phase = np.zeros(0)
+
+    def ridge(self, state: float, dim_x: int) -> np.ndarray:
+        """Per-feature ridge of a policy on these features: `state` on the state's and the random features (the
+        weights shrink towards a constant policy per code), hardly any on the bias (the last)."""
+        if self.model == "linear" or self.feature_ridge is None:
+            return np.r_[np.full(dim_x - 1, state), 1e-6]
+        d = dim_x - 1 - self.n_features
+        return np.r_[np.full(d, state), np.full(self.n_features, self.feature_ridge), 1e-6]
+
+    def fit(self, x: np.ndarray) -> _FeatureMap:
+        """Draw the random features for the rows `x` ([s_n, 1], as `_design` gives them)."""
+        if self.model == "rff":
+            s = x[:, :-1]
+            rng = np.random.default_rng(self.seed + 7_919)
+            sub = s[rng.choice(len(s), min(len(s), 1000), replace=False)]
+            dist = np.sqrt(((sub[:, None] - sub[None]) ** 2).sum(-1))
+            h = self.bandwidth_scale * float(np.median(dist[np.triu_indices(len(sub), 1)])) if len(sub) > 1 else 1.0
+            h = h if h > 1e-8 else 1.0
+            self.freq = rng.normal(size=(s.shape[1], self.n_features)) / h
+            self.phase = rng.uniform(0, 2 * math.pi, self.n_features)
+        return self
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.model == "linear":
+            return x
+        z = math.sqrt(2) * np.cos(x[:, :-1] @ self.freq + self.phase)
+        return np.c_[x[:, :-1], z, x[:, -1:]]
+
+
+def default_ridge(discrete: bool) -> float:
+    """The start's ridge when `VAEConfig.init_ridge` is None: 1.0 for discrete actions, 0.01 for continuous ones.
+
+    Why two: the continuous policies are fitted by least squares, where a ridge of 1 (times the steps) halves the
+    state weights of a normalised feature, so a code's policy is close to one constant action; a curved leg then
+    costs several codes, one per stretch of nearly constant direction (the curved course: accuracy 0.45 at 1.0,
+    0.93 at 0.01). The discrete ones are fitted by the cross-entropy, whose scale is the likelihood's own: there a
+    small ridge lets one code's softmax follow the state through every sub-task (the random-first course: 0.95 at
+    1.0, 0.72 at 0.01)."""
+    return 1.0 if discrete else 0.01
+
+
 def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
     out = []
     for t in trajs:
@@ -174,12 +235,13 @@ def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, n
 class _LinearPolicies:
     """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
 
-    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
-                 shared_variance: bool = True, outlier_share: float = 0.0) -> None:
+    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float | np.ndarray = 1e-3,
+                 shared_variance: bool = True, outlier_share: float = 0.0, precision: float = 0.0) -> None:
+        self.precision = precision
         self.k, self.discrete, self.shared_variance, self.outlier_share = k, discrete, shared_variance, outlier_share
         self.log_span = np.zeros(act_dim)  # log of each action dimension's range in the fitted steps
         # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
-        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.ridge = np.asarray(ridge, np.float64) if np.ndim(ridge) else np.r_[np.full(dim_x - 1, ridge), 1e-6]
         self.w = np.zeros((k, dim_x, act_dim))
         self.log_var = np.zeros((k, act_dim))
 
@@ -203,7 +265,8 @@ class _LinearPolicies:
                     self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
         if not self.discrete and self.shared_variance:
             # one noise level per action dimension for all codes (module docstring: why not one per code)
-            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
+            floor = np.maximum((self.precision * a.std(0)) ** 2, 1e-4)
+            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), floor))
 
     def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """(T, K) log-likelihood of each step's action under each code's policy."""
@@ -242,7 +305,7 @@ def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ri
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
                          rounds: int = 30, starts: int = 4, ridge: float = 1.0,
                          shared_variance: bool = True, switch_costs: str = "learned",
-                         outlier_share: float = OUTLIER_SHARE) -> list[np.ndarray]:
+                         outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
     docstring): from K equal consecutive pieces, from the ordered cut (learned switch costs only) and from
     `starts` - 1 k-means starts (`_hard_em`), up to `rounds` of Viterbi and refit each (stopping when nothing
@@ -250,14 +313,15 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
     variance per code (the first version, kept for the runs made with it); `switch_costs="fixed"`: log T +
     log(K - 1) nats per switch throughout (also kept for the runs made with it); `outlier_share`: the share of
     each continuous action dimension's likelihood that is uniform over its range (0: plain Gaussian, as the
-    presets' runs were made)."""
+    presets' runs were made); `model`: the sub-task policies' features (`MODELS`, module docstring)."""
     rng = np.random.default_rng(seed)
     best: tuple[float, list[np.ndarray]] | None = None
     # fixed switch costs keep the starts their runs were made with
     firsts = ["chunks", *(["ordered"] if switch_costs == "learned" else []), *["kmeans"] * (starts - 1)]
     for first in firsts:
         cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, first=first, ridge=ridge,
-                             shared_variance=shared_variance, switch_costs=switch_costs, outlier_share=outlier_share)
+                             shared_variance=shared_variance, switch_costs=switch_costs, outlier_share=outlier_share,
+                             model=model, seed=seed)
         if best is None or cost < best[0]:
             best = (cost, seg)
     assert best is not None
@@ -266,7 +330,7 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarray], codes: int, discrete: bool, *,
                           seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30,
-                          outlier_share: float = OUTLIER_SHARE) -> list[np.ndarray]:
+                          outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) when every piece of a demonstration takes one code: hard EM
     over the pieces (`pieces[i]` numbers demonstration i's steps by piece, e.g. Four Rooms' room visits, where an
     environment knows where its sub-tasks can change). Each round gives every piece the code whose linear policy
@@ -276,6 +340,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
     Why the end state: a sub-task is where it leads (a corridor, the apple), and the pieces that reach one place
     share its policy, where the actions alone (the same moves towards different corridors) do not group them."""
     x, a, n_act, mean, std = _design(trajs, discrete)
+    fmap = _FeatureMap(model, seed=seed).fit(x)
+    x = fmap(x)
     ends = np.concatenate([(np.asarray(t.obs[1:len(t) + 1], np.float64).reshape(len(t), -1) - mean) / std
                            for t in trajs])
     local = [np.unique(np.asarray(p), return_inverse=True)[1].reshape(-1) for p in pieces]  # 0, 1, ... per demo
@@ -292,7 +358,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
         piece_codes[used] = _kmeans(end_of[used], codes, rng)
         per_piece = np.zeros((n_pieces, codes))
         for _ in range(rounds):
-            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
+            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, fmap.ridge(ridge, x.shape[1]),
+                                       outlier_share=outlier_share)
             policies.fit(x, a, piece_codes[piece])
             per_piece = np.zeros((n_pieces, codes))
             np.add.at(per_piece, piece, policies.loglik(x, a))
@@ -311,7 +378,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
 
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
-                        switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE) -> list[dict[str, float]]:
+                        switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE,
+                        model: str = "linear", precision: float = 0.0, starts: int = 4) -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -324,6 +392,8 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     """
     x_fit, a_fit, n_act, mean, std = _design(fit_on, discrete)
     x_held, a_held, _, _, _ = _design(held, discrete, n_act, mean, std)
+    fmap = _FeatureMap(model, seed=seed).fit(x_fit)
+    p_fit, p_held = fmap(x_fit), fmap(x_held)
     lengths = np.array([len(t) for t in held])
     bounds = np.cumsum([0, *lengths])
     fit_bounds = np.cumsum([0, *[len(t) for t in fit_on]])
@@ -331,11 +401,12 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     curve = []
     for k in candidates:
         seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs,
-                                    outlier_share=outlier_share) if k > 1
+                                    outlier_share=outlier_share, model=model, starts=starts) if k > 1
                else [np.zeros(len(t), np.int64) for t in fit_on])
-        policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
-        policies.fit(x_fit, a_fit, np.concatenate(seg))
-        flat = policies.loglik(x_held, a_held)
+        policies = _LinearPolicies(k, p_fit.shape[1], n_act, discrete, fmap.ridge(ridge, p_fit.shape[1]),
+                                   outlier_share=outlier_share, precision=precision)
+        policies.fit(p_fit, a_fit, np.concatenate(seg))
+        flat = policies.loglik(p_held, a_held)
         if switch_costs == "learned":
             trans = _Transitions(k, x_fit.shape[1], mean_len)
             trans.fit(x_fit, seg, fit_bounds)
@@ -386,13 +457,13 @@ def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = Non
 
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
                  rounds: int = 30, ridge: float = 1.0, switch_costs: str = "learned",
-                 outlier_share: float = OUTLIER_SHARE) -> tuple[float, list[np.ndarray]]:
+                 outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> tuple[float, list[np.ndarray]]:
     """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
     cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
     the truth above what the search finds (`benchmarks/segmentation_oracle.py`)."""
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs,
-                    outlier_share=outlier_share)
+                    outlier_share=outlier_share, model=model)
 
 
 def _action_features(a: np.ndarray, n_act: int, discrete: bool) -> np.ndarray:
@@ -432,7 +503,7 @@ def _ordered_pieces(feat: np.ndarray, k: int, max_cuts: int = 1000) -> np.ndarra
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
              rounds: int, first: str = "kmeans", ridge: float = 1e-3, shared_variance: bool = True,
              start: list[np.ndarray] | None = None, switch_costs: str = "learned",
-             outlier_share: float = 0.0) -> tuple[float, list[np.ndarray]]:
+             outlier_share: float = 0.0, model: str = "linear", seed: int = 0) -> tuple[float, list[np.ndarray]]:
     """One hard-EM run: (description length in nats, codes per demonstration). It starts from `start` when given,
     else (`first`) from k-means clusters of (action, state) pairs, or from every demonstration cut into K
     consecutive pieces with codes 0, 1, ..., K - 1 in time: `chunks` of equal length, or the `ordered` cut the
@@ -456,17 +527,20 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
         # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
         labels = _kmeans(np.c_[a_feat, 0.5 * x_all[:, :-1]], codes, rng)
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
-    policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge, shared_variance, outlier_share)
+    fmap = _FeatureMap(model, seed=seed).fit(x_all)
+    p_all = fmap(x_all)
+    policies = _LinearPolicies(codes, p_all.shape[1], n_act, discrete, fmap.ridge(ridge, p_all.shape[1]),
+                               shared_variance, outlier_share)
     mean_len = float(np.mean(lengths))
     penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
     trans = _Transitions(codes, x_all.shape[1], mean_len) if switch_costs == "learned" else None
     learning = trans is not None and (start is not None or first != "kmeans")
 
     def padded_loglik() -> np.ndarray:
-        return _by_episode(policies.loglik(x_all, a_all), lengths)
+        return _by_episode(policies.loglik(p_all, a_all), lengths)
 
     for _ in range(rounds):
-        policies.fit(x_all, a_all, np.concatenate(seg))
+        policies.fit(p_all, a_all, np.concatenate(seg))
         if learning:
             assert trans is not None
             trans.fit(x_all, seg, bounds)
@@ -478,9 +552,9 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
                 break
             learning = True
         seg = new
-    policies.fit(x_all, a_all, np.concatenate(seg))
+    policies.fit(p_all, a_all, np.concatenate(seg))
     flat_codes = np.concatenate(seg)
-    cost = -float(policies.loglik(x_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
+    cost = -float(policies.loglik(p_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
     if trans is None:
         return cost + penalty * sum(int(np.count_nonzero(np.diff(c))) for c in seg), seg
     trans.fit(x_all, seg, bounds)

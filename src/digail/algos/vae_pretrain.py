@@ -42,7 +42,12 @@ from digail.algos.model_selection import best_index, description_length, heldout
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
-from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve, piece_em_segmentation
+from digail.algos.segment_init import (
+    default_ridge,
+    hard_em_segmentation,
+    heldout_codes_curve,
+    piece_em_segmentation,
+)
 from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -316,14 +321,15 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
     if cfg.init_obs is not None:
         lo, hi = cfg.init_obs
         seen = [dataclasses.replace(t, obs=np.asarray(t.obs).reshape(len(t.obs), -1)[:, lo:hi]) for t in trajs]
+    ridge = default_ridge(discrete) if cfg.init_ridge is None else cfg.init_ridge
     if cfg.init_pieces == "env":
         assert pieces is not None  # `pretrain` checked
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
-        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
-                                     outlier_share=cfg.init_outlier_share)
-    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
+        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=ridge,
+                                     outlier_share=cfg.init_outlier_share, model=cfg.init_model)
+    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=ridge,
                                 shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
-                                outlier_share=cfg.init_outlier_share)
+                                outlier_share=cfg.init_outlier_share, model=cfg.init_model)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
@@ -348,6 +354,29 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
                 writer.add_scalar(key, history[key][i], int(epoch))
 
 
+def k_criterion(cfg: VAEConfig, discrete: bool) -> str:
+    """`cfg.k_criterion` with `auto` resolved: `rff` for continuous actions, `linear` for discrete ones."""
+    if cfg.k_criterion == "auto":
+        return "linear" if discrete else "rff"
+    return cfg.k_criterion
+
+
+def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], discrete: bool, *,
+                seed: int = 0) -> tuple[list[dict[str, Any]], int]:
+    """(curve, index of the chosen K) of the `linear` or `rff` criterion (`select_codes`): hard EM per K on the
+    demonstrations less the held-out share `heldout_split` gives for `seed`, scored on that share."""
+    train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
+    fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
+    # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
+    curve: list[dict[str, Any]] = heldout_codes_curve(fit_on, held, candidates, discrete, seed=seed,
+                                                      switch_costs="fixed", outlier_share=cfg.init_outlier_share,
+                                                      model=k_criterion(cfg, discrete))
+    pick = smallest_within_one_se(curve)
+    for entry in curve:
+        del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+    return curve, pick
+
+
 def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], *,
                  action_spec: ActionSpec | None = None, seed: int = 0, device: str | torch.device = "cpu",
                  progress: bool = True, log_dir: str | Path | None = None,
@@ -357,9 +386,11 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     held-out share and scored by the description length of the held-out actions (`model_selection`), then the
     chosen K is trained (and polished) on all demonstrations.
 
-    `cfg.k_criterion` says which model is scored: `linear`, the hard-EM start's switching linear policies (the
-    smallest K within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K
-    (the lowest; the chosen VAE is kept and only polished on all demonstrations).
+    `cfg.k_criterion` says which model is scored (`auto`: `rff` for continuous actions, `linear` for discrete): `rff`
+    or `linear`, hard EM's switching sub-task policies on
+    random Fourier features of the state or on the state alone (ridge 1.0 whatever the start's; the smallest K
+    within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K (the lowest;
+    the chosen VAE is kept and only polished on all demonstrations).
 
     The curve's linear policies cut at any step; `pieces` (`pretrain`'s) serves the VAEs' own start.
 
@@ -371,13 +402,8 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     curve: list[dict[str, Any]] = []
-    if cfg.k_criterion == "linear":
-        # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
-        curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed,
-                                    switch_costs="fixed", outlier_share=cfg.init_outlier_share)
-        pick = smallest_within_one_se(curve)
-        for entry in curve:
-            del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+    if k_criterion(cfg, action_spec.discrete) != "vae":
+        curve, pick = codes_curve(trajs, cfg, candidates, action_spec.discrete, seed=seed)
         model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
                                   log_dir=log_dir, pieces=pieces)
