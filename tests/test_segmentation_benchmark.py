@@ -240,15 +240,13 @@ def _curved(minari_root: Path) -> list:
 
 def test_curved_legs_need_policies_whose_action_turns_with_the_state(minari_root: Path) -> None:
     """Three arcs joined smoothly: the direction never jumps, only the curvature changes. With the state weights
-    shrunk hard (ridge 1.0, the earlier default for continuous actions) a code's policy is nearly one constant
-    action and the arcs are cut into stretches of nearly constant direction; the default ridge for continuous
-    actions lets one code's action turn with the position (a rotation field is linear in it)."""
-    from digail.algos.segment_init import default_ridge
-
+    shrunk hard (ridge 1.0, the default) a code's policy is nearly one constant action and the arcs are cut into
+    stretches of nearly constant direction; a small ridge (0.01, what docs/howto/choosing-k.md advises for curved
+    paths) lets one code's action turn with the position (a rotation field is linear in it)."""
     trajs = _curved(minari_root)[:8]
     labels = _labels(trajs)
     turning = segmentation_metrics(hard_em_segmentation(trajs, 3, False, seed=0, starts=2,
-                                                        ridge=default_ridge(False)), labels)
+                                                        ridge=0.01), labels)
     assert turning["accuracy"] >= 0.9 and turning["switches_per_episode"] <= 1.5 * 2
     stiff = segmentation_metrics(hard_em_segmentation(trajs, 3, False, seed=0, starts=2, ridge=1.0), labels)
     assert stiff["accuracy"] < 0.7 and stiff["switches_per_episode"] > 3
@@ -295,15 +293,14 @@ def test_random_fourier_features_are_seeded_and_scaled_by_the_states_spread() ->
 
 
 def test_presets_pin_the_start_and_the_k_criterion_their_runs_were_made_with() -> None:
-    """The defaults of the start's model, ridge and K criterion changed; every environment preset keeps the
-    earlier ones (linear policies, ridge 1.0 unless it sets its own, the linear criterion), so its committed runs
-    stay reproducible. Data without a preset gets the new defaults."""
+    """The default K criterion changed and the start's model became a setting; every environment preset keeps the
+    earlier ones (linear policies, the linear criterion), so its committed runs stay reproducible. Data without a
+    preset gets the new defaults."""
     from digail.config import PRESETS
 
     for name, preset in PRESETS.items():
         if name == "default":
             continue
         assert preset.vae.init_model == "linear" and preset.vae.k_criterion == "linear", name
-        assert preset.vae.init_ridge is not None, name
     default = PRESETS["default"].vae
-    assert (default.init_model, default.init_ridge, default.k_criterion) == ("linear", None, "auto")
+    assert (default.init_model, default.k_criterion) == ("linear", "auto")

@@ -150,10 +150,10 @@ class VAEConfig:
     init_model: Literal["linear", "rff"] = "linear"
     """`em`: what a sub-task policy of the start is linear in: the normalised state (`linear`), or the state and
     random Fourier features of it (`rff`, a smooth function of the state; `segment_init.MODELS`)"""
-    init_ridge: float | None = None
+    init_ridge: float = 1.0
     """`em`: ridge on the state weights of the start's sub-task policies (large: about one constant action per
-    code, as a straight leg of a course is; small: actions that turn with the state, such as a curved path or
-    heading for a corridor). None: `segment_init.default_ridge`, 0.01 for continuous actions and 1.0 for discrete"""
+    code, as a straight leg of a course or a phase of a manipulation is; small, e.g. 0.01: actions that turn with
+    the state, such as a curved path or heading for a corridor; docs/howto/choosing-k.md)"""
     init_outlier_share: float = 1e-3
     """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
     which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: the plain
@@ -194,8 +194,7 @@ class VAEConfig:
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
                  self.hidden)
-        _require(self.init_ridge is None or (_finite(self.init_ridge) and self.init_ridge > 0), "--vae.init-ridge",
-                 "positive", self.init_ridge)
+        _require(_finite(self.init_ridge) and self.init_ridge > 0, "--vae.init-ridge", "positive", self.init_ridge)
         _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
@@ -378,14 +377,13 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eva
     return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)), eval_episodes)
 
 
-VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none", init_model="linear", init_ridge=1.0,
-                                          k_criterion="linear")
+VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none", init_model="linear", k_criterion="linear")
 """The VAE defaults the presets were tuned and their long runs started with, before the defaults were chosen on
 the segmentation benchmark (issue 14, `benchmarks/segmentation.py`): every environment preset pins them, so its
 runs stay what docs/experiments.md measured; the new defaults serve data without a preset"""
 
 EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed",
-                              init_outlier_share=0.0, init_model="linear", init_ridge=1.0, k_criterion="linear")
+                              init_outlier_share=0.0, init_model="linear", k_criterion="linear")
 """The VAE of Pendulum, Hopper, Walker2d and Fetch (docs/experiments.md, "Table 1: the VAE from the hard-EM
 segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed and its costs
 not capped, as the runs were made), no ELBO epochs. The paper's 1000-2000
@@ -411,7 +409,7 @@ PRESETS: dict[str, Preset] = {
         # with q noise and one step of anticipation lets the macro-policy switch when the agent passes near the
         # origin, not only exactly on it (fixed switch costs, costs not capped: the committed runs' start)
         dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed",
-             init_outlier_share=0.0, init_model="linear", init_ridge=1.0, k_criterion="linear"),
+             init_outlier_share=0.0, init_model="linear", k_criterion="linear"),
         # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
         dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
         dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),

@@ -114,18 +114,6 @@ class _FeatureMap:
         return np.c_[x[:, :-1], z, x[:, -1:]]
 
 
-def default_ridge(discrete: bool) -> float:
-    """The start's ridge when `VAEConfig.init_ridge` is None: 1.0 for discrete actions, 0.01 for continuous ones.
-
-    Why two: the continuous policies are fitted by least squares, where a ridge of 1 (times the steps) halves the
-    state weights of a normalised feature, so a code's policy is close to one constant action; a curved leg then
-    costs several codes, one per stretch of nearly constant direction (the curved course: accuracy 0.45 at 1.0,
-    0.93 at 0.01). The discrete ones are fitted by the cross-entropy, whose scale is the likelihood's own: there a
-    small ridge lets one code's softmax follow the state through every sub-task (the random-first course: 0.95 at
-    1.0, 0.72 at 0.01)."""
-    return 1.0 if discrete else 0.01
-
-
 def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
     out = []
     for t in trajs:

@@ -42,12 +42,7 @@ from digail.algos.model_selection import best_index, description_length, heldout
 from digail.algos.optim import adam
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.ppo import LeanStep
-from digail.algos.segment_init import (
-    default_ridge,
-    hard_em_segmentation,
-    heldout_codes_curve,
-    piece_em_segmentation,
-)
+from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve, piece_em_segmentation
 from digail.algos.vae_grad import VAEGrad
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -321,13 +316,12 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
     if cfg.init_obs is not None:
         lo, hi = cfg.init_obs
         seen = [dataclasses.replace(t, obs=np.asarray(t.obs).reshape(len(t.obs), -1)[:, lo:hi]) for t in trajs]
-    ridge = default_ridge(discrete) if cfg.init_ridge is None else cfg.init_ridge
     if cfg.init_pieces == "env":
         assert pieces is not None  # `pretrain` checked
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
-        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=ridge,
+        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
                                      outlier_share=cfg.init_outlier_share, model=cfg.init_model)
-    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=ridge,
+    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
                                 shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
                                 outlier_share=cfg.init_outlier_share, model=cfg.init_model)
 
