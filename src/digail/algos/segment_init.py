@@ -45,6 +45,14 @@ binary gripper command a code gets wrong cost 2^2 / (2 x 1e-4) = 20 000 nats, so
 steps of every grasp bought a code of their own and reach merged with descend (0.854); capped, the start keeps
 the four phases (0.935) and pick / place stays 0.960 (docs/experiments.md).
 
+Sub-task models (`model`, `VAEConfig.init_model`; `MODELS`): `linear`, the policies above on [s_n, 1]; `rff`, the
+same policies on [s_n, z(s_n), 1] with random Fourier features z (`_FeatureMap`), so a code's action is a smooth
+function of the state. The segmentation machinery (Viterbi, switch costs, capped costs) is the same for both. The
+K curve (`heldout_codes_curve`) scores either on held-out demonstrations, so the richer model pays for what it
+costs: features that only memorise the fitted demonstrations predict the held-out ones worse. For the start
+`linear` stays the default (the benchmark, docs/howto/choosing-k.md); for the K curve `rff` is the default with
+continuous actions, where curved sub-tasks would otherwise each take a chain of codes.
+
 Linear sub-task policies are the point: a network sees enough of the state to fit the whole demonstration with
 one code, and then no segmentation explains the actions better than none; a linear policy per code cannot, so
 the codes must carry what differs between sub-tasks.
