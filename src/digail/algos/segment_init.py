@@ -85,22 +85,12 @@ class _FeatureMap:
     features are drawn from a generator of their own, seeded by `seed`, and fitted once on the demonstrations the
     model is fitted to (the held-out ones of the K curve are mapped with the same features)."""
 
-    def __init__(self, model: str, n_features: int = 64, bandwidth_scale: float = 0.5, seed: int = 0,
-                 feature_ridge: float | None = None) -> None:
-        self.feature_ridge = feature_ridge
+    def __init__(self, model: str, n_features: int = 64, bandwidth_scale: float = 0.5, seed: int = 0) -> None:
         if model not in MODELS:
             raise ValueError(f"unknown sub-task model {model!r}; choose one of {', '.join(MODELS)}.")
         self.model, self.n_features, self.bandwidth_scale, self.seed = model, n_features, bandwidth_scale, seed
         self.freq = np.zeros((0, 0))
         self.phase = np.zeros(0)
-
-    def ridge(self, state: float, dim_x: int) -> np.ndarray:
-        """Per-feature ridge of a policy on these features: `state` on the state's and the random features (the
-        weights shrink towards a constant policy per code), hardly any on the bias (the last)."""
-        if self.model == "linear" or self.feature_ridge is None:
-            return np.r_[np.full(dim_x - 1, state), 1e-6]
-        d = dim_x - 1 - self.n_features
-        return np.r_[np.full(d, state), np.full(self.n_features, self.feature_ridge), 1e-6]
 
     def fit(self, x: np.ndarray) -> _FeatureMap:
         """Draw the random features for the rows `x` ([s_n, 1], as `_design` gives them)."""
@@ -231,13 +221,12 @@ def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, n
 class _LinearPolicies:
     """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
 
-    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float | np.ndarray = 1e-3,
-                 shared_variance: bool = True, outlier_share: float = 0.0, precision: float = 0.0) -> None:
-        self.precision = precision
+    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
+                 shared_variance: bool = True, outlier_share: float = 0.0) -> None:
         self.k, self.discrete, self.shared_variance, self.outlier_share = k, discrete, shared_variance, outlier_share
         self.log_span = np.zeros(act_dim)  # log of each action dimension's range in the fitted steps
         # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
-        self.ridge = np.asarray(ridge, np.float64) if np.ndim(ridge) else np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
         self.w = np.zeros((k, dim_x, act_dim))
         self.log_var = np.zeros((k, act_dim))
 
@@ -261,8 +250,7 @@ class _LinearPolicies:
                     self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
         if not self.discrete and self.shared_variance:
             # one noise level per action dimension for all codes (module docstring: why not one per code)
-            floor = np.maximum((self.precision * a.std(0)) ** 2, 1e-4)
-            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), floor))
+            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
 
     def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """(T, K) log-likelihood of each step's action under each code's policy."""
@@ -354,7 +342,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
         piece_codes[used] = _kmeans(end_of[used], codes, rng)
         per_piece = np.zeros((n_pieces, codes))
         for _ in range(rounds):
-            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, fmap.ridge(ridge, x.shape[1]),
+            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge,
                                        outlier_share=outlier_share)
             policies.fit(x, a, piece_codes[piece])
             per_piece = np.zeros((n_pieces, codes))
@@ -375,7 +363,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
                         switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE,
-                        model: str = "linear", precision: float = 0.0, starts: int = 4) -> list[dict[str, float]]:
+                        model: str = "linear", starts: int = 4) -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -399,8 +387,8 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
         seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs,
                                     outlier_share=outlier_share, model=model, starts=starts) if k > 1
                else [np.zeros(len(t), np.int64) for t in fit_on])
-        policies = _LinearPolicies(k, p_fit.shape[1], n_act, discrete, fmap.ridge(ridge, p_fit.shape[1]),
-                                   outlier_share=outlier_share, precision=precision)
+        policies = _LinearPolicies(k, p_fit.shape[1], n_act, discrete, ridge,
+                                   outlier_share=outlier_share)
         policies.fit(p_fit, a_fit, np.concatenate(seg))
         flat = policies.loglik(p_held, a_held)
         if switch_costs == "learned":
@@ -525,7 +513,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
     fmap = _FeatureMap(model, seed=seed).fit(x_all)
     p_all = fmap(x_all)
-    policies = _LinearPolicies(codes, p_all.shape[1], n_act, discrete, fmap.ridge(ridge, p_all.shape[1]),
+    policies = _LinearPolicies(codes, p_all.shape[1], n_act, discrete, ridge,
                                shared_variance, outlier_share)
     mean_len = float(np.mean(lengths))
     penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
