@@ -100,7 +100,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
                                            device=args.device, log_dir=tmp, pieces=init_pieces_fn(dataset.env_id))
             config["k_selection"] = curve
             config["vae"]["codes"] = model.codes
-            codes_curve({"held-out description length per K (lower is better)": curve}, tmp / "figures" / "k_curve.png")
+            codes_curve({"--codes auto: the K curve": curve}, tmp / "figures" / "k_curve.png")
             print("K selection (held-out description length, nats per step; lower is better): "
                   + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" for c in curve) + f" -> K = {model.codes}")
         else:
