@@ -249,7 +249,7 @@ def measure(args: argparse.Namespace, out: Path) -> None:
 
     from digail.algos.decode import segment_many
     from digail.algos.model_selection import description_length, heldout_split
-    from digail.algos.vae_pretrain import codes_curve, k_criterion, pretrain
+    from digail.algos.vae_pretrain import codes_curve, pretrain
     from digail.config import VAEConfig
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import segmentation_metrics
@@ -281,7 +281,7 @@ def measure(args: argparse.Namespace, out: Path) -> None:
                 chosen = int(curve[pick]["codes"])
                 truth = len(np.unique(np.concatenate([t.subtasks for t in ds.trajs])))
                 rows.append({"seed": seed, "true_codes": truth, "chosen": chosen, "hit": chosen == truth,
-                             "criterion": k_criterion(cfg, discrete), "curve": curve,
+                             "criterion": cfg.k_criterion, "curve": curve,
                              "time_s": round(time.perf_counter() - t0, 1)})
                 print(f"== {name} seed {seed}: K = {chosen} (true {truth}) "
                       + " ".join(f"{c['dl_per_step']:.3f}" for c in curve), flush=True)

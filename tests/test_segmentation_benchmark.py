@@ -290,17 +290,3 @@ def test_random_fourier_features_are_seeded_and_scaled_by_the_states_spread() ->
     assert np.array_equal(_FeatureMap("linear").fit(x)(x), x)
     with pytest.raises(ValueError, match="unknown sub-task model"):
         _FeatureMap("mlp")
-
-
-def test_presets_pin_the_start_and_the_k_criterion_their_runs_were_made_with() -> None:
-    """The default K criterion changed and the start's model became a setting; every environment preset keeps the
-    earlier ones (linear policies, the linear criterion), so its committed runs stay reproducible. Data without a
-    preset gets the new defaults."""
-    from digail.config import PRESETS
-
-    for name, preset in PRESETS.items():
-        if name == "default":
-            continue
-        assert preset.vae.init_model == "linear" and preset.vae.k_criterion == "linear", name
-    default = PRESETS["default"].vae
-    assert (default.init_model, default.k_criterion) == ("linear", "auto")

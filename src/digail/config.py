@@ -118,15 +118,13 @@ class VAEConfig:
     (`digail.algos.model_selection`: no labels needed)"""
     heldout_fraction: float = 0.2
     """share of the demonstrations held out to choose among restarts (and K with `--codes auto`)"""
-    k_criterion: Literal["auto", "linear", "rff", "vae"] = "auto"
-    """how `--codes auto` scores each K on the held-out demonstrations: `auto`, `rff` for continuous actions and
-    `linear` for discrete ones (where random features let one code follow the state through several sub-tasks);
-    `rff`, the description length under
-    switching sub-task policies that are smooth functions of the state (random Fourier features; fast, the
-    smallest K within one standard error of the best is kept), `linear`, the same with policies linear in the
-    state (the earlier default: it cuts curved sub-tasks such as Circle-World's circles into arcs), or `vae`, that
-    of a whole VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes
-    where the state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
+    k_criterion: Literal["linear", "rff", "vae"] = "linear"
+    """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under the
+    hard-EM start's switching sub-task policies linear in the state (fast; the smallest K within one standard error
+    of the best is kept), `rff`, the same with policies on random Fourier features of the state (smooth sub-tasks
+    such as arcs take one code each, but on many state features extra codes keep paying), or `vae`, that of a whole
+    VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes where the
+    state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -377,13 +375,13 @@ def _preset(vae: dict[str, Any], train: dict[str, Any], ppo: dict[str, Any], eva
     return Preset(VAEConfig(**vae), TrainConfig(**train, ppo=PPOConfig(**ppo)), eval_episodes)
 
 
-VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none", init_model="linear", k_criterion="linear")
+VAE_BEFORE_ISSUE_14: dict[str, Any] = dict(tau_decay=3e-3, init="none")
 """The VAE defaults the presets were tuned and their long runs started with, before the defaults were chosen on
 the segmentation benchmark (issue 14, `benchmarks/segmentation.py`): every environment preset pins them, so its
 runs stay what docs/experiments.md measured; the new defaults serve data without a preset"""
 
 EM_VAE: dict[str, Any] = dict(codes=4, batch_size=32, init="em", init_steps=30_000, init_switch_costs="fixed",
-                              init_outlier_share=0.0, init_model="linear", k_criterion="linear")
+                              init_outlier_share=0.0)
 """The VAE of Pendulum, Hopper, Walker2d and Fetch (docs/experiments.md, "Table 1: the VAE from the hard-EM
 segmentation"): q and pi fitted for 30k steps to the hard-EM segmentation (its switch costs fixed and its costs
 not capped, as the runs were made), no ELBO epochs. The paper's 1000-2000
@@ -409,7 +407,7 @@ PRESETS: dict[str, Preset] = {
         # with q noise and one step of anticipation lets the macro-policy switch when the agent passes near the
         # origin, not only exactly on it (fixed switch costs, costs not capped: the committed runs' start)
         dict(codes=2, polish_steps=20000, q_noise=0.08, q_anticipate=1, init_switch_costs="fixed",
-             init_outlier_share=0.0, init_model="linear", k_criterion="linear"),
+             init_outlier_share=0.0),
         # sub-degree directions set the radius: fine-tune close to the VAE (tiny noise and rate, an anchor)
         dict(iterations=1000, bonus_weight=0.01, value_warmup=25, min_init_log_std=-4.6, anchor_weight=100.0),
         dict(batch_size=512, minibatch_size=128, target_kl=0.03, policy_lr=1e-5, anneal_lr=True),

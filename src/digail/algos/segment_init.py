@@ -49,9 +49,9 @@ Sub-task models (`model`, `VAEConfig.init_model`; `MODELS`): `linear`, the polic
 same policies on [s_n, z(s_n), 1] with random Fourier features z (`_FeatureMap`), so a code's action is a smooth
 function of the state. The segmentation machinery (Viterbi, switch costs, capped costs) is the same for both. The
 K curve (`heldout_codes_curve`) scores either on held-out demonstrations, so the richer model pays for what it
-costs: features that only memorise the fitted demonstrations predict the held-out ones worse. For the start
-`linear` stays the default (the benchmark, docs/howto/choosing-k.md); for the K curve `rff` is the default with
-continuous actions, where curved sub-tasks would otherwise each take a chain of codes.
+costs: features that only memorise the fitted demonstrations predict the held-out ones worse. `linear` stays the
+default for both: measured on the segmentation benchmark, `rff` puts a curved sub-task into one code but lets one
+code explain several sub-tasks where the position tells the action (docs/howto/choosing-k.md).
 
 Linear sub-task policies are the point: a network sees enough of the state to fit the whole demonstration with
 one code, and then no segmentation explains the actions better than none; a linear policy per code cannot, so

@@ -348,13 +348,6 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
                 writer.add_scalar(key, history[key][i], int(epoch))
 
 
-def k_criterion(cfg: VAEConfig, discrete: bool) -> str:
-    """`cfg.k_criterion` with `auto` resolved: `rff` for continuous actions, `linear` for discrete ones."""
-    if cfg.k_criterion == "auto":
-        return "linear" if discrete else "rff"
-    return cfg.k_criterion
-
-
 def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], discrete: bool, *,
                 seed: int = 0) -> tuple[list[dict[str, Any]], int]:
     """(curve, index of the chosen K) of the `linear` or `rff` criterion (`select_codes`): hard EM per K on the
@@ -364,7 +357,7 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
     # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
     curve: list[dict[str, Any]] = heldout_codes_curve(fit_on, held, candidates, discrete, seed=seed,
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
-                                                      model=k_criterion(cfg, discrete))
+                                                      model=cfg.k_criterion)
     pick = smallest_within_one_se(curve)
     for entry in curve:
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
@@ -380,8 +373,7 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     held-out share and scored by the description length of the held-out actions (`model_selection`), then the
     chosen K is trained (and polished) on all demonstrations.
 
-    `cfg.k_criterion` says which model is scored (`auto`: `rff` for continuous actions, `linear` for discrete): `rff`
-    or `linear`, hard EM's switching sub-task policies on
+    `cfg.k_criterion` says which model is scored: `linear` or `rff`, hard EM's switching sub-task policies on
     random Fourier features of the state or on the state alone (ridge 1.0 whatever the start's; the smallest K
     within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K (the lowest;
     the chosen VAE is kept and only polished on all demonstrations).
@@ -396,7 +388,7 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     curve: list[dict[str, Any]] = []
-    if k_criterion(cfg, action_spec.discrete) != "vae":
+    if cfg.k_criterion != "vae":
         curve, pick = codes_curve(trajs, cfg, candidates, action_spec.discrete, seed=seed)
         model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
