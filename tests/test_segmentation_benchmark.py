@@ -232,18 +232,19 @@ def test_fetch_phases_and_pick_place_both_found_with_capped_costs() -> None:
     assert plain["accuracy"] < 0.9
 
 
-def _curved(minari_root: Path) -> list:
-    # one recording of 12 episodes (the course's recording is deterministic per episode, so its first 8 are the
-    # 8-episode recording)
-    return load_dataset(record_course("curved", minari_root, seed=0, episodes=12)).trajs
+@pytest.fixture(scope="module")
+def curved(tmp_path_factory: pytest.TempPathFactory) -> list:
+    """12 episodes of the curved course, in a Minari root of their own (a recording keeps the episode count it was
+    first made with, and other tests record 3)."""
+    return load_dataset(record_course("curved", tmp_path_factory.mktemp("curved"), seed=0, episodes=12)).trajs
 
 
-def test_curved_legs_need_policies_whose_action_turns_with_the_state(minari_root: Path) -> None:
+def test_curved_legs_need_policies_whose_action_turns_with_the_state(curved: list) -> None:
     """Three arcs joined smoothly: the direction never jumps, only the curvature changes. With the state weights
     shrunk hard (ridge 1.0, the default) a code's policy is nearly one constant action and the arcs are cut into
     stretches of nearly constant direction; a small ridge (0.01, what docs/howto/choosing-k.md advises for curved
     paths) lets one code's action turn with the position (a rotation field is linear in it)."""
-    trajs = _curved(minari_root)[:8]
+    trajs = curved[:8]
     labels = _labels(trajs)
     turning = segmentation_metrics(hard_em_segmentation(trajs, 3, False, seed=0, starts=2,
                                                         ridge=0.01), labels)
@@ -252,7 +253,7 @@ def test_curved_legs_need_policies_whose_action_turns_with_the_state(minari_root
     assert stiff["accuracy"] < 0.7 and stiff["switches_per_episode"] > 3
 
 
-def test_codes_auto_with_smooth_policies_finds_the_curved_courses_three(minari_root: Path) -> None:
+def test_codes_auto_with_smooth_policies_finds_the_curved_courses_three(curved: list) -> None:
     """The K curve (held-out description length per K, smallest K within one standard error of the lowest) on the
     curved course, whose answer is 3: policies on random Fourier features of the state explain each arc with one
     code, so the curve is flat past 3; linear policies keep buying a better fit with every further cut of an arc
@@ -260,7 +261,7 @@ def test_codes_auto_with_smooth_policies_finds_the_curved_courses_three(minari_r
     from digail.algos.model_selection import smallest_within_one_se
     from digail.algos.segment_init import heldout_codes_curve
 
-    trajs = _curved(minari_root)
+    trajs = curved
     fit_idx, held_idx = heldout_split(len(trajs), 0.25, 0)
     fit_on, held = [trajs[i] for i in fit_idx], [trajs[i] for i in held_idx]
     chosen = {}

@@ -197,6 +197,8 @@ class VAEConfig:
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
         _require(self.init_model in ("linear", "rff"), "--vae.init-model", "linear or rff", self.init_model)
+        _require(self.k_criterion in ("linear", "rff", "vae"), "--vae.k-criterion", "linear, rff or vae",
+                 self.k_criterion)
         if self.init_obs is not None:
             lo, hi = self.init_obs
             _require(0 <= lo < hi, "--vae.init-obs", "a range START STOP with 0 <= START < STOP", self.init_obs)
