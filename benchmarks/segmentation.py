@@ -163,7 +163,8 @@ def main(argv: list[str] | None = None) -> None:
         from digail.viz.figures import codes_curve
 
         tasks = json.loads(args.out.read_text())["tasks"]
-        codes_curve({f"{name} seed 0": t["seeds"][0]["curve"] for name, t in tasks.items()},
+        codes_curve({f"{name} seed 0": [{**c, "chosen": c["codes"] == t["seeds"][0]["chosen"]}
+                                        for c in t["seeds"][0]["curve"]] for name, t in tasks.items()},
                     HERE / "results" / "figures" / "segmentation_codes.png",
                     truth={f"{name} seed 0": t["seeds"][0]["true_codes"] for name, t in tasks.items()})
         return

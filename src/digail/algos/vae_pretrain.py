@@ -359,8 +359,9 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
                                                       model=cfg.k_criterion)
     pick = smallest_within_one_se(curve)
-    for entry in curve:
+    for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+        entry["chosen"] = i == pick
     return curve, pick
 
 
