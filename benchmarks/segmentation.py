@@ -6,10 +6,13 @@ setting was tuned for.
     python benchmarks/segmentation.py --set vae.smoothing-weight=0.3 ...   (extra flags for every `digail pretrain`)
 
 Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once per seed 0 with Minari's API by
-`digail.data.courses.record_course` into `--data`, default runs/segbench/datasets), and three shipped data sets:
-Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor or the apple) and the Fetch phases (K = 4: reach,
-grasp, carry, place). The shipped ones run with `--preset default`, the settings an env without a preset gets,
-so every task sees the same defaults. Each (task, seed) runs exactly what a user types:
+`digail.data.courses.record_course` into `--data`, default runs/segbench/datasets), among them the harder ones
+(curved legs joined smoothly, legs that weave, distractor dimensions, episodes that start in a random sub-task,
+eight short sub-tasks); three shipped data sets: Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor
+or the apple) and the Fetch phases (K = 4: reach, grasp, carry, place); and Hopper's gait phase (K = 4: the shipped
+Hopper demonstrations' first 8 episodes labelled by `digail.eval.gait.gait_phase`, written once into `--data`).
+The shipped ones run with `--preset default`, the settings an env without a preset gets, so every task sees the
+same defaults. Each (task, seed) runs exactly what a user types:
 
     digail pretrain --demos D --codes K --seed S --out R/<task>_sS [--preset default]
     digail segment R/<task>_sS
@@ -27,12 +30,17 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
         of the table's seed 0: oracle labels against the codes for three demonstrations per task)
     python benchmarks/segmentation.py --measure codes --tasks ...               -> segmentation_codes.json
         per (task, seed): `digail pretrain --codes auto` (K = 2 .. 8), its curve, and whether it chose the true K
-        (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion
+        (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion;
+        `--curve-only` computes the curve and the choice exactly as `--codes auto` does but skips training the
+        chosen K's VAE afterwards (which does not change the choice)
+    python benchmarks/segmentation.py --measure codes-figure --out benchmarks/results/segmentation_codes_auto.json
+        -> results/figures/segmentation_codes.png: every task's curve of seed 0, the choice and the true K
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shlex
@@ -60,11 +68,35 @@ SHIPPED: dict[str, dict[str, Any]] = {
                   description="FetchPickAndPlace phases reach / grasp / carry / place (shipped, 25 000 steps)"),
 }
 
+DERIVED: dict[str, dict[str, Any]] = {
+    "hopper-gait": dict(source="digail/hopper/expert-v0", env="Hopper-v5", episodes=8, codes=4,
+                        description="Hopper's gait phase: 4 sectors of the hip's phase portrait (shipped Hopper "
+                                    "demonstrations, first 8 episodes, about 8 000 steps)"),
+}
+"""shipped data sets relabelled with a phase computed from the observation (written into `--data` once)"""
+
 KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode", "time_s")
 
 
 def task_names() -> list[str]:
-    return [*COURSES, *SHIPPED]
+    return [*COURSES, *SHIPPED, *DERIVED]
+
+
+def derived_dataset(name: str, data_root: Path) -> Path:
+    """The folder of derived task `name`'s data set: the source's first episodes with their phase as the label."""
+    from digail.data.minari_io import load_dataset
+    from digail.data.minari_write import write_dataset
+    from digail.eval.gait import gait_phase, phase_stats
+
+    spec = DERIVED[name]
+    folder = (data_root / f"segbench-{name}").resolve()
+    if (folder / "data" / "metadata.json").is_file():
+        return folder
+    trajs = load_dataset(spec["source"]).trajs[:spec["episodes"]]
+    stats = phase_stats([t.obs for t in trajs], spec["env"])
+    labelled = [dataclasses.replace(t, subtasks=gait_phase(t.obs, spec["env"], stats, spec["codes"])) for t in trajs]
+    write_dataset(labelled, folder, spec["env"], f"segbench/{name}-v0", description=spec["description"])
+    return folder
 
 
 def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
@@ -72,6 +104,8 @@ def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     if name in COURSES:
         folder = record_course(name, data_root, seed=0)
         return str(folder), COURSES[name].codes, False, COURSES[name].description
+    if name in DERIVED:
+        return str(derived_dataset(name, data_root)), DERIVED[name]["codes"], True, DERIVED[name]["description"]
     spec = SHIPPED[name]
     return spec["demos"], spec["codes"], True, spec["description"]
 
@@ -117,11 +151,23 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                         help="extra `digail pretrain` flags for every task, e.g. vae.smoothing-weight=0.3")
-    parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure"], default="table")
+    parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure", "codes-figure"],
+                        default="table")
     parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
+    parser.add_argument("--curve-only", action="store_true",
+                        help="--measure codes: only the K curve and the choice, without training the chosen K")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     extra = extra_flags(args)
+    if args.measure == "codes-figure":
+        from digail.viz.figures import codes_curve
+
+        tasks = json.loads(args.out.read_text())["tasks"]
+        codes_curve({f"{name} seed 0": [{**c, "chosen": c["codes"] == t["seeds"][0]["chosen"]}
+                                        for c in t["seeds"][0]["curve"]] for name, t in tasks.items()},
+                    HERE / "results" / "figures" / "segmentation_codes.png",
+                    truth={f"{name} seed 0": t["seeds"][0]["true_codes"] for name, t in tasks.items()})
+        return
     if args.measure == "figure":
         figure(args.out, args.runs, args.data, HERE / "results" / "figures" / "segmentation_benchmark.png")
         return
@@ -201,11 +247,10 @@ def figure(results: Path, runs: Path, data_root: Path, out: Path, episodes: int 
 
 def measure(args: argparse.Namespace, out: Path) -> None:
     """`--measure restarts` or `--measure codes` (module docstring)."""
-    import dataclasses
 
     from digail.algos.decode import segment_many
     from digail.algos.model_selection import description_length, heldout_split
-    from digail.algos.vae_pretrain import pretrain
+    from digail.algos.vae_pretrain import codes_curve, pretrain
     from digail.config import VAEConfig
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import segmentation_metrics
@@ -221,7 +266,27 @@ def measure(args: argparse.Namespace, out: Path) -> None:
         demos, codes, shipped, _ = task_data(name, args.data)
         rows = []
         for seed in args.seeds:
-            if args.measure == "codes":
+            if args.measure == "codes" and args.curve_only:
+                # the K `--codes auto` chooses (`vae_pretrain.codes_curve`, what `select_codes` decides by),
+                # without training the chosen K's VAE afterwards
+                ds = load_dataset(demos)
+                cfg = VAEConfig()
+                for item in args.set:  # vae.FIELD=VALUE, cast to the field's current type
+                    key, value = item.split("=", 1)
+                    field = key.removeprefix("vae.").replace("-", "_")
+                    cast = float if getattr(cfg, field) is None else type(getattr(cfg, field))
+                    cfg = dataclasses.replace(cfg, **{field: cast(value)})
+                discrete = ActionSpec.from_space(ds.action_space).discrete
+                t0 = time.perf_counter()
+                curve, pick = codes_curve(ds.trajs, cfg, list(range(2, 9)), discrete, seed=seed)
+                chosen = int(curve[pick]["codes"])
+                truth = len(np.unique(np.concatenate([t.subtasks for t in ds.trajs])))
+                rows.append({"seed": seed, "true_codes": truth, "chosen": chosen, "hit": chosen == truth,
+                             "criterion": cfg.k_criterion, "curve": curve,
+                             "time_s": round(time.perf_counter() - t0, 1)})
+                print(f"== {name} seed {seed}: K = {chosen} (true {truth}) "
+                      + " ".join(f"{c['dl_per_step']:.3f}" for c in curve), flush=True)
+            elif args.measure == "codes":
                 run = args.runs / f"{name}_auto_s{seed}"
                 cmd = ["pretrain", "--demos", demos, "--codes", "auto", "--seed", str(seed), "--out", str(run),
                        "--force", *(["--preset", "default"] if shipped else []), *extra_flags(args)]

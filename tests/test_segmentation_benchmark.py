@@ -230,3 +230,64 @@ def test_fetch_phases_and_pick_place_both_found_with_capped_costs() -> None:
     assert two["accuracy"] >= 0.9
     plain = segmentation_metrics(hard_em_segmentation(ds.trajs, 4, False, seed=0, outlier_share=0.0), phases)
     assert plain["accuracy"] < 0.9
+
+
+@pytest.fixture(scope="module")
+def curved(tmp_path_factory: pytest.TempPathFactory) -> list:
+    """12 episodes of the curved course, in a Minari root of their own (a recording keeps the episode count it was
+    first made with, and other tests record 3)."""
+    return load_dataset(record_course("curved", tmp_path_factory.mktemp("curved"), seed=0, episodes=12)).trajs
+
+
+def test_curved_legs_need_policies_whose_action_turns_with_the_state(curved: list) -> None:
+    """Three arcs joined smoothly: the direction never jumps, only the curvature changes. With the state weights
+    shrunk hard (ridge 1.0, the default) a code's policy is nearly one constant action and the arcs are cut into
+    stretches of nearly constant direction; a small ridge (0.01, what docs/howto/choosing-k.md advises for curved
+    paths) lets one code's action turn with the position (a rotation field is linear in it)."""
+    trajs = curved[:8]
+    labels = _labels(trajs)
+    turning = segmentation_metrics(hard_em_segmentation(trajs, 3, False, seed=0, starts=2,
+                                                        ridge=0.01), labels)
+    assert turning["accuracy"] >= 0.9 and turning["switches_per_episode"] <= 1.5 * 2
+    stiff = segmentation_metrics(hard_em_segmentation(trajs, 3, False, seed=0, starts=2, ridge=1.0), labels)
+    assert stiff["accuracy"] < 0.7 and stiff["switches_per_episode"] > 3
+
+
+def test_codes_auto_with_smooth_policies_finds_the_curved_courses_three(curved: list) -> None:
+    """The K curve (held-out description length per K, smallest K within one standard error of the lowest) on the
+    curved course, whose answer is 3: policies on random Fourier features of the state explain each arc with one
+    code, so the curve is flat past 3; linear policies keep buying a better fit with every further cut of an arc
+    and choose more."""
+    from digail.algos.model_selection import smallest_within_one_se
+    from digail.algos.segment_init import heldout_codes_curve
+
+    trajs = curved
+    fit_idx, held_idx = heldout_split(len(trajs), 0.25, 0)
+    fit_on, held = [trajs[i] for i in fit_idx], [trajs[i] for i in held_idx]
+    chosen = {}
+    for model in ("rff", "linear"):
+        curve = heldout_codes_curve(fit_on, held, [2, 3, 4, 5, 6], False, seed=0, model=model)
+        chosen[model] = curve[smallest_within_one_se(curve)]["codes"]
+    assert chosen["rff"] == 3 and chosen["linear"] > 3, chosen
+
+
+def test_random_fourier_features_are_seeded_and_scaled_by_the_states_spread() -> None:
+    """The `rff` map keeps the state and the bias and adds its features between them; the same seed draws the
+    same features, and states spread twice as wide get a bandwidth twice as large (the median heuristic), so the
+    features of the scaled states are the same numbers. An unknown model name is an error."""
+    from digail.algos.segment_init import _FeatureMap
+
+    rng = np.random.default_rng(0)
+    x = np.c_[rng.normal(size=(300, 3)), np.ones(300)]
+    fmap = _FeatureMap("rff", n_features=16, seed=1).fit(x)
+    z = fmap(x)
+    assert z.shape == (300, 3 + 16 + 1)
+    np.testing.assert_array_equal(z[:, :3], x[:, :3])
+    np.testing.assert_array_equal(z[:, -1], 1.0)
+    np.testing.assert_array_equal(_FeatureMap("rff", n_features=16, seed=1).fit(x)(x), z)
+    wide = np.c_[2 * x[:, :3], x[:, 3:]]
+    np.testing.assert_allclose(_FeatureMap("rff", n_features=16, seed=1).fit(wide)(wide)[:, 3:-1], z[:, 3:-1],
+                               atol=1e-9)
+    assert np.array_equal(_FeatureMap("linear").fit(x)(x), x)
+    with pytest.raises(ValueError, match="unknown sub-task model"):
+        _FeatureMap("mlp")

@@ -155,3 +155,11 @@ def test_learning_curves_single_and_multi(tmp_path):
     assert np.allclose(derived, F.read_metrics(runs["gail"][0])["rollout/ep_return"] / -50.0)
     assert _size(F.learning_curves(runs["gail"][0], tmp_path / "g2.png")) == _px(3.4 * 4, 3.0)
     assert "derived/normalized_return" not in F.run_curves(runs["digail"][0])  # it has evaluations
+
+
+def test_codes_curve_marks_the_chosen_k_and_the_truth(tmp_path):
+    """One panel per curve (two curves: two panels side by side), the chosen K as a large marker; the pixel size
+    is the figure size times DPI."""
+    curve = [{"codes": k, "dl_per_step": dl, "chosen": k == 3} for k, dl in ((2, 0.5), (3, -1.0), (4, -1.01))]
+    path = F.codes_curve({"a": curve, "b": curve}, tmp_path / "k.png", truth={"a": 3})
+    assert Image.open(path).size == (2 * 320, 240)

@@ -127,11 +127,13 @@ class VAEConfig:
     (`digail.algos.model_selection`: no labels needed)"""
     heldout_fraction: float = 0.2
     """share of the demonstrations held out to choose among restarts (and K with `--codes auto`)"""
-    k_criterion: Literal["linear", "vae"] = "linear"
-    """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under
-    the hard-EM start's linear sub-task policies (fast; the smallest K within one standard error of the best is
-    kept), or `vae`, that of a whole VAE trained per K (lowest wins). The VAE's network policies explain the actions
-    with too few codes where the state reveals the sub-task"""
+    k_criterion: Literal["linear", "rff", "vae"] = "linear"
+    """how `--codes auto` scores each K on the held-out demonstrations: `linear`, the description length under the
+    hard-EM start's switching sub-task policies linear in the state (fast; the smallest K within one standard error
+    of the best is kept), `rff`, the same with policies on random Fourier features of the state (smooth sub-tasks
+    such as arcs take one code each, but on many state features extra codes keep paying), or `vae`, that of a whole
+    VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes where the
+    state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -151,9 +153,13 @@ class VAEConfig:
     init_obs: tuple[int, int] | None = None
     """`em`: observation features [start, stop) the start's linear sub-task policies see (None: all), e.g. (0, 26)
     in Four Rooms, the agent's position, so that a code is a field over the cells"""
+    init_model: Literal["linear", "rff"] = "linear"
+    """`em`: what a sub-task policy of the start is linear in: the normalised state (`linear`), or the state and
+    random Fourier features of it (`rff`, a smooth function of the state; `segment_init.MODELS`)"""
     init_ridge: float = 1.0
-    """`em`: ridge on the state weights of the start's linear sub-task policies (large: about one constant action
-    per code, as a leg of a course is; small: state-dependent sub-tasks such as heading for a corridor)"""
+    """`em`: ridge on the state weights of the start's sub-task policies (large: about one constant action per
+    code, as a straight leg of a course or a phase of a manipulation is; small, e.g. 0.01: actions that turn with
+    the state, such as a curved path or heading for a corridor; docs/howto/choosing-k.md)"""
     init_outlier_share: float = 1e-3
     """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
     which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: a plain
@@ -199,6 +205,9 @@ class VAEConfig:
         _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
+        _require(self.init_model in ("linear", "rff"), "--vae.init-model", "linear or rff", self.init_model)
+        _require(self.k_criterion in ("linear", "rff", "vae"), "--vae.k-criterion", "linear, rff or vae",
+                 self.k_criterion)
         if self.init_obs is not None:
             lo, hi = self.init_obs
             _require(0 <= lo < hi, "--vae.init-obs", "a range START STOP with 0 <= START < STOP", self.init_obs)

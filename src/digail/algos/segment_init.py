@@ -45,6 +45,14 @@ binary gripper command a code gets wrong cost 2^2 / (2 x 1e-4) = 20 000 nats, so
 steps of every grasp bought a code of their own and reach merged with descend (0.854); capped, the start keeps
 the four phases (0.935) and pick / place stays 0.960 (docs/experiments.md).
 
+Sub-task models (`model`, `VAEConfig.init_model`; `MODELS`): `linear`, the policies above on [s_n, 1]; `rff`, the
+same policies on [s_n, z(s_n), 1] with random Fourier features z (`_FeatureMap`), so a code's action is a smooth
+function of the state. The segmentation machinery (Viterbi, switch costs, capped costs) is the same for both. The
+K curve (`heldout_codes_curve`) scores either on held-out demonstrations, so the richer model pays for what it
+costs: features that only memorise the fitted demonstrations predict the held-out ones worse. `linear` stays the
+default for both: measured on the segmentation benchmark, `rff` puts a curved sub-task into one code but lets one
+code explain several sub-tasks where the position tells the action (docs/howto/choosing-k.md).
+
 Linear sub-task policies are the point: a network sees enough of the state to fit the whole demonstration with
 one code, and then no segmentation explains the actions better than none; a linear policy per code cannot, so
 the codes must carry what differs between sub-tasks.
@@ -63,6 +71,45 @@ from digail.data.trajectory import Trajectory
 OUTLIER_SHARE = 1e-3
 """Share of each continuous action dimension's likelihood that is uniform over the dimension's range (module
 docstring, "Capped costs")."""
+
+
+MODELS = ("linear", "rff")
+"""the sub-task policy models of the start (`VAEConfig.init_model`; module docstring, "Sub-task models")"""
+
+
+class _FeatureMap:
+    """What a sub-task policy sees of the normalised state: `linear`, [s_n, 1]; `rff`, [s_n, z(s_n), 1] with
+    `n_features` random Fourier features z_j = sqrt(2) cos(w_j . s_n + b_j), w_j ~ N(0, I / h^2), b_j ~ U(0, 2 pi),
+    whose bandwidth h is `bandwidth_scale` times the median distance between states (the median heuristic), so
+    a policy linear in them is a smooth function of the state at the scale the states spread over. The random
+    features are drawn from a generator of their own, seeded by `seed`, and fitted once on the demonstrations the
+    model is fitted to (the held-out ones of the K curve are mapped with the same features)."""
+
+    def __init__(self, model: str, n_features: int = 64, bandwidth_scale: float = 0.5, seed: int = 0) -> None:
+        if model not in MODELS:
+            raise ValueError(f"unknown sub-task model {model!r}; choose one of {', '.join(MODELS)}.")
+        self.model, self.n_features, self.bandwidth_scale, self.seed = model, n_features, bandwidth_scale, seed
+        self.freq = np.zeros((0, 0))
+        self.phase = np.zeros(0)
+
+    def fit(self, x: np.ndarray) -> _FeatureMap:
+        """Draw the random features for the rows `x` ([s_n, 1], as `_design` gives them)."""
+        if self.model == "rff":
+            s = x[:, :-1]
+            rng = np.random.default_rng(self.seed + 7_919)
+            sub = s[rng.choice(len(s), min(len(s), 1000), replace=False)]
+            dist = np.sqrt(((sub[:, None] - sub[None]) ** 2).sum(-1))
+            h = self.bandwidth_scale * float(np.median(dist[np.triu_indices(len(sub), 1)])) if len(sub) > 1 else 1.0
+            h = h if h > 1e-8 else 1.0
+            self.freq = rng.normal(size=(s.shape[1], self.n_features)) / h
+            self.phase = rng.uniform(0, 2 * math.pi, self.n_features)
+        return self
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.model == "linear":
+            return x
+        z = math.sqrt(2) * np.cos(x[:, :-1] @ self.freq + self.phase)
+        return np.c_[x[:, :-1], z, x[:, -1:]]
 
 
 def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
@@ -242,7 +289,7 @@ def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ri
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
                          rounds: int = 30, starts: int = 4, ridge: float = 1.0,
                          shared_variance: bool = True, switch_costs: str = "learned",
-                         outlier_share: float = OUTLIER_SHARE) -> list[np.ndarray]:
+                         outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
     docstring): from K equal consecutive pieces, from the ordered cut (learned switch costs only) and from
     `starts` - 1 k-means starts (`_hard_em`), up to `rounds` of Viterbi and refit each (stopping when nothing
@@ -250,14 +297,15 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
     variance per code (the first version, kept for the runs made with it); `switch_costs="fixed"`: log T +
     log(K - 1) nats per switch throughout (also kept for the runs made with it); `outlier_share`: the share of
     each continuous action dimension's likelihood that is uniform over its range (0: plain Gaussian, as the
-    presets' runs were made)."""
+    presets' runs were made); `model`: the sub-task policies' features (`MODELS`, module docstring)."""
     rng = np.random.default_rng(seed)
     best: tuple[float, list[np.ndarray]] | None = None
     # fixed switch costs keep the starts their runs were made with
     firsts = ["chunks", *(["ordered"] if switch_costs == "learned" else []), *["kmeans"] * (starts - 1)]
     for first in firsts:
         cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, first=first, ridge=ridge,
-                             shared_variance=shared_variance, switch_costs=switch_costs, outlier_share=outlier_share)
+                             shared_variance=shared_variance, switch_costs=switch_costs, outlier_share=outlier_share,
+                             model=model, seed=seed)
         if best is None or cost < best[0]:
             best = (cost, seg)
     assert best is not None
@@ -266,7 +314,7 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
 
 def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarray], codes: int, discrete: bool, *,
                           seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30,
-                          outlier_share: float = OUTLIER_SHARE) -> list[np.ndarray]:
+                          outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) when every piece of a demonstration takes one code: hard EM
     over the pieces (`pieces[i]` numbers demonstration i's steps by piece, e.g. Four Rooms' room visits, where an
     environment knows where its sub-tasks can change). Each round gives every piece the code whose linear policy
@@ -276,6 +324,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
     Why the end state: a sub-task is where it leads (a corridor, the apple), and the pieces that reach one place
     share its policy, where the actions alone (the same moves towards different corridors) do not group them."""
     x, a, n_act, mean, std = _design(trajs, discrete)
+    fmap = _FeatureMap(model, seed=seed).fit(x)
+    x = fmap(x)
     ends = np.concatenate([(np.asarray(t.obs[1:len(t) + 1], np.float64).reshape(len(t), -1) - mean) / std
                            for t in trajs])
     local = [np.unique(np.asarray(p), return_inverse=True)[1].reshape(-1) for p in pieces]  # 0, 1, ... per demo
@@ -292,7 +342,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
         piece_codes[used] = _kmeans(end_of[used], codes, rng)
         per_piece = np.zeros((n_pieces, codes))
         for _ in range(rounds):
-            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
+            policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge,
+                                       outlier_share=outlier_share)
             policies.fit(x, a, piece_codes[piece])
             per_piece = np.zeros((n_pieces, codes))
             np.add.at(per_piece, piece, policies.loglik(x, a))
@@ -311,7 +362,8 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
 
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
-                        switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE) -> list[dict[str, float]]:
+                        switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE,
+                        model: str = "linear", starts: int = 4) -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -324,6 +376,8 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     """
     x_fit, a_fit, n_act, mean, std = _design(fit_on, discrete)
     x_held, a_held, _, _, _ = _design(held, discrete, n_act, mean, std)
+    fmap = _FeatureMap(model, seed=seed).fit(x_fit)
+    p_fit, p_held = fmap(x_fit), fmap(x_held)
     lengths = np.array([len(t) for t in held])
     bounds = np.cumsum([0, *lengths])
     fit_bounds = np.cumsum([0, *[len(t) for t in fit_on]])
@@ -331,11 +385,12 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     curve = []
     for k in candidates:
         seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs,
-                                    outlier_share=outlier_share) if k > 1
+                                    outlier_share=outlier_share, model=model, starts=starts) if k > 1
                else [np.zeros(len(t), np.int64) for t in fit_on])
-        policies = _LinearPolicies(k, x_fit.shape[1], n_act, discrete, ridge, outlier_share=outlier_share)
-        policies.fit(x_fit, a_fit, np.concatenate(seg))
-        flat = policies.loglik(x_held, a_held)
+        policies = _LinearPolicies(k, p_fit.shape[1], n_act, discrete, ridge,
+                                   outlier_share=outlier_share)
+        policies.fit(p_fit, a_fit, np.concatenate(seg))
+        flat = policies.loglik(p_held, a_held)
         if switch_costs == "learned":
             trans = _Transitions(k, x_fit.shape[1], mean_len)
             trans.fit(x_fit, seg, fit_bounds)
@@ -386,13 +441,13 @@ def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = Non
 
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
                  rounds: int = 30, ridge: float = 1.0, switch_costs: str = "learned",
-                 outlier_share: float = OUTLIER_SHARE) -> tuple[float, list[np.ndarray]]:
+                 outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> tuple[float, list[np.ndarray]]:
     """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
     cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
     the truth above what the search finds (`benchmarks/segmentation_oracle.py`)."""
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs,
-                    outlier_share=outlier_share)
+                    outlier_share=outlier_share, model=model)
 
 
 def _action_features(a: np.ndarray, n_act: int, discrete: bool) -> np.ndarray:
@@ -432,7 +487,7 @@ def _ordered_pieces(feat: np.ndarray, k: int, max_cuts: int = 1000) -> np.ndarra
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
              rounds: int, first: str = "kmeans", ridge: float = 1e-3, shared_variance: bool = True,
              start: list[np.ndarray] | None = None, switch_costs: str = "learned",
-             outlier_share: float = 0.0) -> tuple[float, list[np.ndarray]]:
+             outlier_share: float = 0.0, model: str = "linear", seed: int = 0) -> tuple[float, list[np.ndarray]]:
     """One hard-EM run: (description length in nats, codes per demonstration). It starts from `start` when given,
     else (`first`) from k-means clusters of (action, state) pairs, or from every demonstration cut into K
     consecutive pieces with codes 0, 1, ..., K - 1 in time: `chunks` of equal length, or the `ordered` cut the
@@ -456,17 +511,20 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
         # k-means on (action, state): the actions separate the sub-tasks, the state splits a repeated action
         labels = _kmeans(np.c_[a_feat, 0.5 * x_all[:, :-1]], codes, rng)
         seg = [labels[bounds[i]:bounds[i + 1]] for i in range(len(trajs))]
-    policies = _LinearPolicies(codes, x_all.shape[1], n_act, discrete, ridge, shared_variance, outlier_share)
+    fmap = _FeatureMap(model, seed=seed).fit(x_all)
+    p_all = fmap(x_all)
+    policies = _LinearPolicies(codes, p_all.shape[1], n_act, discrete, ridge,
+                               shared_variance, outlier_share)
     mean_len = float(np.mean(lengths))
     penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
     trans = _Transitions(codes, x_all.shape[1], mean_len) if switch_costs == "learned" else None
     learning = trans is not None and (start is not None or first != "kmeans")
 
     def padded_loglik() -> np.ndarray:
-        return _by_episode(policies.loglik(x_all, a_all), lengths)
+        return _by_episode(policies.loglik(p_all, a_all), lengths)
 
     for _ in range(rounds):
-        policies.fit(x_all, a_all, np.concatenate(seg))
+        policies.fit(p_all, a_all, np.concatenate(seg))
         if learning:
             assert trans is not None
             trans.fit(x_all, seg, bounds)
@@ -478,9 +536,9 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
                 break
             learning = True
         seg = new
-    policies.fit(x_all, a_all, np.concatenate(seg))
+    policies.fit(p_all, a_all, np.concatenate(seg))
     flat_codes = np.concatenate(seg)
-    cost = -float(policies.loglik(x_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
+    cost = -float(policies.loglik(p_all, a_all)[np.arange(len(flat_codes)), flat_codes].sum())
     if trans is None:
         return cost + penalty * sum(int(np.count_nonzero(np.diff(c))) for c in seg), seg
     trans.fit(x_all, seg, bounds)

@@ -325,10 +325,10 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
         assert pieces is not None  # `pretrain` checked
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
         return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
-                                     outlier_share=cfg.init_outlier_share)
+                                     outlier_share=cfg.init_outlier_share, model=cfg.init_model)
     return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
                                 shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
-                                outlier_share=cfg.init_outlier_share)
+                                outlier_share=cfg.init_outlier_share, model=cfg.init_model)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
@@ -353,6 +353,23 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
                 writer.add_scalar(key, history[key][i], int(epoch))
 
 
+def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], discrete: bool, *,
+                seed: int = 0) -> tuple[list[dict[str, Any]], int]:
+    """(curve, index of the chosen K) of the `linear` or `rff` criterion (`select_codes`): hard EM per K on the
+    demonstrations less the held-out share `heldout_split` gives for `seed`, scored on that share."""
+    train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
+    fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
+    # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
+    curve: list[dict[str, Any]] = heldout_codes_curve(fit_on, held, candidates, discrete, seed=seed,
+                                                      switch_costs="fixed", outlier_share=cfg.init_outlier_share,
+                                                      model=cfg.k_criterion)
+    pick = smallest_within_one_se(curve)
+    for i, entry in enumerate(curve):
+        del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+        entry["chosen"] = i == pick
+    return curve, pick
+
+
 def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], *,
                  action_spec: ActionSpec | None = None, seed: int = 0, device: str | torch.device = "cpu",
                  progress: bool = True, log_dir: str | Path | None = None,
@@ -362,9 +379,10 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     held-out share and scored by the description length of the held-out actions (`model_selection`), then the
     chosen K is trained (and polished) on all demonstrations.
 
-    `cfg.k_criterion` says which model is scored: `linear`, the hard-EM start's switching linear policies (the
-    smallest K within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K
-    (the lowest; the chosen VAE is kept and only polished on all demonstrations).
+    `cfg.k_criterion` says which model is scored: `linear` or `rff`, hard EM's switching sub-task policies on
+    random Fourier features of the state or on the state alone (ridge 1.0 whatever the start's; the smallest K
+    within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K (the lowest;
+    the chosen VAE is kept and only polished on all demonstrations).
 
     The curve's linear policies cut at any step; `pieces` (`pretrain`'s) serves the VAEs' own start.
 
@@ -377,13 +395,8 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     curve: list[dict[str, Any]] = []
-    if cfg.k_criterion == "linear":
-        # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
-        curve = heldout_codes_curve(fit_on, held, candidates, action_spec.discrete, seed=seed,
-                                    switch_costs="fixed", outlier_share=cfg.init_outlier_share)
-        pick = smallest_within_one_se(curve)
-        for entry in curve:
-            del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+    if cfg.k_criterion != "vae":
+        curve, pick = codes_curve(trajs, cfg, candidates, action_spec.discrete, seed=seed)
         model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
                                   log_dir=log_dir, pieces=pieces)

@@ -74,6 +74,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
     from digail.utils import atomic_dir, set_torch_threads
+    from digail.viz.figures import codes_curve
 
     set_torch_threads(1)
     if not args.demos:
@@ -108,6 +109,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
                                            device=args.device, log_dir=tmp, pieces=init_pieces_fn(dataset.env_id))
             config["k_selection"] = curve
             config["vae"]["codes"] = model.codes
+            codes_curve({"--codes auto: the K curve": curve}, tmp / "figures" / "k_curve.png")
             print("K selection (held-out description length, nats per step; lower is better): "
                   + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" for c in curve) + f" -> K = {model.codes}")
         else:

@@ -12,6 +12,7 @@ report can rely on the pixel size) and returns its path. Colours: code k is `tab
 - Continuous control: `code_strips` (codes against time), `pendulum_code_map` (angle against angular velocity),
   `state_pca` (first two principal components of the states, any K).
 - Training: `learning_curves` (one run) and `learning_curves_multi` (mean and spread over seeds per method).
+- Choosing K: `codes_curve` (the held-out description length against K of `--codes auto`, the chosen K marked).
 """
 
 from __future__ import annotations
@@ -432,5 +433,36 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path | Mapping[str, np.nda
     # the legend's seed counts are per panel: show it where the most seeds are drawn (runs known only by their
     # evaluations, from another machine, have no training scalars)
     axes[0, int(np.argmax(drawn))].legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+# --------------------------------------------------------------------------------------------- choosing K
+def codes_curve(curves: Mapping[str, Sequence[Mapping[str, Any]]], path: Path, truth: Mapping[str, int] | None = None,
+                cols: int = 4) -> Path:
+    """One panel per entry of `curves` (a title and the `k_selection` list `--codes auto` writes to config.json:
+    dicts with `codes`, `dl_per_step` and `chosen`): the held-out description length in nats per step against K,
+    the chosen K as a filled marker and, where `truth` gives it, the true K as a dashed line."""
+    n = max(1, len(curves))
+    cols = min(cols, n)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    for ax, (name, curve) in zip(axes.flat, curves.items(), strict=False):
+        ks = [int(c["codes"]) for c in curve]
+        dl = [float(c["dl_per_step"]) for c in curve]
+        ax.plot(ks, dl, "o-", color="0.4", ms=4)
+        for k, d, c in zip(ks, dl, curve, strict=True):
+            if c.get("chosen"):
+                ax.plot([k], [d], "o", color=code_colour(3), ms=9, label=f"chosen K = {k}")
+        if truth and name in truth:
+            ax.axvline(truth[name], color=code_colour(2), ls="--", lw=1, label=f"true K = {truth[name]}")
+        ax.set_title(name, fontsize=8)
+        ax.set_xticks(ks)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("K", fontsize=7)
+        ax.set_ylabel("held-out nats / step", fontsize=7)
+        ax.legend(fontsize=6, loc="upper right")
+    for ax in axes.flat[len(curves):]:
+        ax.axis("off")
     fig.tight_layout()
     return _save(fig, path)

@@ -227,6 +227,8 @@ FIGURE_CAPTIONS = {
     "segmentation": "Segmentation of the demonstrations: codes per step, above the oracle labels where the "
                     "environment has them (codes then take the colour of their matched label).",
     "codes_time": "Codes against time: demonstrations (decoded by q) and closed-loop rollouts.",
+    "k_curve": "--codes auto: the held-out description length of each number of codes K (lower is better), the "
+               "chosen K marked.",
     "pca_codes": "States projected on their first two principal components, coloured by code.",
     "pendulum_code_map": "Pendulum: angle against angular velocity, coloured by the active code.",
     "learning_curves": "Learning curves against environment steps.",
