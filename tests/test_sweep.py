@@ -310,7 +310,10 @@ def test_documented_sweep_commands_parse_and_plan():
     lines = [ln.split("#", 1)[0] for ln in text.splitlines() if ln.strip().startswith("digail sweep")]
     assert len(lines) >= 6
     for line in lines:
-        args = tyro.cli(SweepArgs, args=shlex.split(line)[2:])
+        words = shlex.split(line)
+        # the sweep's own words end where the shell's begin (`&&`, `&`, `;`, `|`)
+        ends = [i for i, w in enumerate(words) if w in ("&&", "||", "&", ";", "|")]
+        args = tyro.cli(SweepArgs, args=words[2:ends[0] if ends else None])
         if args.summarize is not None:
             continue
         spec = build_spec(envs=args.envs, methods=args.methods, seeds=args.seeds, preset=args.preset,
