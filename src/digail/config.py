@@ -303,8 +303,9 @@ class SACConfig:
     """discount"""
     tau: float = 0.005
     """Polyak rate of the target critics"""
-    init_alpha: float = 0.1
-    """initial entropy temperature alpha"""
+    init_alpha: float = 0.01
+    """initial entropy temperature alpha (D's rewards are a fraction of a unit per step, so the entropy term starts
+    small beside them)"""
     learn_alpha: bool = True
     """learn alpha so that the policy's entropy tracks `target_entropy`; False keeps `init_alpha`"""
     target_entropy: float | None = None

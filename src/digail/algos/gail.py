@@ -337,7 +337,7 @@ class GAIL:
             "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
             "recent_closed_returns": torch.tensor(list(self.recent_closed_returns), dtype=torch.float64),
             "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
-            **({"offpolicy": self.offpolicy.state_dict()} if self.offpolicy is not None else {}),
+            **({"learner": "sac", "offpolicy": self.offpolicy.state_dict()} if self.offpolicy is not None else {}),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -348,6 +348,10 @@ class GAIL:
             raise UserError(f"this training checkpoint has format version {version}, but this digail resumes "
                             f"version {CHECKPOINT_VERSION}; start the training again (its model.pt still "
                             "evaluates).")
+        learner = state.get("learner", "ppo")  # PPO checkpoints carry no key, as before the off-policy learner
+        if learner != self.cfg.learner:
+            raise UserError(f"this training checkpoint was made with --train.learner {learner}, not "
+                            f"{self.cfg.learner}; resume it with its own settings.")
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])

@@ -89,11 +89,14 @@ class SACLearner:
         to_env: sampled actions -> executed actions (torch; the clip to the bounds), differentiable.
         device: where the critics live.
         bc: optional () -> BC loss on expert pairs and its weight, added to the policy's loss (the +L2 methods).
+        bounds: the (low, high) action bounds when `to_env` is the clip to them: the update then runs the
+            hand-written gradients of `digail.algos.sac_grad` (without a BC term), else autograd.
     """
 
     def __init__(self, pi: SubtaskPolicy, obs_dim: int, codes: int, cfg: SACConfig,
                  to_env: Callable[[torch.Tensor], torch.Tensor], device: torch.device,
-                 bc: tuple[Callable[[], torch.Tensor], float] | None = None) -> None:
+                 bc: tuple[Callable[[], torch.Tensor], float] | None = None,
+                 bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         if pi.action.discrete:
             raise UserError("--train.learner sac needs continuous actions; use --train.learner ppo for this env.")
         self.pi, self.cfg, self.to_env, self.bc = pi, cfg, to_env, bc
@@ -108,6 +111,20 @@ class SACLearner:
         self.alpha_optimizer = adam([self.log_alpha], lr=cfg.alpha_lr)
         self._q_params = list(self.critic.parameters())
         self._target_params = list(self.critic_target.parameters())
+        from digail.algos.ppo_grad import plain_mlp_layers
+
+        pi_lin = plain_mlp_layers(pi.net)
+        self.hand = bounds is not None and bc is None and pi_lin is not None and all(
+            p.requires_grad for p in pi.parameters())
+        """whether `update` runs the hand-written gradients"""
+        if self.hand:
+            assert bounds is not None and pi_lin is not None
+            self._low, self._high = (torch.as_tensor(np.asarray(v, np.float32), device=device) for v in bounds)
+            self._pi_w, self._pi_b = [m.weight for m in pi_lin], [m.bias for m in pi_lin]
+            self._pi_targets = [*self._pi_w, *self._pi_b, pi.log_std]
+            n = len(self.critic.weights)
+            self._q_w, self._q_b = self._q_params[:n], self._q_params[n:]
+            self._t_w, self._t_b = self._target_params[:n], self._target_params[n:]
 
     def entropy(self) -> torch.Tensor:
         """H(pi(. | s, c)), the same for every state (state-independent log-std)."""
@@ -126,6 +143,8 @@ class SACLearner:
         alpha as they are (the losses are still computed and returned). Returns the detached
         [critic loss, policy loss, alpha loss, alpha, entropy, mean Q, BC loss] (no host sync)."""
         gamma = self.cfg.gamma
+        if self.hand:
+            return self._update_hand(b, noise_next, noise_pi, train_policy)
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
             entropy = self.entropy()
@@ -155,15 +174,49 @@ class SACLearner:
                 p.grad = g
             self.pi_optimizer.step()
 
+        alpha_loss = self._alpha_and_targets(entropy.detach(), train_policy)
+        return torch.stack([q_loss.detach(), pi_loss.detach(), alpha_loss, alpha, entropy.detach(),
+                            q.detach().mean(), bc_value.detach()])
+
+    def _alpha_and_targets(self, entropy: torch.Tensor, train_policy: bool) -> torch.Tensor:
+        """The temperature's step and the targets' Polyak step; returns the temperature's loss."""
         # alpha: d/d log_alpha of log_alpha * (H - H_target), so alpha falls while the entropy is above its target
-        alpha_loss = self.log_alpha.detach() * (entropy.detach() - self.target_entropy)
+        alpha_loss = self.log_alpha.detach() * (entropy - self.target_entropy)
         if self.cfg.learn_alpha and train_policy:
-            self.log_alpha.grad = (entropy.detach() - self.target_entropy).reshape(())
+            self.log_alpha.grad = (entropy - self.target_entropy).reshape(())
             self.alpha_optimizer.step()
         with torch.no_grad():
             torch._foreach_lerp_(self._target_params, self._q_params, self.cfg.tau)
-        return torch.stack([q_loss.detach(), pi_loss.detach(), alpha_loss, alpha, entropy.detach(),
-                            q.detach().mean(), bc_value.detach()])
+        return alpha_loss
+
+    @torch.no_grad()
+    def _update_hand(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
+                     train_policy: bool) -> torch.Tensor:
+        """`update` with the gradients of `digail.algos.sac_grad`: the same steps in the same order."""
+        from digail.algos.sac_grad import critic_grads, policy_grads
+        from digail.algos.scripting import scripted
+
+        pi = self.pi
+        alpha = self.log_alpha.detach().exp()
+        entropy = self.entropy()
+        std = pi.log_std.clamp(-5.0, 2.0).exp()
+        next_obs_code = torch.cat([b.next_obs, b.next_code_1h], -1)
+        grads, q_loss, q_mean = scripted(critic_grads)(
+            torch.cat([b.obs, b.code_1h, b.acts], -1), pi.inputs(b.next_obs, b.next_code_1h), next_obs_code,
+            noise_next, b.terminated, b.rews, b.absorbing_value, alpha, entropy, self.cfg.gamma, self._low,
+            self._high, self._pi_w, self._pi_b, std, self._q_w, self._q_b, self._t_w, self._t_b)
+        for p, g in zip(self._q_params, grads, strict=True):
+            p.grad = g
+        self.q_optimizer.step()
+        pi_grads, pi_loss = scripted(policy_grads)(
+            pi.inputs(b.obs, b.code_1h), torch.cat([b.obs, b.code_1h], -1), noise_pi, alpha, entropy, self._low,
+            self._high, self._pi_w, self._pi_b, pi.log_std, self._q_w, self._q_b)
+        if train_policy:
+            for p, g in zip(self._pi_targets, pi_grads, strict=True):
+                p.grad = g
+            self.pi_optimizer.step()
+        alpha_loss = self._alpha_and_targets(entropy, train_policy)
+        return torch.stack([q_loss, pi_loss, alpha_loss, alpha, entropy, q_mean, torch.zeros_like(q_loss)])
 
     STAT_NAMES = ("losses/critic", "losses/policy", "losses/alpha", "sac/alpha", "sac/entropy", "sac/q", "losses/bc")
 
@@ -239,7 +292,10 @@ class OffPolicyLoop:
         bc = None
         if t.cfg.bc_weight > 0:
             bc = (lambda: bc_loss(pi, t.expert, t.eye, t.cfg.bc_batch_size, t.gen, discrete=False), t.cfg.bc_weight)
-        self.learner = SACLearner(pi, obs_dim, t.K, self.cfg, t._to_env_actions, t.device, bc=bc)
+        space = t.envs.probe.action_space
+        clip = getattr(t.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
+        bounds = (space.low, space.high) if clip else None
+        self.learner = SACLearner(pi, obs_dim, t.K, self.cfg, t._to_env_actions, t.device, bc=bc, bounds=bounds)
         self.flag = 1 if self.cfg.absorbing else 0
         if self.cfg.absorbing:  # D sees [obs, absorbing flag, action]
             t.disc = Discriminator(obs_dim + 1, act_dim, t.cfg.hidden).to(t.device)
@@ -258,6 +314,9 @@ class OffPolicyLoop:
         self.updates = 0
         """SAC updates so far"""
         self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" else None
+        self._sac_stats: list[torch.Tensor] = []
+        self._disc_stats: list[torch.Tensor] = []
+        self._t_env = 0.0
 
     def absorbing_row(self) -> torch.Tensor:
         """D's input (1, obs_dim + 1 + A) for the absorbing state: zero observation and action, flag 1."""
@@ -373,6 +432,25 @@ class OffPolicyLoop:
         return torch.cat([stats, disc_rew.mean()[None], v_abs[None]])
 
     # ------------------------------------------------------------------------------------------- iteration
+    def step_and_update(self) -> None:
+        """One step of every env, then its share of D updates (one per `disc_every` env steps) and SAC updates
+        (`utd` per env step), once the buffer holds `learning_starts` transitions."""
+        cfg, n = self.cfg, self.t.envs.num_envs
+        t1 = time.perf_counter()
+        self._env_step()
+        self._t_env += time.perf_counter() - t1
+        if self.buffer.size < max(cfg.learning_starts, 1):
+            return
+        if cfg.disc_every > 0:
+            self._disc_debt += n
+            while self._disc_debt >= cfg.disc_every:
+                self._disc_debt -= cfg.disc_every
+                self._disc_stats.append(self.update_discriminator())
+        self._update_debt += n * cfg.utd
+        while self._update_debt >= 1.0:
+            self._update_debt -= 1.0
+            self._sac_stats.append(self.update_policy())
+
     def _normalize(self, obs: np.ndarray) -> np.ndarray:
         return self._norm_fn(obs)
 
@@ -387,24 +465,10 @@ class OffPolicyLoop:
         if t.rollout_state is None:
             t.rollout_state = t._reset_envs()
         n = t.envs.num_envs
-        sac_stats: list[torch.Tensor] = []
-        disc_stats: list[torch.Tensor] = []
-        t_env = 0.0
+        self._sac_stats, self._disc_stats, self._t_env = [], [], 0.0
         for _ in range(cfg.steps_per_env):
-            t1 = time.perf_counter()
-            self._env_step()
-            t_env += time.perf_counter() - t1
-            if self.buffer.size < max(cfg.learning_starts, 1):
-                continue
-            if cfg.disc_every > 0:
-                self._disc_debt += n
-                while self._disc_debt >= cfg.disc_every:
-                    self._disc_debt -= cfg.disc_every
-                    disc_stats.append(self.update_discriminator())
-            self._update_debt += n * cfg.utd
-            while self._update_debt >= 1.0:
-                self._update_debt -= 1.0
-                sac_stats.append(self.update_policy())
+            self.step_and_update()
+        sac_stats, disc_stats, t_env = self._sac_stats, self._disc_stats, self._t_env
         t._q_snap = None
         steps = cfg.steps_per_env * n
         out: dict[str, float] = {}
