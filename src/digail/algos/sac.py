@@ -109,8 +109,8 @@ class SACLearner:
         self.q_optimizer = adam(list(self.critic.parameters()), lr=cfg.lr)
         self.pi_optimizer = adam(self.pi_params, lr=cfg.effective_policy_lr)
         self.alpha_optimizer = adam([self.log_alpha], lr=cfg.alpha_lr)
-        self._q_params = list(self.critic.parameters())
-        self._target_params = list(self.critic_target.parameters())
+        self._q_params: list[torch.Tensor] = list(self.critic.parameters())
+        self._target_params: list[torch.Tensor] = list(self.critic_target.parameters())
         from digail.algos.ppo_grad import plain_mlp_layers
 
         pi_lin = plain_mlp_layers(pi.net)
@@ -292,7 +292,7 @@ class OffPolicyLoop:
         bc = None
         if t.cfg.bc_weight > 0:
             bc = (lambda: bc_loss(pi, t.expert, t.eye, t.cfg.bc_batch_size, t.gen, discrete=False), t.cfg.bc_weight)
-        space = t.envs.probe.action_space
+        space: Any = t.envs.probe.action_space
         clip = getattr(t.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
         bounds = (space.low, space.high) if clip else None
         self.learner = SACLearner(pi, obs_dim, t.K, self.cfg, t._to_env_actions, t.device, bc=bc, bounds=bounds)
