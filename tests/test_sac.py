@@ -319,12 +319,37 @@ def test_bonus_is_log_q_of_the_next_code_and_enters_the_reward():
 @pytest.mark.parametrize("signal", ["reward", "bonus"])
 def test_learns_from_the_relabelled_reward_or_from_the_bonus(signal):
     """1500 steps of SAC take the point to the origin, trained either on the env's reward passed through the
-    relabelling (`reward_fn`) or on nothing but the directed-info bonus of a q that is confident there. The
-    policy before training scores about -70 (measured: the fresh policy's mean action is near 0); an agent that
-    heads straight for the origin about -20. Flipping the sign of either signal sends the point away."""
+    relabelling (`reward_fn`) or on nothing but the directed-info bonus of a q that is confident there. Measured
+    (seed 0): the policy before training -33; after, -4.6 on the reward and -13.1 on the bonus (whose slope
+    flattens near the origin); with the sign of the reward flipped -139, the point sent away."""
     tr = _toy_trainer(signal)
     before = _toy_return(tr.model)
     tr.train(iterations=3)
     after = _toy_return(tr.model)
     tr.close()
-    assert after > -35 and after > before + 20, (before, after)
+    assert after > -20 and after > before + 10, (before, after)
+
+
+def test_discriminator_hand_gradient_equals_autograd():
+    """D's cross-entropy plus gradient penalty: the hand-written gradient equals autograd's (float64)."""
+    from digail.algos.discriminator import disc_loss
+    from digail.algos.sac_grad import disc_grads
+    from digail.nets.critic import Discriminator
+
+    torch.manual_seed(0)
+    disc = Discriminator(3, 2, (8, 8)).double()
+    g = torch.Generator().manual_seed(2)
+    x_agent, x_expert = torch.randn(7, 5, generator=g).double(), torch.randn(6, 5, generator=g).double() + 0.5
+    eps = torch.rand(6, 1, generator=g).double()
+    mix = (eps * x_expert + (1 - eps) * x_agent[:6]).requires_grad_(True)
+    loss, parts = disc_loss(disc, x_agent, x_expert)
+    (grad_x,) = torch.autograd.grad(disc.net(mix).sum(), mix, create_graph=True)
+    penalty = (grad_x.norm(dim=1) - 1.0).pow(2).mean()
+    params = [*(m.weight for m in disc.net if isinstance(m, torch.nn.Linear)),
+              *(m.bias for m in disc.net if isinstance(m, torch.nn.Linear))]
+    expected = torch.autograd.grad(loss + 10.0 * penalty, params)
+    grads, hand_parts = disc_grads(x_agent, x_expert, mix.detach(), params[:3], params[3:], 10.0)
+    assert penalty.item() > 0.1
+    torch.testing.assert_close(hand_parts, torch.cat([parts, penalty.detach()[None]]))
+    for a, h in zip(expected, grads, strict=True):
+        torch.testing.assert_close(h, a, rtol=1e-10, atol=1e-12)

@@ -314,6 +314,14 @@ class OffPolicyLoop:
         self.updates = 0
         """SAC updates so far"""
         self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" else None
+        from digail.algos.ppo_grad import plain_mlp_layers
+
+        d_lin = plain_mlp_layers(t.disc.net)
+        self.hand_disc = d_lin is not None
+        """whether D's step runs the hand-written gradient of `digail.algos.sac_grad.disc_grads`"""
+        self._d_w = [m.weight for m in d_lin or []]
+        self._d_b = [m.bias for m in d_lin or []]
+        self._d_params = [*self._d_w, *self._d_b]
         self._sac_stats: list[torch.Tensor] = []
         self._disc_stats: list[torch.Tensor] = []
         self._t_env = 0.0
@@ -391,11 +399,25 @@ class OffPolicyLoop:
         if self.cfg.absorbing:
             x_agent = torch.cat([x_agent, self.absorbing_row().expand(int(b["terminated"].sum()), -1)])
         x_expert = self.expert_in[torch.randint(len(self.expert_in), (half,), generator=t.gen, device="cpu")]
+        mix = x_expert[:0]
+        if self.cfg.grad_penalty > 0:
+            eps = torch.rand(half, 1, generator=t.gen).to(t.device)
+            mix = eps * x_expert + (1 - eps) * x_agent[:half]
+        if self.hand_disc:
+            from digail.algos.sac_grad import disc_grads
+            from digail.algos.scripting import scripted
+
+            with torch.no_grad():
+                grads, parts = scripted(disc_grads)(x_agent, x_expert, mix, self._d_w, self._d_b,
+                                                    float(self.cfg.grad_penalty))
+            for p, g in zip(self._d_params, grads, strict=True):
+                p.grad = g
+            t.disc_optimizer.step()
+            return parts
         loss, parts = disc_loss(t.disc, x_agent, x_expert)
         penalty = loss.new_zeros(())
         if self.cfg.grad_penalty > 0:
-            eps = torch.rand(half, 1, generator=t.gen).to(t.device)
-            mix = (eps * x_expert + (1 - eps) * x_agent[:half]).requires_grad_(True)
+            mix = mix.requires_grad_(True)
             (g,) = torch.autograd.grad(t.disc.net(mix).sum(), mix, create_graph=True)
             penalty = (g.norm(dim=1) - 1.0).pow(2).mean()
             loss = loss + self.cfg.grad_penalty * penalty
