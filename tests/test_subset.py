@@ -56,3 +56,23 @@ def test_pretrain_refuses_more_episodes_than_the_dataset(tmp_path, capsys):
                  str(out)]) == 2
     assert "--demos-episodes 999 asks for more episodes" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_sweep_passes_the_subset_to_the_vae_and_the_training():
+    from pathlib import Path
+
+    from digail.sweep.plan import plan
+    from digail.sweep.spec import load_spec
+
+    jobs = plan(load_spec(Path(__file__).parents[1] / "benchmarks" / "sweeps" / "fewdemo.toml"))
+    hopper = [j for j in jobs if j.env == "Hopper-v5" and j.seed == 0]
+    pretrain = [j.stages[0].argv for j in hopper if j.kind == "vae"]
+    trains = {j.id: j.stages[0].argv for j in hopper if j.kind == "trial" and j.stages[0].name == "train"}
+    assert sorted(a[a.index("--demos-episodes") + 1] for a in pretrain) == ["1", "4"]
+    for argv in trains.values():  # every training, GAIL's too, reads the same subset as its VAE
+        assert "--demos-episodes" in argv and "--demos-subsample" in argv
+        if "--vae" in argv:
+            vae = argv[argv.index("--vae") + 1]
+            assert f"demos.episodes={argv[argv.index('--demos-episodes') + 1]}" in vae
+    sac = [a for a in trains.values() if "--train.learner" in a and a[a.index("--train.learner") + 1] == "sac"]
+    assert len(sac) == 4  # gail and digail, two demonstration settings
