@@ -353,3 +353,24 @@ def test_discriminator_hand_gradient_equals_autograd():
     torch.testing.assert_close(hand_parts, torch.cat([parts, penalty.detach()[None]]))
     for a, h in zip(expected, grads, strict=True):
         torch.testing.assert_close(h, a, rtol=1e-10, atol=1e-12)
+
+
+def test_absorbing_states_reach_d_and_the_target():
+    """With absorbing states D sees [obs, flag, action]; the expert's pool gains one absorbing row per demonstration
+    that terminated, and V_abs is D's reward of the absorbing state forever: softplus(logit) / (1 - gamma)."""
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.data.trajectory import Trajectory
+
+    demos = [Trajectory(obs=d.obs, acts=d.acts, terminated=i == 0) for i, d in enumerate(_toy_demos())]
+    sac = SACConfig(steps_per_iteration=60, learning_starts=10_000, hidden=(8,), absorbing=True, gamma=0.9)
+    cfg = TrainConfig(method="gail", learner="sac", hidden=(8,), backend="sync", sac=sac)
+    tr = build_trainer(TOY, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
+    loop = tr.offpolicy
+    assert tr.disc.net[0].in_features == 2 + 1 + 2
+    assert len(loop.expert_in) == 60 + 1 and loop.expert_in[-1, 2] == 1.0 and loop.expert_in[:-1, 2].eq(0).all()
+    tr.iterate()
+    b = loop.buffer.get(np.arange(10), torch.device("cpu"))
+    _, _, v_abs = loop.rewards(b)
+    logit = tr.disc.net(loop.absorbing_row()).squeeze()
+    torch.testing.assert_close(v_abs, torch.nn.functional.softplus(logit).detach() / 0.1)
+    tr.close()
