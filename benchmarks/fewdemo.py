@@ -8,8 +8,8 @@ the run's budget); the normalised return of its final 100-episode evaluation (ev
 evaluate`) or, for a run still going, of its last periodic evaluation (5 episodes, marked `from_curve`); the env
 steps at which the periodic evaluation first reached 0.9 and 0.95 of the expert (None: not yet); the training's
 wall time (the sum over iterations of steps / steps per second); and the learning curve (env step, normalised
-return). Medians over seeds per (env, setting, method, learner) go under `table`. Published references (1 expert trajectory
-of Hopper, as a recent table reports them) go under `references`.
+return). Medians over seeds per (env, setting, method, learner) go under `table`. Published references (1 expert
+trajectory of Hopper, as a recent table reports them) go under `references`.
 """
 
 from __future__ import annotations
