@@ -295,13 +295,95 @@ class PPOConfig:
 
 
 @dataclass(frozen=True)
+class SACConfig:
+    """Soft actor-critic (Haarnoja et al. 2018) on pi(a | s, c), with the discriminator's reward relabelled on every
+    sampled batch and absorbing states and a gradient penalty on D as in DAC (Kostrikov et al. 2019)."""
+
+    num_envs: int = 1
+    """environments stepped together; each env step is followed by `utd` updates, so the updates of one batched
+    step run back to back"""
+    steps_per_iteration: int = 1000
+    """environment steps (across all envs) per training iteration: `TrainConfig.iterations` times this is the
+    budget, and checkpoints and evaluations count iterations"""
+    buffer_size: int = 1_000_000
+    """replay buffer capacity in transitions (the oldest are overwritten)"""
+    batch_size: int = 256
+    """transitions per critic and actor update"""
+    lr: float = 3e-4
+    """Adam learning rate of the critics"""
+    policy_lr: float | None = None
+    """Adam learning rate of the policy (None: `lr`)"""
+    alpha_lr: float = 3e-4
+    """Adam learning rate of the log entropy temperature"""
+    gamma: float = 0.99
+    """discount"""
+    tau: float = 0.005
+    """Polyak rate of the target critics"""
+    init_alpha: float = 0.01
+    """initial entropy temperature alpha (D's rewards are a fraction of a unit per step, so the entropy term starts
+    small beside them)"""
+    learn_alpha: bool = True
+    """learn alpha so that the policy's entropy tracks `target_entropy`; False keeps `init_alpha`"""
+    target_entropy: float | None = None
+    """entropy the temperature steers the policy to (None: minus the number of action dimensions)"""
+    learning_starts: int = 1000
+    """environment steps collected (with the initial policy itself, not uniform actions: it may be the VAE's)
+    before the first update"""
+    policy_warmup: int = 5000
+    """first updates train only the critics (and D), the policy held still: a random critic's gradient would
+    otherwise undo a VAE initialisation in the first few hundred updates (on Hopper it did)"""
+    utd: float = 1.0
+    """update-to-data ratio: critic and actor updates per environment step"""
+    disc_every: int = 1
+    """environment steps between discriminator updates (0: never, e.g. a run on the env's own reward)"""
+    grad_penalty: float = 10.0
+    """weight of the gradient penalty on D: (|grad D| - 1)^2 on points between expert and agent inputs (0: none)"""
+    absorbing: bool = False
+    """absorbing states (DAC) for episodes that end by termination (not by time limit): D also judges the absorbing
+    state, whose value is its reward forever, so the critic's target at a termination is that value instead of 0.
+    Off by default: with the `positive` reward (a survival bonus) an untrained D values the absorbing state as
+    highly as living, and the first Hopper steps learned to fall (docs/howto/few-demos.md); for the `logit` reward"""
+    hidden: tuple[int, ...] = (256, 256)
+    """hidden layer sizes of the twin critics (the policy and D keep `TrainConfig.hidden`)"""
+
+    def __post_init__(self) -> None:
+        _check_numbers(self, "--train.sac.", dict(num_envs=1, steps_per_iteration=1, buffer_size=1, batch_size=1,
+                                                  learning_starts=0, disc_every=0, policy_warmup=0),
+                       ("lr", "policy_lr", "alpha_lr", "grad_penalty", "utd"), ("gamma", "tau"))
+        _require(_finite(self.init_alpha) and self.init_alpha > 0, "--train.sac.init-alpha", "positive",
+                 self.init_alpha)
+        if self.target_entropy is not None:
+            _require(_finite(self.target_entropy), "--train.sac.target-entropy", "a finite number",
+                     self.target_entropy)
+        _require(self.gamma < 1, "--train.sac.gamma", "below 1", self.gamma)
+        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--train.sac.hidden",
+                 "sizes of at least 1", self.hidden)
+        if self.steps_per_iteration < self.num_envs:
+            raise UserError(f"--train.sac.steps-per-iteration ({self.steps_per_iteration}) must be at least "
+                            f"--train.sac.num-envs ({self.num_envs}): one step per environment.")
+
+    @property
+    def effective_policy_lr(self) -> float:
+        """the policy's Adam learning rate: `policy_lr`, or `lr` when that is None"""
+        return self.lr if self.policy_lr is None else self.policy_lr
+
+    @property
+    def steps_per_env(self) -> int:
+        """batched env steps per iteration"""
+        return max(1, self.steps_per_iteration // self.num_envs)
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """GAIL / Directed-Info GAIL training (paper section 3 and eq. 4)."""
 
     method: Annotated[Literal["digail", "gail"], tyro.conf.Suppress] = "digail"
     """digail: K codes, frozen q, directed-info bonus; gail: one code, no bonus (set by `--method`)"""
+    learner: Literal["ppo", "sac"] = "ppo"
+    """the policy's learner: ppo (on-policy, the paper's) or sac (off-policy soft actor-critic with a replay
+    buffer, `sac`: far fewer environment steps)"""
     iterations: int = 1000
-    """PPO iterations (paper Table 3 'epochs')"""
+    """training iterations: PPO iterations (paper Table 3 'epochs'), or `sac.steps_per_iteration` env steps each"""
     bonus_weight: float = 0.01
     """lambda_1, weight of the directed-info bonus log q(c_t | s_t, c_{t-1}) (paper Table 3 'posterior lambda')"""
     bonus_code_entropy: bool = False
@@ -355,6 +437,8 @@ class TrainConfig:
     """worker processes (subproc) or threads (envpool) stepping the envs; 0: one per core"""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     """PPO settings"""
+    sac: SACConfig = field(default_factory=SACConfig)
+    """soft actor-critic settings (`learner` sac)"""
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
@@ -368,6 +452,7 @@ class TrainConfig:
                  self.hidden)
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
+        _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
 
 
 @dataclass(frozen=True)

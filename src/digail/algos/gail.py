@@ -12,7 +12,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -35,6 +35,9 @@ from digail.nets.critic import Discriminator, ValueNet, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
 from digail.utils import progress_bar, seed_everything
+
+if TYPE_CHECKING:
+    from digail.algos.sac import OffPolicyLoop
 
 RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
 """(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
@@ -87,7 +90,8 @@ class GAIL:
         obs_dim = model.obs_dim
 
         # the rollouts ignore the per-step infos, so the parallel backends skip shipping them
-        self.envs = make_vec_env(env_id, cfg.ppo.num_envs, cfg.backend, workers=cfg.env_workers, infos=False)
+        num_envs = cfg.sac.num_envs if cfg.learner == "sac" else cfg.ppo.num_envs
+        self.envs = make_vec_env(env_id, num_envs, cfg.backend, workers=cfg.env_workers, infos=False)
         probe = self.envs.probe
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
         self.n_actions = int(getattr(probe.action_space, "n", 0))
@@ -117,6 +121,12 @@ class GAIL:
         self.model_config: dict[str, Any] = {"kind": self.method, "method": self.method, "env_id": env_id,
                                              "seed": seed, "train": to_dict(cfg)}
         """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
+        self.offpolicy: OffPolicyLoop | None = None
+        """the off-policy learner's loop, buffer and critics (`cfg.learner` sac; None: PPO)"""
+        if cfg.learner == "sac":
+            from digail.algos.sac import OffPolicyLoop
+
+            self.offpolicy = OffPolicyLoop(self, demos)
 
     # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
@@ -202,6 +212,8 @@ class GAIL:
     # ---------------------------------------------------------------------------------------- iteration
     def iterate(self) -> dict[str, float]:
         """One training iteration; returns its scalars."""
+        if self.offpolicy is not None:
+            return self.offpolicy.iterate()
         t0 = time.perf_counter()
         batch = self.collect()
         t_rollout = time.perf_counter() - t0
@@ -323,6 +335,7 @@ class GAIL:
             "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
             "recent_closed_returns": torch.tensor(list(self.recent_closed_returns), dtype=torch.float64),
             "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
+            **({"learner": "sac", "offpolicy": self.offpolicy.state_dict()} if self.offpolicy is not None else {}),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -333,6 +346,10 @@ class GAIL:
             raise UserError(f"this training checkpoint has format version {version}, but this digail resumes "
                             f"version {CHECKPOINT_VERSION}; start the training again (its model.pt still "
                             "evaluates).")
+        learner = state.get("learner", "ppo")  # PPO checkpoints carry no key, as before the off-policy learner
+        if learner != self.cfg.learner:
+            raise UserError(f"this training checkpoint was made with --train.learner {learner}, not "
+                            f"{self.cfg.learner}; resume it with its own settings.")
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])
@@ -348,6 +365,8 @@ class GAIL:
             recent.extend(state.get(name, empty).tolist())
         if self._anchor_pi is not None and state.get("anchor_pi") is not None:
             self._anchor_pi.load_state_dict(state["anchor_pi"])
+        if self.offpolicy is not None:
+            self.offpolicy.load_state_dict(state["offpolicy"])
         self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)
 
     def save_checkpoint(self, path: Path) -> None:

@@ -19,6 +19,11 @@ class PretrainArgs:
 
     demos: str
     """Minari dataset folder or id"""
+    demos_episodes: int | None = None
+    """use only the first N demonstrations (None: all)"""
+    demos_subsample: int = 1
+    """keep every K-th transition of each demonstration, from a random offset per episode drawn from the seed
+    (GAIL's and DAC's few-demonstration setting: 20); 1 keeps all"""
     codes: int | Literal["auto"] | None = None
     """number of sub-task codes K (default: the preset's); `auto` tries K = 2 .. `max_codes` and keeps the one
     whose segmentation describes held-out demonstrations in the fewest nats (no labels; the curve is written to
@@ -40,6 +45,8 @@ class PretrainArgs:
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        check_at_least(self.demos_episodes, "--demos-episodes")
+        check_at_least(self.demos_subsample, "--demos-subsample")
         if self.codes != "auto" and self.codes is not None:
             check_codes(self.codes)
         check_at_least(self.max_codes, "--max-codes", 2)
@@ -80,6 +87,11 @@ def pretrain_command(args: PretrainArgs) -> Path:
     if not args.demos:
         raise UserError("the flag --demos is missing; pass a Minari dataset folder or id.")
     dataset = load_dataset(args.demos)
+    if args.demos_episodes is not None or args.demos_subsample != 1:
+        from digail.data.subset import select_demos
+
+        dataset = dataclasses.replace(dataset, trajs=select_demos(dataset.trajs, args.demos_episodes,
+                                                                  args.demos_subsample, args.seed))
     env_note = check_dataset_env(dataset)  # refuses data that does not fit its env, as `digail train` does
     if args.codes == "auto":
         check_selectable(len(dataset.trajs))

@@ -48,6 +48,11 @@ class RunArgs:
     """random seed"""
     episodes: int | None = None
     """evaluation episodes (default: the preset's)"""
+    demos_episodes: int | None = None
+    """use only the first N demonstrations (None: all)"""
+    demos_subsample: int = 1
+    """keep every K-th transition of each demonstration, from a random offset per episode drawn from the seed
+    (GAIL's and DAC's few-demonstration setting: 20); 1 keeps all"""
     device: str = "auto"
     """torch device"""
     force: bool = False
@@ -63,6 +68,8 @@ class RunArgs:
 
     def __post_init__(self) -> None:
         check_at_least(self.episodes, "--episodes")
+        check_at_least(self.demos_episodes, "--demos-episodes")
+        check_at_least(self.demos_subsample, "--demos-subsample")
         check_seed(self.seed)
 
 
@@ -193,7 +200,9 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
     t0 = time.perf_counter()
     dataset, demos_ref = _demonstrations(args.env, run_dir, args.seed, args.demos, checked)
     check_matches_env(dataset, args.env)
-    trajs = list(dataset.trajs)
+    from digail.data.subset import select_demos
+
+    trajs = select_demos(list(dataset.trajs), args.demos_episodes, args.demos_subsample, args.seed)
     timings["demos_s"] = time.perf_counter() - t0
     print(f"[1/5] {len(trajs)} demonstrations of {args.env} ({demos_ref})")
 
@@ -221,7 +230,8 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
         t0 = time.perf_counter()
         # the run folder is a `digail train` run too (its `args` let `digail train --resume RUN` continue it)
         train_args = TrainArgs(env=args.env, demos=str(path_ref(demos_ref)), method="digail", vae=vae_dir.resolve(),
-                               preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg)
+                               preset=args.preset, out=run_dir, seed=args.seed, device=args.device, train=cfg,
+                               demos_episodes=args.demos_episodes, demos_subsample=args.demos_subsample)
         config = run_config(kind="digail", env_id=args.env, demos=demos_ref, seed=args.seed, preset=args.preset,
                             device=args.device, vae=preset.vae, train=cfg, vae_run=vae_dir, args=train_args,
                             pipeline=True, run_args=to_dict(run_args), command=run_command_line(args, run_dir))

@@ -9,7 +9,7 @@ from typing import Literal
 
 import numpy as np
 
-from digail.config import FINAL_EVAL_SEED, TrainConfig, check_seed
+from digail.config import FINAL_EVAL_SEED, TrainConfig, check_at_least, check_seed
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.nets.vae import HierarchicalPolicy
@@ -23,6 +23,11 @@ class TrainArgs:
     """environment id (default: the dataset's env)"""
     demos: str = ""
     """Minari dataset folder or id"""
+    demos_episodes: int | None = None
+    """use only the first N demonstrations (None: all)"""
+    demos_subsample: int = 1
+    """keep every K-th transition of each demonstration, from a random offset per episode drawn from the seed
+    (GAIL's and DAC's few-demonstration setting: 20); 1 keeps all"""
     method: Literal["digail", "gail"] = "digail"
     """digail or gail"""
     vae: Path | None = None
@@ -46,6 +51,8 @@ class TrainArgs:
 
     def __post_init__(self) -> None:
         check_seed(self.seed)
+        check_at_least(self.demos_episodes, "--demos-episodes")
+        check_at_least(self.demos_subsample, "--demos-subsample")
         if self.bc_weight is not None and not (self.bc_weight >= 0 and self.bc_weight != float("inf")):
             raise UserError(f"--bc-weight must be a finite number, not negative, got {self.bc_weight!r}.")
 
@@ -71,7 +78,8 @@ def train_command(args: TrainArgs) -> Path:
         run_dir = Path(args.resume)
         args = resume_args(run_dir)
     device = resolve_device(args.device)
-    demos, env_id = load_demos(args.demos, args.env)
+    demos, env_id = load_demos(args.demos, args.env, episodes=args.demos_episodes, every=args.demos_subsample,
+                               seed=args.seed)
     cfg = args.train
     cfg = replace(cfg, method=args.method)
     if args.bc_weight is not None:
@@ -164,8 +172,10 @@ def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[Hierarchical
     return hook
 
 
-def load_demos(demos: str, env: str = "") -> tuple[list[Trajectory], str]:
-    """The demonstrations of `demos` checked against `env` (default: the dataset's own env), and the env id."""
+def load_demos(demos: str, env: str = "", *, episodes: int | None = None, every: int = 1,
+               seed: int = 0) -> tuple[list[Trajectory], str]:
+    """The demonstrations of `demos` checked against `env` (default: the dataset's own env), and the env id; with
+    `episodes` / `every`, the subset `digail.data.subset.select_demos` keeps."""
     from digail.data.minari_io import load_dataset
     from digail.data.validation import check_matches_env
 
@@ -176,4 +186,6 @@ def load_demos(demos: str, env: str = "") -> tuple[list[Trajectory], str]:
     if not env_id:
         raise UserError(f"the dataset {demos} does not name its environment; pass --env.")
     check_matches_env(ds, env_id)
-    return list(ds.trajs), env_id
+    from digail.data.subset import select_demos
+
+    return select_demos(list(ds.trajs), episodes, every, seed), env_id

@@ -24,6 +24,8 @@ from digail.errors import UserError
 from digail.sweep.spec import METHODS, Range, SweepSpec, Value
 
 VAE_KEYS = ("vae.", "pretrain.")
+DEMO_KEYS = "demos."
+"""the demonstration subset (`demos.episodes`, `demos.subsample`): the VAE's and the training's"""
 """override prefixes that change the VAE (and so which VAE a trial shares)"""
 
 
@@ -89,6 +91,8 @@ def flag_name(key: str) -> str:
         return "--" + rest.replace("_", "-")
     if key == "train.bc_weight":
         return "--bc-weight"
+    if head == "demos":
+        return "--demos-" + rest.replace("_", "-")
     return "--" + key.replace("_", "-")
 
 
@@ -185,7 +189,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
 
     def vae_settings(rec: dict[str, Any]) -> dict[str, Any]:
         return {k: v for k, v in rec["settings"].items()
-                if k in ("preset", "demos") or k.startswith(VAE_KEYS)}
+                if k in ("preset", "demos") or k.startswith((*VAE_KEYS, DEMO_KEYS))}
 
     # names: a suffix only where trials (or VAEs) of one (env, method, seed) differ
     by_base: dict[tuple[str, str, int], list[dict[str, Any]]] = {}
@@ -215,7 +219,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
                 argv = ["pretrain", "--demos", settings["demos"], "--seed", str(seed), "--out", vae_run, "--force",
                         *preset, *device]
                 for key, value in sorted(vs.items()):
-                    if key.startswith(VAE_KEYS):
+                    if key.startswith((*VAE_KEYS, DEMO_KEYS)):
                         argv += flag_args(key, value)
                 vae_jobs[vid] = Job(id=vid, kind="vae", env=env, method="pretrain", seed=seed, run=vae_run,
                                     stages=(Stage("pretrain", tuple(argv), run=vae_run),), settings=vs,
@@ -237,7 +241,7 @@ def plan(spec: SweepSpec, records: list[dict[str, Any]] | None = None, always_ta
             if vae_run is not None:
                 argv += ["--vae", vae_run]
             for key, value in sorted(settings.items()):
-                if key.startswith("train."):
+                if key.startswith(("train.", DEMO_KEYS)):
                     argv += flag_args(key, value)
             stages.append(Stage("train", tuple(argv), resume=("train", "--resume", run), run=run))
         stages.append(Stage("evaluate", ("evaluate", run, "--episodes", str(episodes), *eval_extra), run=run))

@@ -19,6 +19,8 @@ set = { "train.iterations" = 732 }
 Override keys name a field of the stage that takes it: `vae.*` and `train.*` are the nested configs of
 `digail pretrain` / `digail train` (`train.ppo.policy_lr`), `pretrain.X`, `evaluate.X` and `segment.X` a stage's own
 flag (`pretrain.codes`). `train.bc_weight` becomes `--bc-weight`, which also sets the weight of the `-l2` methods.
+`demos.episodes` and `demos.subsample` choose the demonstrations of both the VAE and the training
+(`--demos-episodes`, `--demos-subsample`).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ METHODS: dict[str, tuple[str | None, bool]] = {
 }
 """method name -> (`digail train --method`, or None for the VAE baseline; whether it adds the BC / L2 term)"""
 
-STAGE_PREFIXES = ("vae", "train", "pretrain", "evaluate", "segment")
+STAGE_PREFIXES = ("vae", "train", "pretrain", "evaluate", "segment", "demos")
 """first part of an override key: the nested config or stage it goes to"""
 
 DEFAULT_BC_WEIGHT = 1.0

@@ -1,0 +1,149 @@
+"""The few-demonstration benchmark's table from its run folders (benchmarks/sweeps/fewdemo.toml).
+
+    python benchmarks/fewdemo.py --sweep runs/sweeps/fewdemo [--out benchmarks/results/fewdemo.json]
+    python benchmarks/fewdemo.py RUN [RUN ...]                 # any training or VAE run folders
+
+Per run: env, method, learner, demonstration setting, seed; the environment steps done (`partial` when fewer than
+the run's budget); the normalised return of its final 100-episode evaluation (eval.json, written by `digail
+evaluate`) or, for a run still going, of its last periodic evaluation (5 episodes, marked `from_curve`); the env
+steps at which the periodic evaluation first reached 0.9 and 0.95 of the expert (None: not yet); the training's
+wall time (the sum over iterations of steps / steps per second); and the learning curve (env step, normalised
+return). Medians over seeds per (env, setting, method, learner) go under `table`. Published references (1 expert
+trajectory of Hopper, as a recent table reports them) go under `references`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REFERENCES = {
+    "note": "1 expert trajectory on Hopper, 1M steps or fewer, as quoted by a recent table (returns; expert 3633)",
+    "Hopper-v5": {"expert": 3633, "GAIL": 3536, "IQ-Learn": 3425, "DAC": 3322},
+}
+
+
+def _curve(run: Path) -> list[tuple[float, float]]:
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return []
+    out = []
+    with path.open() as f:
+        for row in csv.DictReader(f):
+            v = row.get("eval/normalized_return") or ""
+            if v:
+                out.append((float(row["step"]), float(v)))
+    return out
+
+
+def _wall_time(run: Path) -> float | None:
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return None
+    total, last = 0.0, 0.0
+    with path.open() as f:
+        for row in csv.DictReader(f):
+            sps, step = row.get("perf/sps") or "", float(row["step"])
+            if sps and float(sps) > 0 and step > last:
+                total += (step - last) / float(sps)
+                last = step
+    return total
+
+
+def first_reach(curve: list[tuple[float, float]], level: float) -> float | None:
+    """The first env step whose evaluation reached `level` (None: never)."""
+    return next((s for s, v in curve if v >= level), None)
+
+
+def summarise_run(run: Path) -> dict[str, Any] | None:
+    config_path = run / "config.json"
+    if not config_path.is_file():
+        return None
+    config = json.loads(config_path.read_text())
+    args = config.get("args") or {}
+    train = config.get("train") or {}
+    kind = config.get("kind")
+    method = "bc (vae)" if kind == "vae" else str(config.get("method"))
+    learner = None if kind == "vae" else train.get("learner", "ppo")
+    if learner == "sac":
+        budget = int(train["iterations"]) * int(train["sac"]["steps_per_iteration"])
+    elif learner == "ppo":
+        budget = int(train["iterations"]) * int(train["ppo"]["batch_size"])
+    else:
+        budget = 0
+    curve = _curve(run)
+    steps = max((s for s, _ in curve), default=0.0)
+    rec: dict[str, Any] = {
+        "run": str(run), "env": config.get("env_id"), "method": method, "learner": learner, "seed": config.get("seed"),
+        "demos_episodes": args.get("demos_episodes"), "demos_subsample": args.get("demos_subsample", 1),
+        "budget_steps": budget, "curve": [[s, round(v, 4)] for s, v in curve],
+    }
+    metrics = run / "metrics.csv"
+    if metrics.is_file():
+        with metrics.open() as f:
+            rows = list(csv.DictReader(f))
+        steps = max(steps, float(rows[-1]["step"]) if rows else 0.0)
+    rec["env_steps"] = steps
+    rec["partial"] = kind != "vae" and steps < budget
+    eval_path = run / "eval.json"
+    if eval_path.is_file() and not rec["partial"]:
+        ev = json.loads(eval_path.read_text())
+        rec.update(normalized_return=ev.get("normalized_return"), mean_return=ev.get("mean_return"),
+                   eval_episodes=ev.get("episodes"), from_curve=False)
+    elif curve:
+        rec.update(normalized_return=curve[-1][1], eval_episodes=(config.get("train") or {}).get("eval_episodes"),
+                   from_curve=True)
+    rec["steps_to_0.9"] = first_reach(curve, 0.9)
+    rec["steps_to_0.95"] = first_reach(curve, 0.95)
+    rec["wall_time_s"] = _wall_time(run)
+    return rec
+
+
+def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in records:
+        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"])
+        groups.setdefault(key, []).append(r)
+    out = []
+    for (env, episodes, every, method, learner), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+        vals = [r["normalized_return"] for r in rs if isinstance(r.get("normalized_return"), float)
+                and math.isfinite(r["normalized_return"])]
+        out.append({"env": env, "demos_episodes": episodes, "demos_subsample": every, "method": method,
+                    "learner": learner, "seeds": sorted(r["seed"] for r in rs),
+                    "median_normalized_return": float(np.median(vals)) if vals else None,
+                    "partial": any(r.get("partial") for r in rs)})
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("runs", nargs="*", type=Path)
+    parser.add_argument("--sweep", type=Path)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fewdemo.json"))
+    parser.add_argument("--commands", type=Path, help="a JSON file {run folder: the command that made it}")
+    args = parser.parse_args()
+    runs = list(args.runs)
+    if args.sweep is not None:
+        runs += sorted(p.parent for p in args.sweep.glob("*/*/config.json"))
+    records = [r for r in (summarise_run(p) for p in runs) if r is not None]
+    if args.commands is not None:
+        commands = json.loads(args.commands.read_text())
+        for r in records:
+            r["command"] = commands.get(r["run"])
+    result = {"partial": any(r.get("partial") for r in records), "runs": records, "table": table(records),
+              "references": REFERENCES}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    for row in result["table"]:
+        print(row)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,129 @@
+"""Soft actor-critic throughput: digail's off-policy learner against Stable-Baselines3's SAC, side by side.
+
+    python benchmarks/sac_speed.py [--env Hopper-v5] [--sizes 64 256] [--steps 300] [--rounds 2]
+
+One torch thread, one environment, one update of batch 256 per environment step (update-to-data ratio 1), the
+actor and both critics with hidden layers HxH in both libraries, after a warm-up that fills the buffer past the
+learning start. Each round times every variant in turn, so that drifting load on a shared machine hits all of them
+alike; the medians over the rounds and their ratios go to benchmarks/results/sac_speed.json:
+
+- sb3_sps_H: Stable-Baselines3 SAC (MlpPolicy, net_arch [H, H], train_freq 1, gradient_steps 1);
+- ours_sps_H: digail's SAC on the env's own reward (`--train.learner sac`, no discriminator updates): the same
+  work per step as SB3's;
+- ours_gail_sps_H: the same with GAIL's discriminator updated every step (gradient penalty on) and its reward
+  relabelled on every batch: what `digail train --train.learner sac` runs;
+- ours_autograd_sps_H: digail's SAC with autograd instead of its hand-written gradients (`digail.algos.fast.sac_grad`);
+- speedup_H = ours_sps_H / sb3_sps_H.
+The demonstrations are the env's shipped ones (only D sees them); throughput does not depend on their quality.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+BATCH = 256
+WARMUP = 300
+"""environment steps before the first update (both libraries), and then untimed updates before the clock starts"""
+
+
+def sb3_runner(env_id: str, hidden: int, seed: int = 0) -> Any:
+    """A function timing `steps` SAC steps of Stable-Baselines3 (after its warm-up)."""
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    model = SAC("MlpPolicy", gym.make(env_id), policy_kwargs=dict(net_arch=[hidden, hidden]), batch_size=BATCH,
+                learning_starts=WARMUP, train_freq=1, gradient_steps=1, buffer_size=100_000, device="cpu",
+                seed=seed, verbose=0)
+    model.learn(total_timesteps=2 * WARMUP)
+
+    def run(steps: int) -> float:
+        t0 = time.perf_counter()
+        model.learn(total_timesteps=steps, reset_num_timesteps=False)
+        return steps / (time.perf_counter() - t0)
+
+    return run
+
+
+def ours_runner(env_id: str, hidden: int, *, gail: bool, hand: bool = True, seed: int = 0) -> Any:
+    """A function timing `steps` SAC steps of digail's learner (GAIL's D on or off) after its warm-up."""
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.commands.train import load_demos
+    from digail.config import SACConfig, TrainConfig
+    from digail.data.demos import default_dataset_id
+
+    demos, _ = load_demos(default_dataset_id(env_id), env_id, episodes=4)
+    sac = SACConfig(steps_per_iteration=WARMUP, learning_starts=WARMUP, batch_size=BATCH, hidden=(hidden, hidden),
+                    policy_warmup=0, buffer_size=100_000, disc_every=1 if gail else 0)
+    cfg = TrainConfig(method="gail", learner="sac", hidden=(hidden, hidden), backend="sync", sac=sac)
+    reward_fn = None if gail else (lambda logits, batch: batch["rews"])
+    trainer = build_trainer(env_id, demos, cfg, vae_model=None, seed=seed, run_dir=None, progress=False,
+                            reward_fn=reward_fn)
+    assert trainer.offpolicy is not None
+    trainer.offpolicy.learner.hand = hand and trainer.offpolicy.learner.hand
+    trainer.iterate()
+    trainer.iterate()
+
+    def run(steps: int) -> float:
+        loop = trainer.offpolicy
+        assert loop is not None
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            loop.step_and_update()
+        return steps / (time.perf_counter() - t0)
+
+    return run
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--env", default="Hopper-v5")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 256])
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--out", default="benchmarks/results/sac_speed.json")
+    args = parser.parse_args()
+    from digail.utils import set_torch_threads
+
+    set_torch_threads(1)
+    result: dict[str, Any] = {"env": args.env, "steps_per_measure": args.steps, "rounds": args.rounds,
+                              "batch_size": BATCH, "torch_threads": torch.get_num_threads(),
+                              "torch": torch.__version__, "machine": platform.processor() or platform.machine(),
+                              "loadavg_start": os.getloadavg()[0]}
+    import stable_baselines3
+
+    result["sb3"] = stable_baselines3.__version__
+    for h in args.sizes:
+        runners = {f"sb3_sps_{h}": sb3_runner(args.env, h), f"ours_sps_{h}": ours_runner(args.env, h, gail=False),
+                   f"ours_gail_sps_{h}": ours_runner(args.env, h, gail=True),
+                   f"ours_autograd_sps_{h}": ours_runner(args.env, h, gail=False, hand=False)}
+        samples: dict[str, list[float]] = {k: [] for k in runners}
+        for r in range(args.rounds):
+            for key, run in runners.items():
+                samples[key].append(run(args.steps))
+                print(f"round {r}: {key} {samples[key][-1]:.1f} steps/s", flush=True)
+        for key, vals in samples.items():
+            result[key] = float(np.median(vals))
+            result[key + "_samples"] = [round(v, 2) for v in vals]
+        result[f"speedup_{h}"] = result[f"ours_sps_{h}"] / result[f"sb3_sps_{h}"]
+        result[f"speedup_gail_{h}"] = result[f"ours_gail_sps_{h}"] / result[f"sb3_sps_{h}"]
+        result[f"hand_over_autograd_{h}"] = result[f"ours_sps_{h}"] / result[f"ours_autograd_sps_{h}"]
+        print({k: round(v, 3) for k, v in result.items() if k.endswith(f"_{h}")}, flush=True)
+    result["loadavg_end"] = os.getloadavg()[0]
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
