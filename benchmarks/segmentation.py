@@ -1,4 +1,4 @@
-"""Segmentation benchmark (issue 14): `digail pretrain` + `digail segment` with the defaults, K given, on data no
+"""Segmentation benchmark: `digail pretrain` + `digail segment` with the defaults, K given, on data no
 setting was tuned for.
 
     python benchmarks/segmentation.py          # every task, seeds 0 1 2 -> benchmarks/results/segmentation.json

@@ -24,7 +24,7 @@ Every stage is exactly what a user would type (printed as it runs):
                  --train.iterations I --train.eval-every E --train.eval-episodes 5 --out R/<method>_sS
     digail evaluate RUN --episodes 300
 
-Budgets (issue 13): 3M environment steps per run on Hopper and Walker2d, 1M on the pendulums, so the paper's
+Budgets: 3M environment steps per run on Hopper and Walker2d, 1M on the pendulums, so the paper's
 batch sizes (Table 3) with `I = budget // batch` iterations. Finished stages are skipped and a killed training
 continues with `digail train --resume`, so the queue can be stopped and started again at any time; a lock per
 trial keeps two queues apart. Runs live in runs/table1/ (git-ignored); the summary keeps their numbers.
@@ -246,7 +246,7 @@ def trial_record(env: str, method: str, seed: int) -> dict[str, Any] | None:
     }
 
 
-TARGETS = {  # issue 13's per-seed targets (the table's verdict is on the median of 3 seeds)
+TARGETS = {  # the benchmark's per-seed targets (the table's verdict is on the median of 3 seeds)
     "pendulum": "mean return >= the expert's mean - its std (returns are negative: normalised > 1 is worse)",
     "invertedpendulum": "mean return 1000 on every seed",
     "hopper": "normalised return >= 0.95",

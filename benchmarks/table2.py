@@ -39,7 +39,7 @@ KEYS = ("mean_return", "std_return", "sparse_return", "success_rate", "grasp_rat
 
 
 def table(results: dict[str, Any]) -> dict[str, Any]:
-    """Per method: every finished seed's measures and the medians; the targets of issue 16 where decidable."""
+    """Per method: every finished seed's measures and the medians; the benchmark's targets where decidable."""
     methods: dict[str, Any] = {}
     for method, rec in results["table"].get(ENV, {}).items():
         seeds = []

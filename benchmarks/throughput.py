@@ -20,7 +20,7 @@ benchmarks/results/throughput*.json, copied there on purpose) with environment s
   without its hard-EM start, no polish: the paper's VAE, 2000 epochs on Hopper) in demonstration steps per
   second: epochs x steps in the demonstrations / time, on the env's shipped demonstrations where there are some
   (vae_demos names them), else the random ones below. The hard-EM start is a fixed number of fitting steps
-  (`--vae.init-steps`), not per epoch: benchmarks/vae_speed.py times it.
+  (`--vae.init-steps`), not per epoch: benchmarks/studies/vae_speed.py times it.
 cpus is the cores this process may use and loadavg the machine's load when the run started (other jobs share it).
 Absolute numbers drift by +-25% on a shared 2-core machine; the ratios measured in one run are what to quote.
 Demonstrations are random-action rollouts: throughput does not depend on their quality.

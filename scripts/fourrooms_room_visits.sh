@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Four Rooms with the room-visit start (issue 14, item 5; docs/experiments.md, "Four Rooms"): the preset's VAE and
+# Four Rooms with the room-visit start (docs/experiments.md, "Four Rooms"): the preset's VAE and
 # Directed-Info GAIL, but the VAE starts from one code per room visit (`--vae.init-pieces env`) found by linear
 # sub-task policies on the agent's position (`--vae.init-obs 0 26 --vae.init-ridge 0.01`), no ELBO epochs.
 #   bash scripts/fourrooms_room_visits.sh SEED [ITERATIONS]   (ITERATIONS of Directed-Info GAIL, default 1000)

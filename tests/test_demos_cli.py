@@ -188,7 +188,7 @@ def test_shipped_dataset(dataset_id: str) -> None:
     assert len(ds.trajs) == ds.metadata["digail"]["episodes"] == ENV_SPECS[env_id].demo_episodes  # the paper's sizes
     check_matches_env(ds, env_id)
     size = sum(f.stat().st_size for f in (ds.path / "data").iterdir())
-    assert size < 6_000_000, size  # "a few MB" each (issue 5); Walker and Fetch are ~4.8 MB
+    assert size < 6_000_000, size  # "a few MB" each, as the shipped datasets promise; Walker and Fetch are ~4.8 MB
     expert = get_scripted_expert(env_id)
     if env_id in ORACLE_LABELS or expert is not None:
         assert ds.has_labels

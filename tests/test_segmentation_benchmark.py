@@ -1,4 +1,4 @@
-"""The segmentation benchmark's fast subset (issue 14): waypoint courses recorded with Minari's API, segmented by
+"""The segmentation benchmark's fast subset: waypoint courses recorded with Minari's API, segmented by
 `digail pretrain` with the defaults; the hard-EM start; restarts and K chosen without labels."""
 
 from __future__ import annotations

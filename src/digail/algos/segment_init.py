@@ -444,7 +444,7 @@ def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes
                  outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> tuple[float, list[np.ndarray]]:
     """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
     cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
-    the truth above what the search finds (`benchmarks/segmentation_oracle.py`)."""
+    the truth above what the search finds."""
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs,
                     outlier_share=outlier_share, model=model)
