@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import nn
 
 from digail.algos.aux_losses import bc_loss
 from digail.algos.discriminator import disc_loss
@@ -234,41 +233,6 @@ class SACLearner:
         self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
 
 
-class LivePolicy:
-    """pi's mean action in NumPy on views of its live weights (CPU): the optimiser updates them in place, so acting
-    after every update needs no copy and no torch dispatch. Not for CUDA (`OffPolicyLoop` then uses torch)."""
-
-    def __init__(self, pi: SubtaskPolicy, obs_dim: int) -> None:
-        lin = [m for m in pi.net if isinstance(m, nn.Linear)]
-        seen = obs_dim if pi.decoder_obs is None else pi.decoder_obs[1] - pi.decoder_obs[0]
-        self.slice = pi.decoder_obs
-        w0 = lin[0].weight.detach().numpy()
-        self.w_obs = w0[:, :seen].T  # views: (seen, H)
-        self.w_code = w0[:, seen:].T  # (K, H)
-        self.b0 = lin[0].bias.detach().numpy()
-        self.rest = [(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin[1:]]
-        self.log_std = pi.log_std.detach().numpy()
-
-    def std(self) -> np.ndarray:
-        return np.exp(np.clip(self.log_std, -5.0, 2.0))
-
-    def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
-        if self.slice is not None:
-            obs_n = obs_n[:, self.slice[0]:self.slice[1]]
-        h = obs_n @ self.w_obs
-        h += self.w_code[codes]
-        h += self.b0
-        np.maximum(h, 0.0, out=h)
-        for w, b in self.rest[:-1]:
-            h = h @ w
-            h += b
-            np.maximum(h, 0.0, out=h)
-        w, b = self.rest[-1]
-        out = h @ w
-        out += b
-        return out
-
-
 class OffPolicyLoop:
     """The `sac` learner of a `GAIL` / `DirectedInfoGAIL` trainer: its env loop, replay buffer, D and SAC updates.
 
@@ -312,8 +276,10 @@ class OffPolicyLoop:
         self._disc_debt = 0
         self.updates = 0
         """SAC updates so far"""
-        self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" else None
         from digail.algos import fast
+        from digail.algos.fast.inference import LivePolicy
+
+        self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" else None
         from digail.algos.fast.ppo_grad import plain_mlp_layers
 
         d_lin = plain_mlp_layers(t.disc.net)

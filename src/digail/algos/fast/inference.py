@@ -32,6 +32,19 @@ def log_softmax(logits: np.ndarray) -> np.ndarray:
     return z - np.log(np.exp(z).sum(-1, keepdims=True))
 
 
+def _relu_tail(h: np.ndarray, rest: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """The rest of a ReLU MLP after its first layer's pre-activation `h` (modified in place)."""
+    np.maximum(h, 0.0, out=h)
+    for w, b in rest[:-1]:
+        h = h @ w
+        h += b
+        np.maximum(h, 0.0, out=h)
+    w, b = rest[-1]
+    out = h @ w
+    out += b
+    return out
+
+
 class CodeMLP:
     """Snapshot of `mlp(obs_dim + K, out)` taking (obs_n, integer codes); code -1 is the zero (start) input.
 
@@ -66,15 +79,7 @@ class CodeMLP:
     def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
         h = obs_n @ self.w_obs
         h += self.code_table.take(codes, 0)
-        np.maximum(h, 0.0, out=h)
-        for w, b in self.rest[:-1]:
-            h = h @ w
-            h += b
-            np.maximum(h, 0.0, out=h)
-        w, b = self.rest[-1]
-        out = h @ w
-        out += b
-        return out
+        return _relu_tail(h, self.rest)
 
 
 class ActorCritic:
@@ -116,3 +121,30 @@ class ActorCritic:
 
     def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
         return self.net(obs_n, codes)
+
+
+class LivePolicy:
+    """pi's mean action in NumPy on views of its live weights (CPU): the optimiser updates them in place, so acting
+    after every update needs no copy and no torch dispatch. Not for CUDA (`OffPolicyLoop` then uses torch)."""
+
+    def __init__(self, pi: SubtaskPolicy, obs_dim: int) -> None:
+        lin = [m for m in pi.net if isinstance(m, nn.Linear)]
+        seen = obs_dim if pi.decoder_obs is None else pi.decoder_obs[1] - pi.decoder_obs[0]
+        self.slice = pi.decoder_obs
+        w0 = lin[0].weight.detach().numpy()
+        self.w_obs = w0[:, :seen].T  # views: (seen, H)
+        self.w_code = w0[:, seen:].T  # (K, H)
+        self.b0 = lin[0].bias.detach().numpy()
+        self.rest = [(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin[1:]]
+        self.log_std = pi.log_std.detach().numpy()
+
+    def std(self) -> np.ndarray:
+        return np.exp(np.clip(self.log_std, *LOG_STD_BOUNDS))
+
+    def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
+        if self.slice is not None:
+            obs_n = obs_n[:, self.slice[0]:self.slice[1]]
+        h = obs_n @ self.w_obs
+        h += self.w_code[codes]
+        h += self.b0
+        return _relu_tail(h, self.rest)
