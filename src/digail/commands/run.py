@@ -18,7 +18,7 @@ from typing import Annotated, Any
 
 import tyro
 
-from digail.config import check_at_least, check_seed
+from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
 from digail.utils import (
     check_writable,
@@ -282,7 +282,8 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
     t0 = time.perf_counter()
     make_figures(run_dir, model=model, trajs=trajs)
     try:
-        record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=10_000, max_steps=VIDEO_MAX_STEPS)
+        record_video(model, args.env, run_dir / "videos" / "closed_loop.mp4", seed=FINAL_EVAL_SEED,
+                     max_steps=VIDEO_MAX_STEPS)
     except UserError as exc:  # a missing renderer costs the video, not the run
         print(f"      video skipped: {exc}")
     timings["figures_video_s"] = time.perf_counter() - t0

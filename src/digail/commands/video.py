@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 
 import tyro
 
-from digail.config import check_at_least, check_seed
+from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
 from digail.utils import check_writable, run_dir_lock
 
@@ -23,7 +23,7 @@ class VideoArgs:
     """episodes to render, one after the other in one video"""
     schedule: str | None = None
     """code:steps pairs such as '1:60,0:60' to compose sub-task policies (default: the closed-loop macro-policy)"""
-    seed: int = 10_000
+    seed: int = FINAL_EVAL_SEED
     """seed of the first episode (the evaluation seeds by default)"""
     max_steps: int | None = None
     """cut each episode after this many steps (default: play it to its end)"""

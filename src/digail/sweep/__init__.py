@@ -12,21 +12,18 @@ Ray Tune. Ray is the optional extra `digail[sweep]`; nothing here imports it bef
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 from digail.errors import UserError
 from digail.sweep.cluster import start_ray, stop_ray
-from digail.sweep.engine import check_consistent, execute, job_done, job_from_dict, job_to_dict, read_json
-from digail.sweep.plan import Job, plan
+from digail.sweep.engine import check_consistent, execute, job_done
+from digail.sweep.plan import plan
+from digail.sweep.record import PLAN_FILE, load_plan, save_plan, summarize_sweep
 from digail.sweep.spec import Grid, Range, SearchSpec, SweepSpec, load_spec, parse_set
-from digail.sweep.summary import write_results
 
-__all__ = ["Grid", "Range", "SearchSpec", "SweepSpec", "load_spec", "parse_set", "plan", "run_sweep", "start_ray",
-           "stop_ray", "summarize_sweep"]
-
-PLAN_FILE = "sweep.json"
+__all__ = ["PLAN_FILE", "Grid", "Range", "SearchSpec", "SweepSpec", "load_plan", "load_spec", "parse_set", "plan",
+           "run_sweep", "save_plan", "start_ray", "stop_ray", "summarize_sweep"]
 
 
 def _require_ray() -> None:
@@ -34,28 +31,6 @@ def _require_ray() -> None:
         import ray  # noqa: F401
     except ImportError as exc:
         raise UserError("sweeps run on Ray, which is not installed; pip install 'digail[sweep]'.") from exc
-
-
-def save_plan(out: Path, spec: SweepSpec, jobs: list[Job]) -> None:
-    """Record the sweep's jobs (so --summarize needs only the folder)."""
-    from dataclasses import asdict
-
-    out.mkdir(parents=True, exist_ok=True)
-    (out / PLAN_FILE).write_text(json.dumps({"name": spec.name, "spec": asdict(spec),
-                                             "jobs": [job_to_dict(j) for j in jobs]}, indent=2, default=str) + "\n")
-
-
-def load_plan(out: Path) -> tuple[str, list[Job]]:
-    """The jobs recorded in a sweep folder."""
-    path = Path(out) / PLAN_FILE
-    if not path.exists():
-        raise UserError(f"{out} is not a sweep folder (no {PLAN_FILE}); pass the --out of a `digail sweep`.")
-    data = read_json(path, "the sweep's plan; run the `digail sweep` command again to rewrite it")
-    try:
-        return data.get("name", ""), [job_from_dict(j) for j in data["jobs"]]
-    except (AttributeError, KeyError, TypeError) as exc:
-        raise UserError(f"{path} does not hold a sweep's plan ({type(exc).__name__}: {exc}); run the `digail sweep` "
-                        "command again to rewrite it.") from None
 
 
 def check_out(out: Path) -> None:
@@ -95,24 +70,3 @@ def run_sweep(spec: SweepSpec, out: Path | str, *, address: str | None = None, n
     finally:
         stop_ray(session)
     return summarize_sweep(out)
-
-
-def summarize_sweep(out: Path | str) -> dict[str, Any]:
-    """(Re)write SWEEP/results.json and results.md from what the trials wrote; returns the JSON's content."""
-    out = Path(out).resolve()
-    name, jobs = load_plan(out)
-    result = write_results(out, jobs, name)
-    search_file = out / "search.json"
-    if search_file.exists():
-        result["search"] = search = read_json(search_file, "the search's samples")
-        (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
-        scored = sorted((s for s in search["samples"] if s["metric"] is not None), key=lambda s: s["metric"],
-                        reverse=search["mode"] == "max")
-        lines = [f"## Search ({search['algo']}, {search['mode']} {search['metric']}, median over seeds)", "",
-                 "| " + " | ".join(search["space"]) + f" | {search['metric']} |",
-                 "| " + " | ".join("---" for _ in search["space"]) + " | --- |"]
-        lines += ["| " + " | ".join(str(s["values"].get(k)) for k in search["space"]) + f" | {s['metric']:.4g} |"
-                  for s in scored]
-        with open(out / "results.md", "a") as f:
-            f.write("\n".join(lines) + "\n")
-    return result

@@ -26,6 +26,7 @@ from digail.errors import UserError
 from digail.sweep.cluster import start_ray, stop_ray
 from digail.sweep.engine import check_consistent, execute, job_done, job_to_dict, run_job
 from digail.sweep.plan import VAE_KEYS, Job, expand, plan
+from digail.sweep.record import save_plan, summarize_sweep
 from digail.sweep.spec import Range, SweepSpec, Value
 
 SEARCH_FILE = "search.json"
@@ -119,8 +120,6 @@ def _trainable(config: dict[str, Any], spec: SweepSpec, sweep: str, keys: tuple[
 def run_search(spec: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None,
                dashboard: bool = False) -> dict[str, Any]:
     """Run the search of `spec` into the sweep folder `out`; returns the tables (with a `search` section)."""
-    from digail.sweep import save_plan, summarize_sweep
-
     assert spec.search is not None
     if spec.search.mode not in ("max", "min"):
         raise UserError(f"search mode {spec.search.mode!r}: use max or min.")

@@ -26,6 +26,9 @@ from digail.viz.video import play_episodes
 
 FOUR_ROOMS = "digail/FourRooms-v0"
 
+COMPOSE_SEED_OFFSET = 10_000
+"""the composed rollouts start this far past `seed`, so they never replay the closed-loop rollouts' episodes"""
+
 
 def _obs_dim(obs: np.ndarray) -> int:
     return int(np.prod(np.shape(obs)[1:]))
@@ -88,7 +91,8 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
     elif dim == 2:
         paths.append(F.planar_trajectories(gen, out / "generated.png", title="closed-loop rollouts"))
         if schedule is not None:
-            composed = play_episodes(model, env_id, episodes, seed + 10_000, schedule=schedule, render=False)
+            composed = play_episodes(model, env_id, episodes, seed + COMPOSE_SEED_OFFSET, schedule=schedule,
+                                     render=False)
             paths.append(composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in composed],
                                             out / "compose.png", schedule_text))
     if env_id.startswith("Pendulum") and dim == 3:

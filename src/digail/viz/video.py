@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.config import FINAL_EVAL_SEED
 from digail.errors import UserError
 from digail.utils import ensure_offscreen_gl, mujoco_gl_error, one_line
 
@@ -120,7 +121,7 @@ def _frame(env: Any) -> np.ndarray:
     raise error from None
 
 
-def find_outcome(model: Any, env_id: str, success: bool, seed: int = 10_000, search: int = 200,
+def find_outcome(model: Any, env_id: str, success: bool, seed: int = FINAL_EVAL_SEED, search: int = 200,
                  max_steps: int | None = None) -> int:
     """The seed of the first episode from `seed` on whose last step's `info["is_success"]` is `success` (played
     without frames, so that only the chosen episode is rendered). Raises a UserError when the env reports no
