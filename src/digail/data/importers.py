@@ -246,6 +246,18 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
                     source=None if isinstance(source, Mapping) else os.fspath(source), notes=notes)
 
 
+def _optional_rows(where: str, rews: np.ndarray | None, next_obs: np.ndarray | None, next_key: str,
+                   obs: np.ndarray, obs_key: str, n: int, by: str) -> None:
+    """The optional rewards and next observations: one row per step (`_rows`), next observations shaped as `obs`."""
+    if rews is not None:
+        _rows(where, "rewards", rews, n, by)
+    if next_obs is not None:
+        _rows(where, next_key, next_obs, n, by)
+        if next_obs.shape[1:] != obs.shape[1:]:
+            raise UserError(f"{where} has '{next_key}' of shape {next_obs.shape[1:]} per step but '{obs_key}' of "
+                            f"{obs.shape[1:]}; they must match.")
+
+
 def _rows(where: str, name: str, arr: np.ndarray, n: int, what: str) -> None:
     if arr.ndim < 1 or len(arr) != n:
         got = len(arr) if arr.ndim >= 1 else "a scalar"
@@ -327,13 +339,7 @@ def _read_sb3(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
     n = len(starts)
     _rows(where, "obs", obs, n, "episode_starts flags")
     _rows(where, "actions", acts, n, "episode_starts flags")
-    if rews is not None:
-        _rows(where, "rewards", rews, n, "episode_starts flags")
-    if next_obs is not None:
-        _rows(where, "next_obs", next_obs, n, "episode_starts flags")
-        if next_obs.shape[1:] != obs.shape[1:]:
-            raise UserError(f"{where} has 'next_obs' of shape {next_obs.shape[1:]} per step but 'obs' of "
-                            f"{obs.shape[1:]}; they must match.")
+    _optional_rows(where, rews, next_obs, "next_obs", obs, "obs", n, "episode_starts flags")
     acts = _actions(where, "actions", acts)
     first = np.flatnonzero(starts).tolist()
     if not first or first[0] != 0:
@@ -416,13 +422,7 @@ def _read_d4rl(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
     _rows(where, "terminals", terminals, n, "observations")
     _rows(where, "timeouts", timeouts, n, "observations")
     rews, next_obs = arrays.optional("rewards"), arrays.optional("next_observations")
-    if rews is not None:
-        _rows(where, "rewards", rews, n, "observations")
-    if next_obs is not None:
-        _rows(where, "next_observations", next_obs, n, "observations")
-        if next_obs.shape[1:] != obs.shape[1:]:
-            raise UserError(f"{where} has 'next_observations' of shape {next_obs.shape[1:]} per step but "
-                            f"'observations' of {obs.shape[1:]}; they must match.")
+    _optional_rows(where, rews, next_obs, "next_observations", obs, "observations", n, "observations")
     acts = _actions(where, "actions", acts)
     ends = (np.flatnonzero(terminals | timeouts) + 1).tolist()
     notes = []
