@@ -94,18 +94,43 @@ def cluster():
         shutil.rmtree(root, ignore_errors=True)
 
 
-def _remove_mid_training(c, nodes, sweep: Path, done: threading.Event, removed: list[str]) -> None:
-    """Once the killed trial's checkpoint has reached the driver's sweep folder, remove the node that runs it."""
+def _training_pid(scratch: Path) -> int | None:
+    """The `digail train` process of the killed trial working in `scratch`, if it runs."""
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                argv = (entry / "cmdline").read_bytes().split(b"\0")
+                cwd = os.readlink(entry / "cwd")
+            except OSError:
+                continue
+            if b"train" in argv and KILLED.encode() in argv and cwd == str(scratch):
+                return int(entry.name)
+    return None
+
+
+def _remove_mid_training(c, nodes, workdirs, sweep: Path, done: threading.Event, removed: list[str]) -> None:
+    """Freeze the killed trial's training (SIGSTOP) as soon as it wrote a checkpoint in its scratch folder, so
+    that it cannot finish however fast the machine; once that checkpoint has reached the driver's sweep folder,
+    remove the node that runs it."""
     run = sweep / KILLED
     state_file = sweep / "trials" / (KILLED.replace("/", "__") + ".json")
+    stopped = None
     while not done.is_set():
-        if (run / "checkpoint.pt").exists() and state_file.exists():
-            node_id = json.loads(state_file.read_text()).get("node")
-            [node] = [n for n in nodes if n.node_id == node_id]
-            c.remove_node(node, allow_graceful=False)
-            removed.append(node_id)
-            return
-        time.sleep(0.2)
+        if stopped is None:
+            for ckpt in (p for w in workdirs for p in w.glob(f"digail-trial-*/{KILLED}/checkpoint.pt")):
+                pid = _training_pid(ckpt.parents[2])
+                if pid is not None:
+                    os.kill(pid, signal.SIGSTOP)
+                    stopped = pid
+        elif (run / "checkpoint.pt").exists() and state_file.exists():
+            with contextlib.suppress(ValueError):  # the state is replaced atomically, but read it twice if torn
+                state = json.loads(state_file.read_text())
+                if "train" in state.get("started", []) and state.get("node"):
+                    [node] = [n for n in nodes if n.node_id == state["node"]]
+                    c.remove_node(node, allow_graceful=False)
+                    removed.append(state["node"])
+                    return
+        time.sleep(0.02)
 
 
 @pytest.mark.slow  # three Ray nodes, four smoke stages twice (on the cluster and on one machine): a few minutes
@@ -123,7 +148,7 @@ def test_sweep_on_a_cluster_without_shared_folder_survives_a_lost_node_and_match
 
     sweep = tmp_path / "sweep"
     done, removed = threading.Event(), []
-    killer = threading.Thread(target=_remove_mid_training, args=(c, nodes, sweep, done, removed), daemon=True)
+    killer = threading.Thread(target=_remove_mid_training, args=(c, nodes, workdirs, sweep, done, removed), daemon=True)
     killer.start()
     try:
         result = run_sweep(spec, sweep, summary_every=5.0)
