@@ -225,10 +225,11 @@ def _kill_worker_mid_training(sweep: Path, run: str, done: threading.Event, kill
         if (sweep / run / "checkpoint.pt").exists():
             for pid, ppid, argv, cwd in _procs():
                 if "digail.cli" in argv and "train" in argv and run in argv and cwd == str(sweep):
+                    os.kill(pid, signal.SIGSTOP)  # frozen first: the stage cannot finish while its worker dies
                     os.kill(ppid, signal.SIGKILL)
                     killed += [ppid, pid]
                     return
-        time.sleep(0.1)
+        time.sleep(0.02)
 
 
 @pytest.mark.slow  # about 3 minutes of Ray on 2 cores: CI runs it with `make test-slow`
