@@ -137,6 +137,7 @@ def run_config(*, kind: str, env_id: str | None, demos: str | Path | None, seed:
     `steps` budget and `expert` recipe).
     """
     from digail.config import to_dict
+    from digail.user_envs import recorded_spec
     from digail.version import __version__
 
     config: dict[str, Any] = {
@@ -144,6 +145,7 @@ def run_config(*, kind: str, env_id: str | None, demos: str | Path | None, seed:
         "kind": kind,
         "method": kind if kind in ("digail", "gail") else None,
         "env_id": env_id,
+        **({"env_spec": spec} if (spec := recorded_spec(env_id)) else {}),
         "demos": path_ref(demos),
         "vae_run": path_ref(vae_run),
         "seed": seed,

@@ -145,6 +145,7 @@ def _main(argv: Sequence[str] | None) -> int:
     rest = _renamed_flags(name, rest, getattr(_module(name), "ALIASES", {}))
     try:
         with _terminate_as_interrupt():
+            rest = _env_modules_imported(name, rest)
             default = defaults(rest) if defaults is not None else None
             with _parse_errors_as_user_errors(rest):
                 args = tyro.cli(cls, args=rest, prog=f"digail {name}", default=default, description=cls.__doc__)
@@ -167,6 +168,20 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; {fix}.", file=sys.stderr)
         return 2
     return 0
+
+
+def _env_modules_imported(name: str, argv: list[str]) -> list[str]:
+    """`argv` with each `module:EnvId` (the value of `--env`, or `digail run`'s first argument) replaced by
+    `EnvId` once its module is imported: the env is then known under its id alone, as datasets record it."""
+    from digail.user_envs import import_env_module
+
+    out = list(argv)
+    for i, tok in enumerate(out):
+        if tok.startswith("--env="):
+            out[i] = "--env=" + import_env_module(tok.split("=", 1)[1])
+        elif i > 0 and out[i - 1] == "--env" or name == "run" and i == 0 and not tok.startswith("-"):
+            out[i] = import_env_module(tok)
+    return out
 
 
 def _renamed_flags(name: str, argv: list[str], aliases: dict[str, str]) -> list[str]:

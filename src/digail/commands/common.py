@@ -64,8 +64,11 @@ def check_output_folder(run: Path) -> Path:
 def run_env_id(run: Path, meta: dict[str, Any]) -> str:
     """The environment a run was trained on: its model.pt's record, else its config.json's."""
     from digail.checkpoint import read_config
+    from digail.user_envs import register_recorded_env
 
-    env_id = meta.get("env_id") or read_config(run).get("env_id")
+    config = read_config(run)
+    env_id = meta.get("env_id") or config.get("env_id")
+    register_recorded_env(config.get("env_spec"))  # an env defined outside digail, made from its entry point
     if not env_id:
         raise UserError(f"cannot tell which environment {run} was trained on; its model.pt and config.json "
                         "name none.")

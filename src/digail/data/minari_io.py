@@ -30,6 +30,7 @@ import numpy as np
 from digail.data.trajectory import SUBTASK_KEY, Dataset, Trajectory
 from digail.data.validation import check_actions, read_labels
 from digail.errors import UserError
+from digail.user_envs import register_recorded_env
 from digail.utils import one_line
 
 SHIPPED_ROOT = Path(__file__).resolve().parent.parent / "datasets"
@@ -216,6 +217,7 @@ def load_dataset(path_or_id: str | os.PathLike[str], *, obs_hook: ObsHook | None
         raise UserError(f"dataset {folder} has '{SUBTASK_KEY}' labels in {sum(labelled)} of {len(trajs)} "
                         "episodes; label all episodes or none.")
     out_obs_space = _hooked_space(obs_space, obs_hook, trajs[0].obs)
+    register_recorded_env(metadata.get("env_spec"))  # an env defined outside digail, made from its entry point
     return Dataset(trajs=trajs, env_id=_env_id_from_metadata(metadata), observation_space=out_obs_space,
                    action_space=act_space, dataset_id=str(metadata.get("dataset_id", folder.name)),
                    path=folder, metadata=metadata)

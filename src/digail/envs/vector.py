@@ -33,6 +33,7 @@ import numpy as np
 
 from digail.envs.registry import env_spec, make_env
 from digail.errors import UserError
+from digail.user_envs import recorded_spec, register_recorded_env
 
 __all__ = ["Backend", "EnvpoolVecEnv", "SubprocVecEnv", "VecEnv", "VectorEnv", "make_vec_env", "resolve_backend"]
 
@@ -151,13 +152,14 @@ class _Shared:
 
 
 def _worker(conn: Connection, shared: _Shared, env_id: str, kwargs: dict[str, Any], lo: int, hi: int,
-            send_infos: bool) -> None:
+            send_infos: bool, spec: str | None = None) -> None:
     """Steps envs lo..hi-1; commands come on `conn`, arrays go through `shared`. Exits when the parent goes."""
     # Ctrl-C reaches the whole process group: the trainer handles it (checkpoint, cleanup) and then closes the
     # workers; a worker that died of it first would turn the interrupt into a "worker died" error
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     envs: list[gym.Env] = []
     try:
+        register_recorded_env(spec)  # an env defined outside digail: the parent's registration did not travel
         envs = [make_env(env_id, **kwargs) for _ in range(lo, hi)]
         conn.send(("ok", None))
         while True:
@@ -244,9 +246,10 @@ class SubprocVecEnv:
         self._shared = _Shared(ctx, num_envs, int(np.prod(obs_shape)), act_shape, act_dtype)
         self._procs: list[Any] = []
         self._conns: list[Connection] = []
+        spec = recorded_spec(env_id)
         for lo, hi in self._slices:
             parent, child = ctx.Pipe()
-            p = ctx.Process(target=_worker, args=(child, self._shared, env_id, kwargs, lo, hi, infos),
+            p = ctx.Process(target=_worker, args=(child, self._shared, env_id, kwargs, lo, hi, infos, spec),
                             daemon=True, name=f"digail-env-{lo}-{hi - 1}")
             p.start()
             child.close()
