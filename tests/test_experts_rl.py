@@ -345,3 +345,16 @@ def test_expert_resume_runs_no_pickle(tmp_path: Path, capsys: pytest.CaptureFixt
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert {"checkpoint": "corrupt", "replay buffer": "not plain arrays", "old format": "older"}[kind] in err, err
     assert not (out / "config.json").exists() and not (out / "wall_before_resume.txt").exists()
+
+
+def test_expert_resume_past_a_damaged_progress_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A cut-short progress.json (the evaluation history) does not stop a resume: the checkpoints carry the
+    training; one warning says what was lost."""
+    out = tmp_path / "expert"
+    assert main(["expert", "Pendulum-v1", "--out", str(out), "--steps", "64"]) == 0
+    (out / "progress.json").write_text('{"env_id": "Pend')
+    capsys.readouterr()
+    assert main(["expert", "Pendulum-v1", "--out", str(out), "--steps", "128", "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("progress.json is damaged") == 1 and "Traceback" not in err
+    assert json.loads((out / "progress.json").read_text())["env_id"] == "Pendulum-v1"  # rewritten whole

@@ -10,42 +10,49 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
+
+from tyro.conf import arg
 
 from digail.errors import UserError
+
+
+def _flag(metavar: str, hint: str = "") -> object:
+    """A flag whose help names its default itself (or says it is optional) instead of tyro's "(default: None)"."""
+    return arg(metavar=metavar, help_behavior_hint=hint)
 
 
 @dataclass(frozen=True)
 class SweepArgs:
     """Run envs x methods x seeds (x override values) on Ray, every trial as the CLI runs it, and tabulate."""
 
-    envs: tuple[str, ...] | None = None
+    envs: Annotated[tuple[str, ...] | None, _flag("ENV [ENV ...]", "(optional)")] = None
     """environment ids (with --spec: keep only these of its trials)"""
-    methods: tuple[str, ...] | None = None
+    methods: Annotated[tuple[str, ...] | None, _flag("METHOD [METHOD ...]")] = None
     """vae, gail, digail, gail-l2, digail-l2 (default: digail)"""
-    seeds: tuple[int, ...] | None = None
+    seeds: Annotated[tuple[int, ...] | None, _flag("INT [INT ...]")] = None
     """seeds (default: 0); the trials of one (env, seed) share its VAE"""
-    preset: str | None = None
+    preset: Annotated[str | None, _flag("NAME")] = None
     """settings preset of every stage (default: each env's)"""
-    episodes: int | None = None
+    episodes: Annotated[int | None, _flag("INT")] = None
     """evaluation episodes (default: the preset's, 300)"""
-    set: tuple[str, ...] = ()
+    set: Annotated[tuple[str, ...], _flag("KEY=V [KEY=V ...]", "(optional)")] = ()
     """overrides KEY=V, KEY=V1,V2 (a grid) or KEY=LOW..HIGH[:log] (searched), e.g. train.bonus_weight=0.01,0.1"""
-    spec: Path | None = None
+    spec: Annotated[Path | None, _flag("SPEC.toml", "(optional)")] = None
     """TOML sweep spec (benchmarks/sweeps/*.toml); the flags narrow it or add overrides"""
-    out: Path | None = None
+    out: Annotated[Path | None, _flag("SWEEP", "(optional)")] = None
     """sweep folder: one run folder per trial, trials/, logs/, results.json, results.md"""
-    summarize: Path | None = None
+    summarize: Annotated[Path | None, _flag("SWEEP", "(optional)")] = None
     """only (re)write the tables of this sweep folder"""
-    address: str | None = None
+    address: Annotated[str | None, _flag("ADDRESS")] = None
     """Ray cluster address (default: $RAY_ADDRESS, else a local Ray sized to this machine)"""
-    num_cpus: int | None = None
+    num_cpus: Annotated[int | None, _flag("INT")] = None
     """CPUs of the local Ray (default: all cores)"""
-    retries: int | None = None
+    retries: Annotated[int | None, _flag("INT")] = None
     """extra attempts of a failed trial (default: the spec's, 1)"""
-    cpus_per_trial: float | None = None
+    cpus_per_trial: Annotated[float | None, _flag("FLOAT")] = None
     """CPUs each trial declares to Ray (default: 1)"""
-    gpus_per_trial: float | None = None
+    gpus_per_trial: Annotated[float | None, _flag("FLOAT")] = None
     """GPUs each trial declares to Ray (default: 0); above 0 the trial's VAE and trainer run on cuda"""
     shared_fs: bool = False
     """the sweep folder is at the same path on every node of the cluster, so trials work in it directly; without
@@ -54,9 +61,9 @@ class SweepArgs:
     """start Ray's dashboard (on 127.0.0.1) with the local Ray"""
     search: Literal["optuna"] | None = None
     """search the range overrides with Optuna through Ray Tune instead of running a grid"""
-    trials: int | None = None
+    trials: Annotated[int | None, _flag("INT")] = None
     """settings the search samples (default: 8)"""
-    metric: str | None = None
+    metric: Annotated[str | None, _flag("METRIC")] = None
     """the search's objective, median over seeds: eval/<eval.json key> or seg/<segmentation.json key>
     (default: eval/normalized_return)"""
     mode: Literal["max", "min"] | None = None

@@ -7,6 +7,7 @@ import json
 import math
 import re
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -232,9 +233,7 @@ def _progress_callback(total: int, spec: ExpertSpec, env_id: str, out: Path, see
             self.bar = progress_bar(total, desc=env_id, unit="step", initial=done)
             self.next_ckpt = (done // spec.checkpoint_every + 1) * spec.checkpoint_every
             self.next_eval = (done // spec.eval_every + 1) * spec.eval_every
-            state_file = out / "progress.json"
-            if state_file.exists():
-                self.history = json.loads(state_file.read_text()).get("evals", [])
+            self.history = read_progress(out, warn=False).get("evals", [])
 
         def _on_step(self) -> bool:
             self.bar.update(self.training_env.num_envs)
@@ -321,6 +320,24 @@ class ExpertRun:
     """torch device for SB3"""
 
 
+def read_progress(out: Path, warn: bool = True) -> dict[str, Any]:
+    """An expert folder's `progress.json` (its periodic evaluations); empty when it is missing, and empty with a
+    warning when it is damaged: the checkpoints alone resume the training, only the evaluation history is lost."""
+    path = out / "progress.json"
+    if not path.exists():
+        return {}
+    try:
+        progress = json.loads(path.read_text())
+        if isinstance(progress, dict):
+            return progress
+    except (OSError, ValueError):
+        pass
+    if warn:
+        print(f"digail expert: warning: {path} is damaged; resuming from the checkpoints without its evaluation "
+              "history.", file=sys.stderr)
+    return {}
+
+
 def train_expert(args: ExpertRun) -> Path:
     """Train (or resume) a PPO or SAC expert, then evaluate it on 50 fresh episodes.
 
@@ -343,7 +360,7 @@ def train_expert(args: ExpertRun) -> Path:
                 if ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip")) else ""
             raise UserError(f"nothing to resume in {out}: no checkpoints/step_*.pt{old}; drop --resume to start "
                             "anew.")
-        progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
+        progress = read_progress(out)
         if progress.get("env_id", args.env) != args.env:
             raise UserError(f"{out} holds an expert for {progress['env_id']!r}, not {args.env!r}; "
                             "resume with the same env or choose another --out.")
@@ -359,7 +376,7 @@ def _train_in(args: ExpertRun, spec: ExpertSpec, out: Path, total: int, device: 
     """`train_expert` in its checked and held folder, from the checkpoint `ckpt` or from scratch."""
     if ckpt is not None:
         model, _ = _load_model(args.env, spec, ckpt, args.seed, device)
-        progress = json.loads((out / "progress.json").read_text()) if (out / "progress.json").exists() else {}
+        progress = read_progress(out, warn=False)  # warned once already, by the checks before
         (out / "wall_before_resume.txt").write_text(str(progress.get("wall_s", 0.0)))
     else:
         (out / "wall_before_resume.txt").unlink(missing_ok=True)
