@@ -58,8 +58,8 @@ def register_recorded_env(spec_json: str | None) -> bool:
             return False
         _search_current_folder()
         module = spec.entry_point.split(":")[0]
-        if importlib.util.find_spec(module.split(".")[0]) is None:
-            return False
+        if module.split(".")[0] in _KNOWN_PACKAGES or importlib.util.find_spec(module.split(".")[0]) is None:
+            return False  # the known packages' envs go by their registered ids (an id unknown here stays so)
         importlib.import_module(module)  # most env modules register their ids when imported
         if spec.id not in gym.registry:
             gym.register(spec.id, entry_point=spec.entry_point, max_episode_steps=spec.max_episode_steps,
