@@ -8,7 +8,8 @@ does to it, and whether its criterion ranks the oracle labels above what it find
         start finds, under that ridge (`segment_init.hard_em_from`; lower is preferred by the criterion)
     python benchmarks/segmentation_start.py circle-world --curve rff --ridges 0.01 --seeds 0 1
         the K curve (K = 2 .. 8, held-out description length per step) and the K chosen, as `--codes auto`
-        computes it but with this model and ridge (`segment_init.heldout_codes_curve`)
+        computes it but with this model and ridge (`segment_init.heldout_codes_curve`); `--previous-action`
+        lets every sub-task policy also see the action before (the first step: its own)
     python benchmarks/segmentation_start.py circle-world --residuals
         the residual of each sub-task model fitted to the oracle labels (Circle-World: how well one code can
         describe one circle)
@@ -19,11 +20,21 @@ Tasks and data are those of `benchmarks/segmentation.py` (recorded or written in
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 from segmentation import task_data, task_names
+
+from digail.data.trajectory import Trajectory
+
+
+def with_previous_action(t: Trajectory) -> Trajectory:
+    """`t` with the action before each step appended to its observation (the first step gets its own action)."""
+    obs = np.asarray(t.obs, np.float64).reshape(len(t.obs), -1)
+    acts = np.asarray(t.acts, np.float64).reshape(len(t), -1)
+    return dataclasses.replace(t, obs=np.c_[obs, np.r_[acts[:1], acts]].astype(np.float32))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -47,6 +58,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--oracle", action="store_true", help="also the oracle labels' description length")
     parser.add_argument("--curve", choices=["linear", "rff"], help="the K curve with this sub-task model")
     parser.add_argument("--residuals", action="store_true", help="each model's residual on the oracle labels")
+    parser.add_argument("--previous-action", action="store_true",
+                        help="append the previous action (the first step: its own) to every observation")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     args = parser.parse_args(argv)
@@ -54,7 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     demos, k, _, _ = task_data(args.task, args.data)
     ds = load_dataset(demos)
     discrete = ActionSpec.from_space(ds.action_space).discrete
-    trajs = ds.trajs
+    trajs = [with_previous_action(t) for t in ds.trajs] if args.previous_action else ds.trajs
     labels = [np.asarray(t.subtasks)[:len(t)] for t in trajs]
 
     def score(seg: list[np.ndarray]) -> str:
