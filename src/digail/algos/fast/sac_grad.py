@@ -26,7 +26,14 @@ def _twin_forward(x: Tensor, w: list[Tensor], b: list[Tensor]) -> tuple[Tensor, 
     for i in range(len(w) - 1):
         h = torch.baddbmm(b[i], h, w[i]).relu_()
         hs.append(h)
-    return torch.baddbmm(b[-1], h, w[-1]).squeeze(-1), hs
+    # the one-unit output layer as a product and a sum: a batched matmul with one output column takes several
+    # times longer on the CPU (`_twin_out_grads` likewise)
+    return (h * w[-1].transpose(1, 2)).sum(-1) + b[-1].squeeze(-1), hs
+
+
+def _twin_out_input_grad(g: Tensor, w_out: Tensor) -> Tensor:
+    """The gradient (2, B, H) at the output layer's input for the values' gradient g (2, B, 1)."""
+    return g * w_out.transpose(1, 2)
 
 
 def critic_grads(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, noise_next: Tensor, terminated: Tensor,
@@ -51,11 +58,13 @@ def critic_grads(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, noise_next
     g = (err * (1.0 / B)).unsqueeze(-1)  # (2, B, 1)
     g_w: list[Tensor] = []
     g_b: list[Tensor] = []
-    for i in range(len(q_w) - 1, -1, -1):
-        g_w.append(torch.bmm(hs[i].transpose(1, 2), g))
+    last = len(q_w) - 1
+    for i in range(last, -1, -1):
+        g_w.append((hs[i] * g).sum(1).unsqueeze(-1) if i == last else torch.bmm(hs[i].transpose(1, 2), g))
         g_b.append(g.sum(1, keepdim=True))
         if i > 0:
-            g = torch.ops.aten.threshold_backward(torch.bmm(g, q_w[i].transpose(1, 2)), hs[i], 0.0)
+            g_in = _twin_out_input_grad(g, q_w[i]) if i == last else torch.bmm(g, q_w[i].transpose(1, 2))
+            g = torch.ops.aten.threshold_backward(g_in, hs[i], 0.0)
     g_w.reverse()
     g_b.reverse()
     return g_w + g_b, loss, q.mean()
@@ -81,10 +90,16 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
     loss = q_min.mean().neg() - alpha * entropy
     # d loss / d Q_i: -1/B on the smaller critic of each row (where torch's min puts the gradient), 0 on the other
     g = (torch.stack([which == 0, which == 1]).to(q.dtype) * (-1.0 / B)).unsqueeze(-1)
-    for i in range(len(q_w) - 1, 0, -1):
-        g = torch.ops.aten.threshold_backward(torch.bmm(g, q_w[i].transpose(1, 2)), hs[i], 0.0)
+    last = len(q_w) - 1
+    for i in range(last, 0, -1):
+        g_in = _twin_out_input_grad(g, q_w[i]) if i == last else torch.bmm(g, q_w[i].transpose(1, 2))
+        g = torch.ops.aten.threshold_backward(g_in, hs[i], 0.0)
     w0 = q_w[0]
-    g_act = torch.bmm(g, w0[:, w0.shape[1] - A:, :].transpose(1, 2)).sum(0)  # (B, A)
+    w_act = w0[:, w0.shape[1] - A:, :]  # (2, A, H): the action's rows of the first layer
+    if last == 0:  # no hidden layer: g is the values' gradient (2, B, 1)
+        g_act = (g * w_act.transpose(1, 2)).sum(0)
+    else:  # two plain matmuls: a batched one with A output columns is slow on the CPU
+        g_act = g[0].mm(w_act[0].t()) + g[1].mm(w_act[1].t())  # (B, A)
     g_raw = g_act * ((raw >= low) & (raw <= high)).to(raw.dtype)  # the clamp passes its gradient inside the bounds
     in_range = ((log_std >= -5.0) & (log_std <= 2.0)).to(log_std.dtype)
     g_log_std = ((g_raw * noise).sum(0) * std - alpha) * in_range
