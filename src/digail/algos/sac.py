@@ -50,6 +50,7 @@ from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator
 from digail.nets.policy import LOG_2PI, SubtaskPolicy
 from digail.nets.twin_q import TwinQ
+from digail.utils import keep_heap_pages
 
 
 @dataclass(frozen=True)
@@ -305,6 +306,8 @@ class OffPolicyLoop:
         self.expert_in = expert_in
         """D's expert inputs: every demonstration step, and the absorbing state once per terminated demonstration"""
         self.buffer = ReplayBuffer(self.cfg.buffer_size, obs_dim, act_dim, t.K, t.device)
+        if t.device.type == "cpu":
+            keep_heap_pages()  # each update's temporaries would otherwise be page-faulted in anew
         self._update_debt = 0.0
         self._disc_debt = 0
         self.updates = 0
