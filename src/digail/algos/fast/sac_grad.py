@@ -111,8 +111,9 @@ def fused_adam(params: list[Tensor], grads: list[Tensor], state: list[list[Tenso
     """`torch.optim.Adam(fused=True).step` on its state [exp_avgs, exp_avg_sqs, steps] with hyper = [lr, beta1,
     beta2, eps]: the same two calls, so the same bits (`digail.algos.fast.step.FusedAdamState` supplies both).
 
-    `params` must be a list the caller was given, never one built in TorchScript (`a + b`, `[x]`): TorchScript
-    drops in-place list operations on lists it built itself as if they had no effect (torch 2.13, measured)."""
+    `params` is a list the caller was given, never one built in the scripted code (`a + b`, `[x]`): TorchScript
+    dropped `torch._foreach_lerp_` on such lists as if it had no effect (torch 2.13), so no in-place list
+    operation here takes one."""
     torch._foreach_add_(state[2], 1)
     torch._fused_adam_(params, grads, state[0], state[1], [], state[2], amsgrad=False, lr=hyper[0], beta1=hyper[1],
                        beta2=hyper[2], weight_decay=0.0, eps=hyper[3], maximize=False, grad_scale=None,
