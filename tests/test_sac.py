@@ -389,7 +389,7 @@ def test_bonus_is_log_q_of_the_next_code_and_enters_the_reward():
     expected = -np.logaddexp(0.0, -1.5 * np.maximum(0.0, 4.0 - l1))  # log q(code 0 | s'), the argmax
     np.testing.assert_allclose(buf.bonus[:n], expected, rtol=1e-5, atol=1e-6)
     assert (buf.next_codes[:n] == 0).all()
-    b = buf.get(np.arange(n), torch.device("cpu"))
+    b = buf.get(np.arange(n))
     rews, disc_rew, _ = tr.offpolicy.rewards(b)
     torch.testing.assert_close(rews, disc_rew + 2.0 * b["bonus"])
     tr.close()
@@ -470,7 +470,7 @@ def test_absorbing_states_reach_d_and_the_target():
     assert tr.disc.net[0].in_features == 2 + 1 + 2
     assert len(loop.expert_in) == 60 + 1 and loop.expert_in[-1, 2] == 1.0 and loop.expert_in[:-1, 2].eq(0).all()
     tr.iterate()
-    b = loop.buffer.get(np.arange(10), torch.device("cpu"))
+    b = loop.buffer.get(np.arange(10))
     _, _, v_abs = loop.rewards(b)
     logit = tr.disc.net(loop.absorbing_row()).squeeze()
     torch.testing.assert_close(v_abs, torch.nn.functional.softplus(logit).detach() / 0.1)

@@ -79,9 +79,12 @@ class ReplayBuffer:
         t[idx, c["rews"][0]] = rews
         self.codes[idx] = codes
         self.next_codes[idx] = next_codes
-        if self.device.type != "cpu":
-            at = torch.as_tensor(np.arange(self.capacity)[idx], device=self.device)
-            self.rows[at] = torch.from_numpy(t[idx]).to(self.device)
+        if self.device.type != "cpu":  # the device's copy of the rows just written
+            rows = torch.from_numpy(t[idx]).to(self.device)
+            if isinstance(idx, slice):
+                self.rows[idx] = rows
+            else:
+                self.rows[torch.as_tensor(idx, device=self.device)] = rows
         self.pos = int((self.pos + n) % self.capacity)
         self.size = min(self.size + n, self.capacity)
 
@@ -104,9 +107,8 @@ class ReplayBuffer:
         out["rews"] = rows[:, c["rews"][0]]
         return out
 
-    def get(self, idx: torch.Tensor | np.ndarray, device: torch.device | None = None) -> dict[str, torch.Tensor]:
+    def get(self, idx: torch.Tensor | np.ndarray) -> dict[str, torch.Tensor]:
         """The transitions at `idx` as named tensors on the buffer's device (`split` of `gather`)."""
-        del device  # the buffer's own device: kept for callers that pass theirs
         return self.split(self.gather(idx))
 
     def state_dict(self) -> dict[str, Any]:

@@ -96,10 +96,8 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
         g = torch.ops.aten.threshold_backward(g_in, hs[i], 0.0)
     w0 = q_w[0]
     w_act = w0[:, w0.shape[1] - A:, :]  # (2, A, H): the action's rows of the first layer
-    if last == 0:  # no hidden layer: g is the values' gradient (2, B, 1)
-        g_act = (g * w_act.transpose(1, 2)).sum(0)
-    else:  # two plain matmuls: a batched one with A output columns is slow on the CPU
-        g_act = g[0].mm(w_act[0].t()) + g[1].mm(w_act[1].t())  # (B, A)
+    # (B, A) as two plain matmuls: a batched one with A output columns is several times slower on the CPU
+    g_act = g[0].mm(w_act[0].t()) + g[1].mm(w_act[1].t())
     g_raw = g_act * ((raw >= low) & (raw <= high)).to(raw.dtype)  # the clamp passes its gradient inside the bounds
     in_range = ((log_std >= -5.0) & (log_std <= 2.0)).to(log_std.dtype)
     g_log_std = ((g_raw * noise).sum(0) * std - alpha) * in_range
