@@ -20,6 +20,8 @@ grows somewhat with load: caches and the core's other hardware thread are shared
 Both libraries run with the malloc policy of `digail.utils.keep_heap_pages` (digail's SAC loop sets it for its
 process; here it is set before anything runs, so SB3 profits from it too).
 
+- update_flops_H: the floating-point operations of the matrix products of one SAC update (`update_matmuls`), and
+  matmul_bound_cpu_sps_H the updates per CPU second if an update were those products alone (`matmul_bound`);
 - speedup_H = ours_sps_H / sb3_sps_H, speedup_gail_H = ours_gail_sps_H / sb3_sps_H, and `cpu_` the same by CPU
   time.
 The demonstrations are the env's shipped ones (only D sees them); throughput does not depend on their quality.
@@ -102,6 +104,38 @@ def ours_runner(env_id: str, spec: str, *, gail: bool, hand: bool = True, seed: 
     return _timed(steps_of)
 
 
+def update_matmuls(env_id: str, spec: str) -> list[tuple[int, int, int]]:
+    """The (m, k, n) matrix products of one SAC update of digail's (batch 256, no D step): the arithmetic any SAC
+    update must do with these nets. Both critics count separately; elementwise work is left out."""
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    obs, act = int(np.prod(env.observation_space.shape or (1,))), int(np.prod(env.action_space.shape or (1,)))
+    env.close()
+    p, q, b = *_sizes(spec), BATCH
+    codes = 1  # GAIL: one code
+    pi_fwd = [(b, obs + codes, p), (b, p, p), (b, p, act)]
+    q_fwd = 2 * [(b, obs + codes + act, q), (b, q, q), (b, q, 1)]
+    critic_bwd = 2 * [(q, b, 1), (b, 1, q), (q, b, q), (b, q, q), (obs + codes + act, b, q)]  # weight, input grads
+    to_action = 2 * [(b, 1, q), (b, q, q), (b, q, act)]  # the policy's gradient back through the critics
+    pi_bwd = [(act, b, p), (b, act, p), (p, b, p), (b, p, p), (p, b, obs + codes)]
+    return pi_fwd + 2 * q_fwd + critic_bwd + pi_fwd + q_fwd + to_action + pi_bwd
+
+
+def matmul_bound(shapes: list[tuple[int, int, int]], rounds: int = 20) -> float:
+    """Updates per CPU second if an update were only these float32 matrix products (one thread, best of
+    `rounds`): an upper bound of any SAC implementation's rate with these nets on this machine."""
+    mats = [(torch.randn(m, k), torch.randn(k, n)) for m, k, n in shapes]
+    best = float("inf")
+    for _ in range(rounds):
+        c0 = time.process_time()
+        for _ in range(10):
+            for a, w in mats:
+                torch.mm(a, w)
+        best = min(best, (time.process_time() - c0) / 10)
+    return 1.0 / best
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", default="Hopper-v5")
@@ -145,6 +179,9 @@ def main() -> None:
             result[f"{kind}speedup_gail_{h}"] = result[f"ours_gail_{kind}sps_{h}"] / sb3
             result[f"{kind}hand_over_autograd_{h}"] = (result[f"ours_{kind}sps_{h}"]
                                                        / result[f"ours_autograd_{kind}sps_{h}"])
+        shapes = update_matmuls(args.env, h)
+        result[f"update_flops_{h}"] = 2 * sum(m * k * n for m, k, n in shapes)
+        result[f"matmul_bound_cpu_sps_{h}"] = matmul_bound(shapes)
         print({k: round(v, 3) for k, v in result.items() if k.endswith(f"_{h}")}, flush=True)
     result["loadavg_end"] = os.getloadavg()[0]
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
