@@ -11,19 +11,19 @@ wall clock (`*_sps_H`) and by this process's CPU time (`*_cpu_sps_H`, steps per 
 with other jobs the wall clock also counts the time the process waited for a core, the CPU time does not (it still
 grows somewhat with load: caches and the core's other hardware thread are shared):
 
-- sb3_sps_H: Stable-Baselines3 SAC (MlpPolicy, net_arch [H, H], train_freq 1, gradient_steps 1);
-- ours_sps_H: digail's SAC on the env's own reward (`--train.learner sac`, no discriminator updates): the same
-  work per step as SB3's;
+- sb3_sps_H: Stable-Baselines3 SAC (MlpPolicy, net_arch pi [P, P] and qf [Q, Q], train_freq 1, gradient_steps 1);
+- ours_sps_H: digail's SAC on the env's own reward (`--train.learner sac`, no discriminator updates): the work per
+  step of SB3's, plus D's logits on the batch (its relabelling, which this reward ignores: one forward pass of D);
 - ours_gail_sps_H: the same with GAIL's discriminator updated every step (gradient penalty on) and its reward
   relabelled on every batch: what `digail train --train.learner sac` runs;
 - ours_autograd_sps_H: digail's SAC with autograd instead of its hand-written gradients (`digail.algos.fast.sac_grad`);
-Both libraries run with the malloc policy of `digail.utils.keep_heap_pages` (digail's SAC loop sets it for its
-process; here it is set before anything runs, so SB3 profits from it too).
-
 - update_flops_H: the floating-point operations of the matrix products of one SAC update (`update_matmuls`), and
   matmul_bound_cpu_sps_H the updates per CPU second if an update were those products alone (`matmul_bound`);
 - speedup_H = ours_sps_H / sb3_sps_H, speedup_gail_H = ours_gail_sps_H / sb3_sps_H, and `cpu_` the same by CPU
   time.
+
+Both libraries run with the malloc policy of `digail.utils.keep_heap_pages` (digail's SAC loop sets it for its
+process; here it is set before anything runs, so SB3 runs with it too).
 The demonstrations are the env's shipped ones (only D sees them); throughput does not depend on their quality.
 """
 
