@@ -110,17 +110,59 @@ def test_update_matches_a_hand_computation(hand):
 
 
 def test_hand_gradients_equal_autograd():
-    """Three updates of each path from the same start give the same weights (float64)."""
+    """Three updates of each path from the same start give the same weights (float64); the hand path's first
+    update creates the optimisers' state in pieces, the next two run as one scripted call."""
     runs = []
     for hand in (False, True):
         learner, b, noise_next, noise_pi = _tiny(hand, seed=3)
         assert learner.hand == hand
         for _ in range(3):
             learner.update(b, noise_next, noise_pi)
+        assert learner.fused_updates == (2 if hand else 0)
         runs.append([p.detach().clone() for p in (*learner.critic.parameters(), *learner.pi.parameters(),
                                                   learner.log_alpha)])
     for p_auto, p_hand in zip(*runs, strict=True):
         torch.testing.assert_close(p_hand, p_auto, rtol=1e-10, atol=1e-12)
+
+
+def _all_weights(learner: SACLearner) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in (*learner.critic.parameters(), *learner.critic_target.parameters(),
+                                         *learner.pi.parameters(), learner.log_alpha)]
+
+
+@pytest.mark.parametrize("train_policy", [True, False])
+def test_one_scripted_update_gives_the_bits_of_the_pieces(train_policy):
+    """`sac_update` (gradients, the three fused Adam steps and the Polyak step in one call) against the same
+    gradients with torch's own optimiser steps: identical weights, optimiser state and stats after four updates."""
+    runs = []
+    for fused in (False, True):
+        learner, b, noise_next, noise_pi = _tiny(True, seed=5)
+        stats = []
+        for i in range(4):
+            with torch.no_grad():
+                if fused:
+                    stats.append(learner.update(b, noise_next, noise_pi, train_policy=train_policy or i == 0))
+                else:
+                    stats.append(learner._update_hand_steps(b, noise_next, noise_pi, train_policy or i == 0))
+        assert learner.fused_updates == (3 if fused else 0)
+        opt_state = [t.clone() for o in (learner.q_optimizer, learner.pi_optimizer, learner.alpha_optimizer)
+                     for st in o.state.values() for t in st.values()]
+        runs.append((_all_weights(learner), opt_state, stats))
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(runs[0][2], runs[1][2], strict=True):
+        assert torch.equal(a, b)
+
+
+def test_fast_functions_compile_to_torchscript():
+    """Each scripted piece really is TorchScript: where scripting fails, `scripted` falls back to the Python
+    function (the same numbers, several times slower), which no other test would notice."""
+    from digail.algos.fast import sac_grad
+    from digail.algos.fast.scripting import scripted
+
+    for fn in (sac_grad.critic_grads, sac_grad.policy_grads, sac_grad.sac_update, sac_grad.disc_grads,
+               sac_grad.disc_update, sac_grad.mlp_out):
+        assert isinstance(scripted(fn), torch.jit.ScriptFunction), fn.__name__
 
 
 def test_policy_warmup_holds_the_policy_still():
@@ -130,6 +172,44 @@ def test_policy_warmup_holds_the_policy_still():
     learner.update(b, noise_next, noise_pi, train_policy=False)
     assert all(torch.equal(p0, p) for p0, p in zip(before, learner.pi.parameters(), strict=True))
     assert learner.log_alpha.item() == alpha
+
+
+def test_replay_rows_hold_each_transition_and_wrap_around():
+    from digail.algos.replay import ReplayBuffer
+
+    buf = ReplayBuffer(5, obs_dim=2, act_dim=1, codes=3)
+    rng = np.random.default_rng(0)
+
+    def batch(n: int) -> dict[str, np.ndarray]:
+        return {"obs": rng.normal(size=(n, 2)).astype(np.float32), "codes": rng.integers(0, 3, n),
+                "acts": rng.normal(size=(n, 1)).astype(np.float32),
+                "next_obs": rng.normal(size=(n, 2)).astype(np.float32), "next_codes": rng.integers(0, 3, n),
+                "terminated": rng.random(n) < 0.5, "bonus": rng.normal(size=n).astype(np.float32),
+                "rews": rng.normal(size=n).astype(np.float32)}
+
+    first, second = batch(3), batch(4)
+    buf.add(**first)
+    buf.add(**second)  # rows 3, 4, then 0, 1
+    assert (buf.pos, buf.size) == (2, 5)
+    order = [5, 6, 2, 3, 4]  # what each row holds, counted over both batches
+    every = {k: np.concatenate([first[k], second[k]]) for k in first}
+    b = buf.get(torch.tensor([0, 1, 2, 3, 4]))
+    for name in ("obs", "acts", "next_obs", "bonus", "rews"):
+        np.testing.assert_array_equal(b[name].numpy(), every[name][order])
+    np.testing.assert_array_equal(b["terminated"].numpy(), every["terminated"][order])
+    np.testing.assert_array_equal(b["code_1h"].numpy(), np.eye(3)[every["codes"][order]])
+    np.testing.assert_array_equal(b["next_code_1h"].numpy(), np.eye(3)[every["next_codes"][order]])
+    # [s, c, a], the critics' input, is one slice of a gathered row
+    row = buf.gather(torch.tensor([3]))[0, :6].numpy()
+    np.testing.assert_array_equal(row, np.concatenate([every["obs"][3], np.eye(3)[every["codes"][3]],
+                                                       every["acts"][3]]))
+    again = ReplayBuffer(5, obs_dim=2, act_dim=1, codes=3)
+    again.load_state_dict(buf.state_dict())
+    assert (again.pos, again.size) == (2, 5)
+    np.testing.assert_array_equal(again.table, buf.table)
+    np.testing.assert_array_equal(again.next_codes, buf.next_codes)
+    with pytest.raises(UserError, match="codes"):
+        ReplayBuffer(5, obs_dim=2, act_dim=1, codes=2).load_state_dict(buf.state_dict())
 
 
 # ------------------------------------------------------------------------------------- with the trainer
@@ -309,7 +389,7 @@ def test_bonus_is_log_q_of_the_next_code_and_enters_the_reward():
     expected = -np.logaddexp(0.0, -1.5 * np.maximum(0.0, 4.0 - l1))  # log q(code 0 | s'), the argmax
     np.testing.assert_allclose(buf.bonus[:n], expected, rtol=1e-5, atol=1e-6)
     assert (buf.next_codes[:n] == 0).all()
-    b = buf.get(np.arange(n), torch.device("cpu"))
+    b = buf.get(np.arange(n))
     rews, disc_rew, _ = tr.offpolicy.rewards(b)
     torch.testing.assert_close(rews, disc_rew + 2.0 * b["bonus"])
     tr.close()
@@ -355,6 +435,27 @@ def test_discriminator_hand_gradient_equals_autograd():
         torch.testing.assert_close(h, a, rtol=1e-10, atol=1e-12)
 
 
+def test_discriminator_scripted_step_gives_the_bits_of_the_pieces():
+    """D's step as one scripted call (`disc_update`: gradient and fused Adam) against the same gradient with torch's
+    own Adam step: identical weights and optimiser state after three steps."""
+    runs = []
+    for fused in (False, True):
+        tr = _trainer(disc_every=1, learning_starts=10_000)
+        loop = tr.offpolicy
+        assert loop is not None and loop.hand_disc
+        tr.iterate()  # fills the buffer; no update yet
+        if not fused:
+            loop._d_adam.lists = lambda: None  # type: ignore[method-assign]  # every step in pieces
+        for _ in range(3):
+            loop.update_discriminator()
+        assert (loop._d_adam.lists() is not None) == fused  # after the first step: the scripted call's condition
+        state = [t.clone() for st in tr.disc_optimizer.state.values() for t in st.values()]
+        runs.append(([p.detach().clone() for p in tr.disc.parameters()], state))
+        tr.close()
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
+        assert torch.equal(a, b)
+
+
 def test_absorbing_states_reach_d_and_the_target():
     """With absorbing states D sees [obs, flag, action]; the expert's pool gains one absorbing row per demonstration
     that terminated, and V_abs is D's reward of the absorbing state forever: softplus(logit) / (1 - gamma)."""
@@ -369,7 +470,7 @@ def test_absorbing_states_reach_d_and_the_target():
     assert tr.disc.net[0].in_features == 2 + 1 + 2
     assert len(loop.expert_in) == 60 + 1 and loop.expert_in[-1, 2] == 1.0 and loop.expert_in[:-1, 2].eq(0).all()
     tr.iterate()
-    b = loop.buffer.get(np.arange(10), torch.device("cpu"))
+    b = loop.buffer.get(np.arange(10))
     _, _, v_abs = loop.rewards(b)
     logit = tr.disc.net(loop.absorbing_row()).squeeze()
     torch.testing.assert_close(v_abs, torch.nn.functional.softplus(logit).detach() / 0.1)

@@ -40,6 +40,25 @@ def set_torch_threads(n: int = 1) -> None:
     torch.set_num_threads(n)
 
 
+def keep_heap_pages() -> bool:
+    """Have glibc's malloc keep freed memory for the next allocation instead of returning it to the system: a
+    SAC update on the CPU allocates and frees a few MB of temporaries (512 KB each for 2x256x256 activations), and
+    glibc's defaults hand them back and page-fault them in again on every update (about 850 faults, a fifth of an
+    update with 256x256 critics, measured). Blocks under 32 MB then come from the heap, and up to 256 MB of free heap
+    is kept. Returns whether it applied (glibc only; elsewhere nothing changes)."""
+    import ctypes
+    import platform
+
+    if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3  # mallopt's parameter numbers (malloc.h)
+        return bool(libc.mallopt(m_mmap_threshold, 32 << 20)) and bool(libc.mallopt(m_trim_threshold, 256 << 20))
+    except (OSError, AttributeError):
+        return False
+
+
 def resolve_device(device: str) -> torch.device:
     """`auto` picks CUDA when present, else CPU; an unavailable explicit device is a user error."""
     import torch

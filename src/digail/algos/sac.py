@@ -50,6 +50,7 @@ from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator
 from digail.nets.policy import LOG_2PI, SubtaskPolicy
 from digail.nets.twin_q import TwinQ
+from digail.utils import keep_heap_pages
 
 
 @dataclass(frozen=True)
@@ -123,6 +124,14 @@ class SACLearner:
             n = len(self.critic.weights)
             self._q_w, self._q_b = self._q_params[:n], self._q_params[n:]
             self._t_w, self._t_b = self._target_params[:n], self._target_params[n:]
+            from digail.algos.fast.step import FusedAdamState
+
+            self._q_adam = FusedAdamState(self.q_optimizer, self._q_params)
+            self._pi_adam = FusedAdamState(self.pi_optimizer, self._pi_targets)
+            self._alpha_params = [self.log_alpha]
+            self._alpha_adam = FusedAdamState(self.alpha_optimizer, self._alpha_params)
+        self.fused_updates = 0
+        """updates run as one scripted call (`digail.algos.fast.sac_grad.sac_update`)"""
 
     def entropy(self) -> torch.Tensor:
         """H(pi(. | s, c)), the same for every state (state-independent log-std)."""
@@ -190,7 +199,32 @@ class SACLearner:
     @torch.no_grad()
     def _update_hand(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
                      train_policy: bool) -> torch.Tensor:
-        """`update` with the gradients of `digail.algos.fast.sac_grad`: the same steps in the same order."""
+        """`update` with the gradients of `digail.algos.fast.sac_grad`: the same steps in the same order, as one
+        scripted call (`sac_update`) once the optimisers hold their state (torch's own first steps create it)."""
+        from digail.algos.fast.sac_grad import sac_update
+        from digail.algos.fast.scripting import scripted
+
+        unused: tuple[list[list[torch.Tensor]], list[float]] = ([], [])
+        q_adam = self._q_adam.lists()
+        pi_adam = self._pi_adam.lists() if train_policy else unused
+        alpha_adam = self._alpha_adam.lists() if train_policy and self.cfg.learn_alpha else unused
+        if q_adam is None or pi_adam is None or alpha_adam is None:
+            return self._update_hand_steps(b, noise_next, noise_pi, train_policy)
+        pi = self.pi
+        obs_code = torch.cat([b.obs, b.code_1h], -1)
+        next_obs_code = torch.cat([b.next_obs, b.next_code_1h], -1)
+        plain = pi.decoder_obs is None  # pi's inputs are [s, c] as the critics'
+        self.fused_updates += 1
+        return scripted(sac_update)(
+            torch.cat([obs_code, b.acts], -1), next_obs_code if plain else pi.inputs(b.next_obs, b.next_code_1h),
+            next_obs_code, obs_code if plain else pi.inputs(b.obs, b.code_1h), obs_code, noise_next, noise_pi,
+            b.terminated, b.rews, b.absorbing_value, self.cfg.gamma, self.cfg.tau, self.target_entropy, self._low,
+            self._high, self._pi_targets, self._q_params, self._target_params, self._alpha_params, *q_adam, *pi_adam,
+            *alpha_adam, train_policy, self.cfg.learn_alpha)
+
+    def _update_hand_steps(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
+                           train_policy: bool) -> torch.Tensor:
+        """`_update_hand` in pieces, with the optimisers' own steps (which create their state)."""
         from digail.algos.fast.sac_grad import critic_grads, policy_grads
         from digail.algos.fast.scripting import scripted
 
@@ -271,7 +305,9 @@ class OffPolicyLoop:
             expert_in = torch.cat([expert_in, self.absorbing_row().expand(ends, -1)])
         self.expert_in = expert_in
         """D's expert inputs: every demonstration step, and the absorbing state once per terminated demonstration"""
-        self.buffer = ReplayBuffer(self.cfg.buffer_size, obs_dim, (act_dim,), np.float32)
+        self.buffer = ReplayBuffer(self.cfg.buffer_size, obs_dim, act_dim, t.K, t.device)
+        if t.device.type == "cpu":
+            keep_heap_pages()  # each update's temporaries would otherwise be page-faulted in anew
         self._update_debt = 0.0
         self._disc_debt = 0
         self.updates = 0
@@ -288,6 +324,11 @@ class OffPolicyLoop:
         self._d_w = [m.weight for m in d_lin or []]
         self._d_b = [m.bias for m in d_lin or []]
         self._d_params = [*self._d_w, *self._d_b]
+        from digail.algos.fast.step import FusedAdamState
+
+        self._d_adam = FusedAdamState(t.disc_optimizer, self._d_params)
+        self._v_abs: torch.Tensor | None = None
+        """V_abs for the current D (None: to be computed); D's step and a checkpoint's load reset it"""
         self._sac_stats: list[torch.Tensor] = []
         self._disc_stats: list[torch.Tensor] = []
         self._t_env = 0.0
@@ -354,13 +395,22 @@ class OffPolicyLoop:
             parts.append(b["obs"].new_zeros(len(b["obs"]), 1))
         return torch.cat([*parts, b["acts"]], -1)
 
+    def _disc_logits(self, x: torch.Tensor) -> torch.Tensor:
+        """D's logits (n,) for its inputs x (n, .)."""
+        if self.hand_disc:
+            from digail.algos.fast.sac_grad import mlp_out
+            from digail.algos.fast.scripting import scripted
+
+            return scripted(mlp_out)(x, self._d_w, self._d_b).squeeze(-1)
+        return self.t.disc.net(x).squeeze(-1)
+
     def update_discriminator(self) -> torch.Tensor:
         """One Adam step of D on half a minibatch of replayed agent pairs (label 0; with absorbing states, the
         absorbing state once for each of them that terminated) and as many expert pairs (label 1), plus the
         gradient penalty. Returns the detached [loss, agent accuracy, expert accuracy, penalty]."""
         t = self.t
         half = max(1, t.cfg.disc_minibatch_size // 2)
-        b = self.buffer.get(self.buffer.sample_indices(half, t.gen), t.device)
+        b = self.buffer.get(self.buffer.sample_indices(half, t.gen))
         x_agent = self._disc_inputs(b)
         if self.cfg.absorbing:
             x_agent = torch.cat([x_agent, self.absorbing_row().expand(int(b["terminated"].sum()), -1)])
@@ -369,7 +419,16 @@ class OffPolicyLoop:
         if self.cfg.grad_penalty > 0:
             eps = torch.rand(half, 1, generator=t.gen).to(t.device)
             mix = eps * x_expert + (1 - eps) * x_agent[:half]
-        if self.hand_disc:
+        self._v_abs = None
+        adam = self._d_adam.lists() if self.hand_disc else None
+        if adam is not None:
+            from digail.algos.fast.sac_grad import disc_update
+            from digail.algos.fast.scripting import scripted
+
+            with torch.no_grad():
+                return scripted(disc_update)(x_agent, x_expert, mix, self._d_params, float(self.cfg.grad_penalty),
+                                             *adam)
+        if self.hand_disc:  # until D's optimiser holds its state (its own first step creates it)
             from digail.algos.fast.sac_grad import disc_grads
             from digail.algos.fast.scripting import scripted
 
@@ -396,23 +455,24 @@ class OffPolicyLoop:
         """The sampled transitions' reward relabelled with the current D (plus the bonus), D's part of it, and V_abs."""
         t = self.t
         with torch.no_grad():
-            disc_rew = t.reward_fn(t.disc.net(self._disc_inputs(b)).squeeze(-1), b)
+            disc_rew = t.reward_fn(self._disc_logits(self._disc_inputs(b)), b)
             bonus = t.cfg.bonus_weight * b["bonus"]
             if t.cfg.bonus_code_entropy and t.K > 1:
                 bonus = bonus + t.cfg.bonus_weight * math.log(t.K)
-            v_abs = torch.zeros((), device=t.device)
-            if self.cfg.absorbing:
-                r_abs = t.reward_fn(t.disc.net(self.absorbing_row()).squeeze(-1), {"rews": torch.zeros(1)})
-                v_abs = r_abs.reshape(()) / (1.0 - self.cfg.gamma)
-        return disc_rew + bonus, disc_rew, v_abs
+            if self._v_abs is None:
+                self._v_abs = torch.zeros((), device=t.device)
+                if self.cfg.absorbing:
+                    r_abs = t.reward_fn(self._disc_logits(self.absorbing_row()), {"rews": torch.zeros(1)})
+                    self._v_abs = r_abs.reshape(()) / (1.0 - self.cfg.gamma)
+        return disc_rew + bonus, disc_rew, self._v_abs
 
     def update_policy(self) -> torch.Tensor:
         """One SAC update on a sampled batch; its stats and the batch's mean D reward."""
         t, B = self.t, self.cfg.batch_size
-        b = self.buffer.get(self.buffer.sample_indices(B, t.gen), t.device)
+        b = self.buffer.get(self.buffer.sample_indices(B, t.gen))
         rews, disc_rew, v_abs = self.rewards(b)
-        batch = SACBatch(obs=b["obs"], code_1h=t.eye[b["codes"]], acts=b["acts"], next_obs=b["next_obs"],
-                         next_code_1h=t.eye[b["next_codes"]], terminated=b["terminated"], rews=rews,
+        batch = SACBatch(obs=b["obs"], code_1h=b["code_1h"], acts=b["acts"], next_obs=b["next_obs"],
+                         next_code_1h=b["next_code_1h"], terminated=b["terminated"], rews=rews,
                          absorbing_value=v_abs)
         noise = torch.randn(2, B, self.act_dim, generator=t.gen).to(t.device)
         stats = self.learner.update(batch, noise[0], noise[1], train_policy=self.updates >= self.cfg.policy_warmup)
@@ -502,6 +562,7 @@ class OffPolicyLoop:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.learner.load_state_dict(state["learner"])
         self.buffer.load_state_dict(state["buffer"])
+        self._v_abs = None
         self._update_debt = float(state["update_debt"])
         self._disc_debt = int(state["disc_debt"])
         self.updates = int(state["updates"])

@@ -6,7 +6,10 @@ digail trains, each piece measured and tied to the reference by an equivalence t
 - `inference`: NumPy forward passes of pi, V and q for the rollouts (tests/test_fast.py);
 - `step.LeanStep`: gradient clipping and fused Adam as direct foreach calls (tests/test_ppo.py, bit for bit);
 - `ppo_grad`, `vae_grad`, `scripting`: the PPO minibatch's and the VAE's loss with a hand-written gradient in one
-  TorchScript function (tests/test_ppo_grad.py, tests/test_vae.py, to float rounding).
+  TorchScript function (tests/test_ppo_grad.py, tests/test_vae.py, to float rounding);
+- `sac_grad` with `step.FusedAdamState`: a whole SAC update (both gradients, the fused Adam steps on the
+  optimisers' own state, the Polyak step) and D's step as one TorchScript call each (tests/test_sac.py: to float
+  rounding against autograd, bit for bit against the same gradients with torch's own optimiser steps).
 
 `DIGAIL_REFERENCE=1` in the environment (or `reference()` in code) turns the optimiser step and the hand-written
 gradients off everywhere: every update then runs through autograd and `torch.optim`, slower, with the same
