@@ -1,15 +1,17 @@
 """The few-demonstration benchmark's table from its run folders (benchmarks/sweeps/fewdemo.toml).
 
     python benchmarks/fewdemo.py --sweep runs/sweeps/fewdemo [--out benchmarks/results/fewdemo.json]
-    python benchmarks/fewdemo.py RUN [RUN ...]                 # any training or VAE run folders
+    python benchmarks/fewdemo.py RUN [RUN ...] [--merge]       # any training or VAE run folders
 
 Per run: env, method, learner, demonstration setting, seed; the environment steps done (`partial` when fewer than
 the run's budget); the normalised return of its final 100-episode evaluation (eval.json, written by `digail
-evaluate`) or, for a run still going, of its last periodic evaluation (5 episodes, marked `from_curve`); the env
-steps at which the periodic evaluation first reached 0.9 and 0.95 of the expert (None: not yet); the training's
-wall time (the sum over iterations of steps / steps per second); and the learning curve (env step, normalised
-return). Medians over seeds per (env, setting, method, learner) go under `table`. Published references (1 expert
-trajectory of Hopper, as a recent table reports them) go under `references`.
+evaluate`; for a run stopped early, of its last checkpoint) or, for a run still going, of its last periodic
+evaluation (5 episodes, marked `from_curve`); the env steps at which the periodic evaluation first reached 0.9 and
+0.95 of the expert (None: not yet); the training's wall time (the sum over iterations of steps / steps per second);
+and the learning curve (env step, normalised return). Medians over seeds per (env, setting, method, learner, where
+Directed-Info GAIL's policy started) go under `table`. Published references (1 expert trajectory of Hopper, as a
+recent table reports them) go under `references`. `--merge` keeps the entries of `--out` made from run folders
+that are not on this machine.
 """
 
 from __future__ import annotations
@@ -84,6 +86,9 @@ def summarise_run(run: Path) -> dict[str, Any] | None:
         "demos_episodes": args.get("demos_episodes"), "demos_subsample": args.get("demos_subsample", 1),
         "budget_steps": budget, "curve": [[s, round(v, 4)] for s, v in curve],
     }
+    if method == "digail" and learner is not None:
+        # Directed-Info GAIL's policy starts from the VAE's decoder or from fresh weights (q's codes either way)
+        rec["policy_init"] = "vae" if train.get("init_from_vae", True) else "fresh"
     metrics = run / "metrics.csv"
     if metrics.is_file():
         with metrics.open() as f:
@@ -92,7 +97,8 @@ def summarise_run(run: Path) -> dict[str, Any] | None:
     rec["env_steps"] = steps
     rec["partial"] = kind != "vae" and steps < budget
     eval_path = run / "eval.json"
-    if eval_path.is_file() and not rec["partial"]:
+    if eval_path.is_file():
+        # a stopped run's final evaluation is of its last checkpoint, at `env_steps`
         ev = json.loads(eval_path.read_text())
         rec.update(normalized_return=ev.get("normalized_return"), mean_return=ev.get("mean_return"),
                    eval_episodes=ev.get("episodes"), from_curve=False)
@@ -108,14 +114,15 @@ def summarise_run(run: Path) -> dict[str, Any] | None:
 def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
-        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"])
+        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"], r.get("policy_init"))
         groups.setdefault(key, []).append(r)
     out = []
-    for (env, episodes, every, method, learner), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+    for (env, episodes, every, method, learner, init), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
         vals = [r["normalized_return"] for r in rs if isinstance(r.get("normalized_return"), float)
                 and math.isfinite(r["normalized_return"])]
         out.append({"env": env, "demos_episodes": episodes, "demos_subsample": every, "method": method,
-                    "learner": learner, "seeds": sorted(r["seed"] for r in rs),
+                    "learner": learner, **({"policy_init": init} if init else {}),
+                    "seeds": sorted(r["seed"] for r in rs),
                     "median_normalized_return": float(np.median(vals)) if vals else None,
                     "partial": any(r.get("partial") for r in rs)})
     return out
@@ -127,6 +134,8 @@ def main() -> None:
     parser.add_argument("--sweep", type=Path)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fewdemo.json"))
     parser.add_argument("--commands", type=Path, help="a JSON file {run folder: the command that made it}")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the entries of --out whose run folders are not given (runs made elsewhere)")
     args = parser.parse_args()
     runs = list(args.runs)
     if args.sweep is not None:
@@ -136,6 +145,9 @@ def main() -> None:
         commands = json.loads(args.commands.read_text())
         for r in records:
             r["command"] = commands.get(r["run"])
+    if args.merge and args.out.is_file():
+        given = {r["run"] for r in records}
+        records = [r for r in json.loads(args.out.read_text())["runs"] if r["run"] not in given] + records
     result = {"partial": any(r.get("partial") for r in records), "runs": records, "table": table(records),
               "references": REFERENCES}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -502,3 +502,33 @@ def test_cli_smoke_train_resume_evaluate(tmp_path):
     assert all(torch.equal(before["model"][k], after["model"][k]) for k in before["model"])
     assert main(["evaluate", str(run), "--episodes", "2"]) == 0
     assert json.loads((run / "eval.json").read_text())["episodes"] == 2
+
+
+@pytest.mark.parametrize("init_from_vae", [True, False])
+def test_a_fresh_policy_keeps_the_vaes_q(init_from_vae):
+    """`--train.no-init-from-vae` (the few-demonstration presets) redraws pi's weights and keeps the VAE's q,
+    prior and normaliser, so the codes and the bonus are still the VAE's."""
+    import copy
+
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.nets.vae import HierarchicalPolicy
+
+    torch.manual_seed(3)
+    vae = HierarchicalPolicy(3, 2, ActionSpec(False, 1), (32, 32))
+    with torch.no_grad():
+        vae.pi.log_std.fill_(-0.5)
+    before = copy.deepcopy(vae)
+    cfg = TrainConfig(method="digail", learner="sac", hidden=(32, 32), backend="sync", replay_fraction=0.0,
+                      init_from_vae=init_from_vae, sac=SACConfig(hidden=(32, 32)))
+    trainer = build_trainer("Pendulum-v1", _pendulum_demos(), cfg, vae_model=vae, seed=0, run_dir=None,
+                            progress=False)
+    try:
+        for part in ("q", "prior", "normalizer"):
+            for a, b in zip(getattr(before, part).state_dict().values(),
+                            getattr(trainer.model, part).state_dict().values(), strict=True):
+                assert torch.equal(a, b), part
+        same_pi = all(torch.equal(a, b) for a, b in zip(before.pi.state_dict().values(),
+                                                       trainer.model.pi.state_dict().values(), strict=True))
+        assert same_pi == init_from_vae
+    finally:
+        trainer.close()
