@@ -15,7 +15,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
-from digail.config import Preset, TrainConfig, VAEConfig, get_preset
+from digail.config import Preset, resolve_preset
 from digail.envs.circle_world import CircleWorldVecEnv
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.errors import UserError
@@ -171,14 +171,15 @@ def tracked_info_keys(env: gym.Env | str | None) -> tuple[str, ...]:
     return spec.tracked_info_keys() if spec is not None else ()
 
 
+def env_preset(env_id: str | None) -> str | None:
+    """The name of `env_id`'s own preset (None for an env without an entry)."""
+    spec = ENV_SPECS.get(env_id or "")
+    return spec.preset if spec is not None else None
+
+
 def preset_for(env_id: str | None, name: str | None = None) -> Preset:
     """The preset called `name`, else the one of `env_id`'s entry (the defaults for an env without one)."""
-    spec = ENV_SPECS.get(env_id or "")
-    if name is None:
-        if spec is None:
-            return Preset(VAEConfig(), TrainConfig())
-        name = spec.preset
-    return get_preset(name, spec.preset if spec is not None else None)
+    return resolve_preset(name, env_preset(env_id))
 
 
 def register_envs() -> None:
