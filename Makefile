@@ -48,8 +48,7 @@ hashes: venv
 # the runs or sweeps its docstring names; run one on purpose, then commit what changed.
 SWEEPS ?= runs/sweeps
 table1: venv
-	$(BIN)/python benchmarks/table1.py summarize
-	$(BIN)/python benchmarks/table1.py readme
+	$(BIN)/python benchmarks/table1.py $(if $(wildcard $(SWEEPS)/table1/results.json),sweep $(SWEEPS)/table1,readme)
 
 table2: venv
 	$(BIN)/python benchmarks/table2.py $(SWEEPS)/table2

@@ -15,18 +15,16 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from digail import paper
+from digail.sweep.publish import publish_run, replace_between_markers
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))  # table1.py beside this file, also when loaded by path (tests)
-from table1 import publish_run, replace_in_readme  # noqa: E402
-
+PAGE = HERE.parent / "docs" / "results.md"
 OUT = HERE / "results" / "table2.json"
 RUNS = HERE / "results" / "runs"
 MARKERS = ("<!-- table2:start (python benchmarks/table2.py SWEEP) -->", "<!-- table2:end -->")
@@ -112,7 +110,7 @@ def main() -> None:
         shutil.copyfile(args.sweep / name, committed / name)
     print("\n".join(publish(t, args.sweep)))
     md = markdown(t)
-    replace_in_readme(MARKERS, md)
+    replace_between_markers(PAGE, MARKERS, md)
     print(md)
     print(json.dumps(t.get("targets", {}), indent=1))
 

@@ -6,6 +6,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -31,3 +32,36 @@ def test_import_graph_has_no_circle_and_no_upward_import() -> None:
     graph = module.grimp.build_graph("digail", cache_dir=None)
     assert module.upward_imports(graph) == []
     assert module.circles(graph) == []
+
+
+def _param_path() -> object:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("param_path", ROOT / "scripts" / "param_path.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["param_path"] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_preset_value_climbs_once_on_its_way_to_the_trainer() -> None:
+    """`--train.bonus-weight` (scripts/param_path.py): read from the preset in `config`, it climbs once, to the
+    command's defaults, and the parse hands it down from there (no trip back up through the registry or `cli`);
+    the one climb left after that is the trainer the command builds and then runs."""
+    pp: Any = _param_path()
+    index = pp.Index()
+    path = pp.path_of(index, "train", ("train", "bonus_weight"))
+    files, climbs = pp.summary(path, pp.layers())
+    assert path[0] == "digail.config.get_preset" and path[-1] == "digail.algos.gail.GAIL.iterate"
+    assert "digail.cli._main" not in path and not any(q.startswith("digail.envs.") for q in path), path
+    assert (len(files), climbs) == (6, 2), (files, path)
+
+
+def test_param_path_counts_a_climb_back_to_the_command() -> None:
+    """The counting itself: a value passed down and read, then the walk returning to a higher layer."""
+    pp: Any = _param_path()
+    rank = pp.layers()
+    path = ["digail.commands.x.f", "digail.algos.gail.g", "digail.commands.x.f", "digail.algos.ppo.h"]
+    files, climbs = pp.summary(path, rank)
+    assert climbs == 1 and len(files) == 3

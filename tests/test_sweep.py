@@ -116,24 +116,52 @@ def _train_flags(argv: tuple[str, ...]) -> set[str]:
     return out
 
 
-def test_table1_spec_expresses_the_harness_trials():
-    table1 = _harness("table1")
+def test_table1_spec_expresses_the_published_trials():
+    """sweeps/table1.toml plans the trials the published Table 1 ran (benchmarks/results/table1.json records
+    every trial's commands): the same env, method and seed cells, the same training flags, 300 evaluation
+    episodes."""
+    published = json.loads((ROOT / "benchmarks" / "results" / "table1.json").read_text())
+    recorded = {f"{row['env_id']}:{method}:{r['seed']}": r for row in published.values()
+                for method, cell in row["methods"].items() for r in cell["seeds"]}
     jobs = [j for j in plan(load_spec(ROOT / "benchmarks" / "sweeps" / "table1.toml")) if j.kind == "trial"]
-    planned = {f"{table1_env(j.env)}:{j.method}:{j.seed}": j for j in jobs}
-    assert sorted(planned) == sorted(table1.plan())
+    planned = {f"{j.env}:{j.method}:{j.seed}": j for j in jobs}
+    assert sorted(planned) == sorted(recorded)
     for key, job in planned.items():
-        env, method, seed = key.split(":")
         [evaluate] = [s for s in job.stages if s.name == "evaluate"]
-        assert evaluate.argv == ("evaluate", job.run, "--episodes", str(table1.EVAL_EPISODES))
-        if method == "vae":
+        assert evaluate.argv == ("evaluate", job.run, "--episodes", "300")
+        assert recorded[key]["episodes"] == 300
+        if job.method == "vae":
             continue
-        harness = ["train", *table1.train_flags(env, method, int(seed), Path("-"))]
-        assert _train_flags(job.stages[0].argv) == _train_flags(tuple(harness)), key
+        [train] = [c for c in recorded[key]["commands"] if c.startswith("digail train --method")][-1:]
+        assert _train_flags(job.stages[0].argv) == _train_flags(tuple(train.split()[1:])), key
 
 
-def table1_env(env_id: str) -> str:
-    return {"Pendulum-v1": "pendulum", "InvertedPendulum-v5": "invertedpendulum", "Hopper-v5": "hopper",
-            "Walker2d-v5": "walker2d"}[env_id]
+def test_table1_generator_builds_the_published_rows_from_a_sweep(tmp_path):
+    """benchmarks/table1.py reads a sweep's results.json and its runs' learning curves into table1.json's rows
+    (the steps at which training first reached 0.9, the target, the medians) and the Markdown table."""
+    table1 = _harness("table1")
+    seeds = {}
+    for seed, (ret, curve) in enumerate([(3400.0, [(0, 0.95), (4096, 0.5), (8192, 0.92)]),
+                                         (3000.0, [(0, 0.2), (4096, 0.91)]), (3500.0, [(0, 0.1)])]):
+        run = tmp_path / "Hopper-v5" / f"digail_s{seed}"
+        run.mkdir(parents=True)
+        (run / "metrics.csv").write_text("step,eval/normalized_return\n" + "".join(f"{s},{v}\n" for s, v in curve))
+        seeds[str(seed)] = {"seed": seed, "run": f"Hopper-v5/digail_s{seed}", "status": "done",
+                            "metrics": {"mean_return": ret, "std_return": 10.0, "normalized_return": ret / 3500.0,
+                                        "expert/mean_return": 3500.0, "expert/std_return": 5.0, "episodes": 300},
+                            "env_steps": 12288, "wall_s": 60.0, "commands": [f"digail train --seed {seed}"]}
+    results = {"name": "table1", "table": {"Hopper-v5": {"digail": {"seeds": seeds}}}}
+    t = table1.table(results, tmp_path)
+    cell = t["hopper"]["methods"]["digail"]
+    assert [(r["steps_to_0.9"], r["steps_to_0.9_after_step_0"]) for r in cell["seeds"]] == \
+        [(0.0, 8192.0), (4096.0, 4096.0), (None, None)]
+    assert [r["meets_target"] for r in cell["seeds"]] == [True, False, True]
+    assert cell["median_mean_return"] == 3400.0 and cell["complete"]
+    assert list(t["hopper"]["paper"]["digail"]) == [3662.1, 21.7]
+    assert set(t) == {"hopper", "pendulum", "invertedpendulum", "walker2d"}
+    [row] = [line for line in table1.markdown(t).splitlines() if line.startswith("| Hopper-v5")]
+    assert row == ("| Hopper-v5 | Directed-Info GAIL | 3662.1 +- 21.7 | 3400.0 +- 10.0 | 0.971 / 0.857 / 1.000 | "
+                   "0.971 | 0 (init), 8k / 4k / never | yes / no / yes | 3 of 3 |")
 
 
 # What the README's Four Rooms and Circle-World tables ran (the former benchmarks/results.py): the specs must keep it.

@@ -106,8 +106,8 @@ def test_fast_chain_matches_autograd(hard: bool, bptt: bool) -> None:
 @pytest.mark.parametrize("hard", [False, True])
 def test_scripted_sampling_loop_gives_the_python_loops_bits(hard: bool) -> None:
     """The TorchScript loop of the no-bptt chain runs eager's kernels in eager's order: equal, not just close."""
+    from digail.algos.fast.gumbel_chain import _chain_loop
     from digail.algos.fast.scripting import scripted
-    from digail.algos.gumbel import _chain_loop
 
     g = torch.Generator().manual_seed(3)
     T, B, H, K = 30, 6, 16, 3
@@ -170,8 +170,8 @@ def test_pretraining_on_the_hand_written_gradient_follows_autograds() -> None:
 @pytest.mark.parametrize("discrete", [False, True])
 def test_scripted_polish_step_gives_autograds_bits(discrete: bool) -> None:
     """The polish's scripted loss-and-gradient step runs autograd's backward kernels: equal, not just close."""
+    from digail.algos.fast.polish_grad import step_grads as _step_grads
     from digail.algos.fast.scripting import scripted
-    from digail.algos.polish import _step_grads
 
     torch.manual_seed(1)
     spec = ActionSpec(True, 4) if discrete else ActionSpec(False, 2)

@@ -9,7 +9,14 @@ interleaved in one process, medians of per-round ratios.
 - `ppo_update`: 10 epochs on random batches of Circle-World's size (512 rows, minibatch 128) and Hopper's (4096,
   512): the fast path, the fast step with autograd (`hand_grad=False`), and the reference;
 - `vae`: ELBO pre-training (`--vae.init none`, batch 16) on the shipped Circle-World (20 epochs) and Four Rooms
-  (4 epochs) demonstrations, `FusedVAEStep` against autograd.
+  (4 epochs) demonstrations, `FusedVAEStep` against autograd;
+- `gumbel_chain`: the Gumbel-softmax chain's forward and backward pass on a Circle-World batch (16 demonstrations
+  of 120 steps, K = 2) and a Four Rooms one (16, 64 steps, K = 4), straight-through samples (`--vae.hard`: the
+  scripted sampling loop) and `--vae.bptt` (the hand-written backward pass), against q's module step by step;
+- `polish`: 1000 polish steps (`fit_to_codes`, minibatch 256) on the shipped Circle-World and Four Rooms
+  demonstrations, the scripted loss-and-gradient step against autograd through the modules;
+- `rollout`: Directed-Info GAIL rollouts (`GAIL.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
+  Rooms, the NumPy snapshots against the modules' torch forward passes.
 """
 
 from __future__ import annotations
@@ -125,14 +132,113 @@ def vae_study(rounds: int) -> dict[str, Any]:
     return out
 
 
+def chain_study(rounds: int) -> dict[str, Any]:
+    from digail.algos.gumbel import gumbel_softmax_chain
+    from digail.nets.vae import MacroPolicy
+
+    out = {}
+    for name, (obs_dim, codes, steps) in {"circle-world (16 x 120, K 2)": (2, 2, 120),
+                                          "four-rooms (16 x 64, K 4)": (6, 4, 64)}.items():
+        for flag in ("hard", "bptt"):
+            torch.manual_seed(0)
+            q = MacroPolicy(obs_dim, codes)
+            obs_n = torch.randn(16, steps, obs_dim)
+
+            def run(q: MacroPolicy = q, obs_n: torch.Tensor = obs_n, flag: str = flag) -> None:
+                for i in range(20):
+                    logits, c = gumbel_softmax_chain(q, obs_n, 0.5, flag == "hard", torch.Generator().manual_seed(i),
+                                                     bptt=flag == "bptt")
+                    (logits.sum() + (c * c).sum()).backward()
+
+            def reference(run: Callable[[], None] = run) -> None:
+                with fast.reference():
+                    run()
+
+            run()  # TorchScript compiles once
+            out[f"{name}, --vae.{flag}, 20 batches"] = _summary(_interleaved({"fast": run, "reference": reference},
+                                                                             rounds), "fast")
+    return out
+
+
+def _demo_codes(trajs: Any, codes: int) -> list[Any]:
+    """A segmentation to fit to (the speed does not depend on which): each demonstration cut into equal parts."""
+    import numpy as np
+
+    return [np.minimum(np.arange(len(t)) * codes // len(t), codes - 1) for t in trajs]
+
+
+def polish_study(rounds: int) -> dict[str, Any]:
+    from digail.algos.polish import fit_to_codes
+    from digail.data.validation import check_demos
+    from digail.nets.vae import HierarchicalPolicy
+
+    out = {}
+    for dataset, codes in (("digail/circleworld/expert-v0", 2), ("digail/fourrooms/expert-v0", 4)):
+        trajs = load_dataset(dataset).trajs
+        obs_dim, spec = check_demos(trajs, None)
+        segs = _demo_codes(trajs, codes)
+
+        def run(trajs: Any = trajs, obs_dim: int = obs_dim, spec: Any = spec, segs: Any = segs,
+                codes: int = codes) -> None:
+            import numpy as np
+
+            torch.manual_seed(0)
+            model = HierarchicalPolicy(obs_dim, codes, spec)
+            model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1)
+                                                 for t in trajs]))
+            fit_to_codes(model, trajs, segs, 1000, 3e-3, q_noise=0.1, seed=0, progress=False)
+
+        def reference(run: Callable[[], None] = run) -> None:
+            with fast.reference():
+                run()
+
+        run()  # TorchScript compiles once
+        out[f"{dataset} (1000 steps)"] = _summary(_interleaved({"fast": run, "reference": reference}, rounds),
+                                                  "fast")
+    return out
+
+
+def rollout_study(rounds: int) -> dict[str, Any]:
+    from digail.algos.directed_info_gail import DirectedInfoGAIL
+    from digail.config import TrainConfig
+    from digail.data.validation import check_demos
+    from digail.nets.vae import HierarchicalPolicy
+
+    out = {}
+    for dataset, env_id, codes in (("digail/circleworld/expert-v0", "digail/CircleWorld-v0", 2),
+                                   ("digail/fourrooms/expert-v0", "digail/FourRooms-v0", 4)):
+        trajs = load_dataset(dataset).trajs
+        obs_dim, spec = check_demos(trajs, None)
+        torch.manual_seed(0)
+        model = HierarchicalPolicy(obs_dim, codes, spec)
+        cfg = TrainConfig(ppo=PPOConfig(num_envs=16, batch_size=16 * 128, minibatch_size=256), backend="sync")
+        trainer = DirectedInfoGAIL(env_id, list(trajs), model, cfg, seed=0, progress=False)
+
+        def run(trainer: Any = trainer) -> None:
+            for _ in range(3):
+                trainer.collect()
+
+        def reference(run: Callable[[], None] = run) -> None:
+            with fast.reference():
+                run()
+
+        run()
+        out[f"{env_id} (3 rollouts of 16 envs x 128 steps)"] = _summary(
+            _interleaved({"fast": run, "reference": reference}, rounds), "fast")
+        trainer.close()
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--only", nargs="*", default=["step", "ppo_update", "vae"])
+    parser.add_argument("--only", nargs="*",
+                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
     args = parser.parse_args()
     set_torch_threads(1)
-    studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study}
+    studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
+               "polish": polish_study, "rollout": rollout_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")

@@ -585,8 +585,18 @@ def preset_name(name: str, env_preset: str | None) -> str:
 
 def get_preset(name: str, env_preset: str | None = None) -> Preset:
     """The preset called `name` (`paper`: that of the env whose own preset is `env_preset`;
-    `digail.envs.registry.preset_for` finds an env's own)."""
+    `digail.envs.registry.env_preset` names an env's own)."""
     return PRESETS[preset_name(name, env_preset)]
+
+
+def resolve_preset(name: str | None, env_preset: str | None) -> Preset:
+    """The preset called `name`, else the env's own (`env_preset`, from its registry entry:
+    `digail.envs.registry.env_preset`), else the defaults for an env without one."""
+    if name is None:
+        if env_preset is None:
+            return Preset(VAEConfig(), TrainConfig())
+        name = env_preset
+    return get_preset(name, env_preset)
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

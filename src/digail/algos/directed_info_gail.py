@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from digail.algos.fast.inference import CodeMLP, log_softmax
+from digail.algos.fast.inference import log_softmax
 from digail.algos.gail import GAIL, RewardFn
+from digail.algos.inference import code_net
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -60,7 +61,7 @@ class DirectedInfoGAIL(GAIL):
         The rollout hot path, so it runs in NumPy: q from its weight snapshot (the rollout's, else a fresh one),
         which takes prev as integers, and the Gumbel noise of sampled codes from `np_rng`.
         """
-        snap = self._q_snap if self._q_snap is not None else CodeMLP([self.model.q.net], self.model.obs_dim)
+        snap = self._q_snap if self._q_snap is not None else code_net(self.model.q, self.model.obs_dim)
         logp_all = log_softmax(snap(obs_n, prev))
         if self.cfg.closed_loop_codes == "argmax":
             codes = logp_all.argmax(-1)

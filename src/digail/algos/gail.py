@@ -175,11 +175,11 @@ class GAIL:
     @torch.no_grad()
     def collect(self) -> dict[str, torch.Tensor]:
         """One rollout of `steps_per_env` steps in every env (`collect_rollout`) as tensors on the device."""
-        from digail.algos.fast.inference import ActorCritic, CodeMLP
+        from digail.algos.inference import actor_critic, code_net
 
         obs_dim = self.model.obs_dim
-        ac = ActorCritic(self.model.pi, self.value, obs_dim)
-        self._q_snap = CodeMLP([self.model.q.net], obs_dim) if self.K > 1 else None
+        ac = actor_critic(self.model.pi, self.value, obs_dim)
+        self._q_snap = code_net(self.model.q, obs_dim) if self.K > 1 else None
         if self.rollout_state is None:
             self.rollout_state = self._reset_envs()
         T = self.cfg.ppo.steps_per_env

@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from digail.algos import fast
 from digail.algos.fast.scripting import scripted
 from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
@@ -69,16 +70,20 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     opt = adam(params, lr)
     group = opt.param_groups[0]
     lrs = cosine_lrs(lr, steps)
-    # a step is a few dozen small operations, so Python and autograd work per step is the cost: the loss and its
-    # gradient run as one scripted function (`_step_grads`: autograd's own backward kernels, so the same numbers)
-    # and Adam as direct fused calls (`LeanStep`)
-    pi_layers, q_layers = linear_layers(model.pi.net), linear_layers(model.q.net)
-    pi_w, pi_b = [w for w, _ in pi_layers], [b for _, b in pi_layers]
-    q_w, q_b = [w for w, _ in q_layers], [b for _, b in q_layers]
-    discrete = model.action.discrete
-    log_std = model.q.net[0].weight if discrete else model.pi.log_std  # unused when discrete
-    targets = [*pi_w, *pi_b, *([] if discrete else [log_std]), *q_w, *q_b]
-    step_grads = scripted(_step_grads)
+    # the fast path: the loss and its gradient as one scripted function (`fast.polish_grad.step_grads`: autograd's
+    # own backward kernels, so the same numbers) and Adam as direct fused calls (`LeanStep`, which also follows
+    # the switch)
+    hand = fast.enabled()
+    if hand:
+        from digail.algos.fast.polish_grad import step_grads as hand_grads
+
+        pi_layers, q_layers = linear_layers(model.pi.net), linear_layers(model.q.net)
+        pi_w, pi_b = [w for w, _ in pi_layers], [b for _, b in pi_layers]
+        q_w, q_b = [w for w, _ in q_layers], [b for _, b in q_layers]
+        discrete = model.action.discrete
+        log_std = model.q.net[0].weight if discrete else model.pi.log_std  # unused when discrete
+        targets = [*pi_w, *pi_b, *([] if discrete else [log_std]), *q_w, *q_b]
+        step_grads = scripted(hand_grads)
     adam_step = LeanStep(opt, None)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
     bar = progress_bar(steps, progress, desc=desc, unit="step")
@@ -88,11 +93,18 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
         q_x = q_in.index_select(0, idx)  # [obs_n, prev_1h] rows: MacroPolicy.forward's input
         if q_noise > 0:
             q_x[:, :obs_dim] += q_noise * torch.randn((minibatch, obs_dim), generator=gen, device=dev)
-        with torch.no_grad():
-            grads, loss = step_grads(pi_in.index_select(0, idx), acts.index_select(0, idx), q_x,
-                                     q_codes.index_select(0, idx), pi_w, pi_b, log_std, q_w, q_b, discrete)
-        for p, g in zip(targets, grads, strict=True):
-            p.grad = g
+        if hand:
+            with torch.no_grad():
+                grads, loss = step_grads(pi_in.index_select(0, idx), acts.index_select(0, idx), q_x,
+                                         q_codes.index_select(0, idx), pi_w, pi_b, log_std, q_w, q_b, discrete)
+            for p, g in zip(targets, grads, strict=True):
+                p.grad = g
+        else:
+            loss = polish_loss(model, pi_in.index_select(0, idx), acts.index_select(0, idx), q_x,
+                               q_codes.index_select(0, idx))
+            for p in params:
+                p.grad = None
+            loss.backward()
         adam_step()
         if bar is not None and step % 200 == 0:
             bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
@@ -105,59 +117,12 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     return model.eval()
 
 
-def _linear_backward(g: Tensor, x: Tensor, w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Autograd's backward of `F.linear(x, w, b)` for 2-D x: the weight's (g^T x, its orientation for a
-    transposed weight), the bias's and the input's gradients."""
-    return g.t().mm(x), g.sum(0), g.mm(w)
-
-
-def _step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: list[Tensor], pi_b: list[Tensor],
-                log_std: Tensor, q_w: list[Tensor], q_b: list[Tensor], discrete: bool) -> tuple[list[Tensor], Tensor]:
-    """The gradients of the polish loss -mean log pi(a | s, c) + CE(q(s~, c_prev), c) for one minibatch, as
-    `loss.backward()` computes them (the same kernels on the same numbers, so the same bits): pi's weights and
-    biases, its log-std (continuous), then q's weights and biases; and the loss."""
-    mb = pi_x.shape[0]
-    losses: list[Tensor] = []
-    grads: list[Tensor] = []
-    for net in range(2):
-        ws, bs = (pi_w, pi_b) if net == 0 else (q_w, q_b)
-        xs = [pi_x if net == 0 else q_x]
-        for i in range(len(ws) - 1):
-            xs.append(torch.relu(F.linear(xs[-1], ws[i], bs[i])))
-        out = F.linear(xs[-1], ws[-1], bs[-1])
-        if net == 0 and not discrete:
-            ls = log_std.clamp(-5.0, 2.0)
-            e = torch.exp(-ls)
-            diff = acts - out
-            z = diff * e
-            logp = -0.5 * z.pow(2).sum(-1) - ls.sum() - 0.5 * out.shape[-1] * 1.8378770664093453  # log(2 pi)
-            losses.append(-logp.mean())
-            g_z = (2.0 * z) * (-0.5 * (-1.0 / mb))
-            g_ls = -((g_z * diff).sum(0) * e) + torch.full((mb,), 1.0 / mb).sum()  # exp(-ls), then -ls.sum()
-            g_ls = torch.where((log_std >= -5.0) & (log_std <= 2.0), g_ls, torch.zeros_like(g_ls))
-            g = -(g_z * e)
-        else:
-            # pi's categorical log-likelihood and q's cross-entropy: log-softmax, then the picked entries' mean
-            target = acts if net == 0 else q_codes
-            lsm = out.log_softmax(-1)
-            losses.append(-lsm.gather(-1, target.long().unsqueeze(-1)).mean())
-            g_pick = torch.zeros_like(lsm).scatter_(-1, target.long().unsqueeze(-1), -1.0 / mb)
-            g = torch._log_softmax_backward_data(g_pick, lsm, -1, lsm.dtype)
-            g_ls = g.new_zeros(0)
-        g_ws: list[Tensor] = []
-        g_bs: list[Tensor] = []
-        for i in range(len(ws) - 1, -1, -1):
-            g_w, g_b, g_in = _linear_backward(g, xs[i], ws[i])
-            g_ws.append(g_w)
-            g_bs.append(g_b)
-            if i > 0:
-                g = torch.ops.aten.threshold_backward(g_in, xs[i], 0.0)
-        g_ws.reverse()
-        g_bs.reverse()
-        grads += g_ws + g_bs
-        if net == 0 and not discrete:
-            grads.append(g_ls)
-    return grads, losses[0] + losses[1]
+def polish_loss(model: HierarchicalPolicy, pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor) -> Tensor:
+    """The polish's loss on one minibatch, -mean log pi(a | s, c) + CE(q(s~, c_prev), c), through the modules
+    (the reference for `digail.algos.fast.polish_grad.step_grads`). `pi_x` are pi's net inputs
+    (`SubtaskPolicy.inputs`), `q_x` q's ([obs_n, previous one-hot])."""
+    log_pi, _ = model.pi.log_prob_entropy_of(pi_x, acts)
+    return -log_pi.mean() + F.cross_entropy(model.q.net(q_x), q_codes)
 
 
 def anticipate_switches(codes: np.ndarray, steps: int) -> np.ndarray:

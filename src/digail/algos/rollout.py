@@ -7,10 +7,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from digail.algos.inference import RolloutActorCritic
 from digail.envs.vector import VecEnv, VectorEnv
 
 __all__ = ["CodeState", "RolloutState", "VecEnv", "collect_rollout"]
@@ -53,20 +53,21 @@ ChooseCodes = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[n
 """(normalised obs s_t, integer c_{t-1}, step in episode, env indices) -> (c_t, log q(c_t | s_t, c_{t-1}))"""
 
 
-def collect_rollout(envs: VectorEnv, ac: Any, state: RolloutState, steps: int, np_rng: np.random.Generator, *,
+def collect_rollout(envs: VectorEnv, ac: RolloutActorCritic, state: RolloutState, steps: int,
+                    np_rng: np.random.Generator, *,
                     normalize: Callable[[np.ndarray], np.ndarray], choose_codes: ChooseCodes,
                     start_episodes: Callable[[np.ndarray], None], episode_done: Callable[[int], None],
                     env_actions: Callable[[np.ndarray], np.ndarray]) -> dict[str, np.ndarray]:
     """`steps` steps of every env from `state` (advanced in place): the on-policy batch as (T, N, ...) arrays.
 
     The hot path of training, so it runs in NumPy, where a step costs a few microseconds per array operation
-    instead of torch's dispatch per op: `ac` is a float32 weight snapshot of pi and V
-    (`digail.algos.fast.inference`, one forward for both), the action noise is drawn from `np_rng` once, and the
-    batch fills preallocated arrays.
+    instead of torch's dispatch per op: `ac` is, on the fast path, a float32 weight snapshot of pi and V
+    (`digail.algos.inference.actor_critic`, one forward for both), the action noise is drawn from `np_rng` once,
+    and the batch fills preallocated arrays.
 
     Args:
         envs: the vector env, positioned where `state` says.
-        ac: `digail.algos.fast.inference.ActorCritic` snapshot.
+        ac: pi and V for the rollout (`digail.algos.inference.actor_critic`).
         state: the envs' current observations and codes, the macro-policy's state and the episode tallies.
         steps: T, steps per env.
         np_rng: the source of the action noise.

@@ -315,7 +315,8 @@ class OffPolicyLoop:
         from digail.algos import fast
         from digail.algos.fast.inference import LivePolicy
 
-        self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" else None
+        # pi's mean action read from its live weights in NumPy on the fast path; its module on the reference
+        self.live = LivePolicy(pi, obs_dim) if t.device.type == "cpu" and fast.enabled() else None
         from digail.algos.fast.ppo_grad import plain_mlp_layers
 
         d_lin = plain_mlp_layers(t.disc.net)
@@ -504,12 +505,12 @@ class OffPolicyLoop:
 
     def iterate(self) -> dict[str, float]:
         """One iteration: `steps_per_iteration` env steps, each followed by its share of D and SAC updates."""
-        from digail.algos.fast.inference import CodeMLP
+        from digail.algos.inference import code_net
 
         t, cfg = self.t, self.cfg
         t0 = time.perf_counter()
         self._norm_fn = t.model.normalizer.numpy_fn()
-        t._q_snap = CodeMLP([t.model.q.net], t.model.obs_dim) if t.K > 1 else None  # q is frozen
+        t._q_snap = code_net(t.model.q, t.model.obs_dim) if t.K > 1 else None  # q is frozen
         if t.rollout_state is None:
             t.rollout_state = t._reset_envs()
         n = t.envs.num_envs

@@ -17,10 +17,11 @@ of steps in the batch, so the logged numbers are per-step averages; Adam does no
 Choices beyond the paper (the gradient stopped at q's previous-code input unless `bptt`, a warm-up of the KL and
 smoothing weights, an entropy bonus on q, the polish) are measured in docs/experiments.md.
 
-Speed: only the sampling chain is sequential (`digail.algos.gumbel`); the decoder, the KL, the smoothing and entropy
-terms are evaluated on the whole (batch, time) block at once. Demonstrations of different lengths are padded and
-masked. With soft samples and the gradient stopped at q's previous-code input (every preset), training takes the
-loss's gradient from `digail.algos.fast.vae_grad` (one scripted pass, backpropagation by hand) instead of autograd.
+Speed: only the sampling chain is sequential (`digail.algos.gumbel`; its fast path `digail.algos.fast.gumbel_chain`);
+the decoder, the KL, the smoothing and entropy terms are evaluated on the whole (batch, time) block at once.
+Demonstrations of different lengths are padded and masked. With soft samples and the gradient stopped at q's
+previous-code input (every preset), training on the fast path takes the loss's gradient from
+`digail.algos.fast.vae_grad` (one scripted pass, backpropagation by hand) instead of autograd.
 """
 
 from __future__ import annotations

@@ -105,6 +105,9 @@ def preset_from_argv(argv: Sequence[str]) -> tuple[Preset, str, str]:
             env_id = dataset_env_id(known.demos)
         except UserError:
             env_id = ""  # reported properly by the command itself
-    from digail.envs.registry import preset_for
+    from digail.config import resolve_preset
+    from digail.envs.registry import env_preset
 
-    return preset_for(env_id, known.preset), env_id, known.demos
+    # the preset read straight from `config` (the registry gives only its name): its values go from there to the
+    # command's defaults and the parse, not back up through the registry
+    return resolve_preset(known.preset, env_preset(env_id)), env_id, known.demos

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from digail.config import VAEConfig, check_at_least, check_codes, check_seed
+from digail.config import VAEConfig, check_at_least, check_codes, check_seed, preset_name
 from digail.errors import UserError
 
 
@@ -77,7 +77,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.commands.common import new_run_dir
     from digail.data.minari_io import load_dataset
     from digail.data.validation import check_dataset_env
-    from digail.envs.registry import init_pieces_fn, preset_for
+    from digail.envs.registry import env_preset, init_pieces_fn
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.nets.policy import ActionSpec
     from digail.utils import atomic_dir, set_torch_threads
@@ -98,7 +98,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     env_id = dataset.env_id or "unknown-env"
     cfg = args.vae
     if args.preset is not None:
-        preset_for(dataset.env_id, args.preset)  # reports an unknown preset name
+        preset_name(args.preset, env_preset(dataset.env_id))  # reports an unknown preset name
     if isinstance(args.codes, int):
         cfg = dataclasses.replace(cfg, codes=args.codes)
     run = new_run_dir(args.out, env_id, "vae", args.seed, args.force)

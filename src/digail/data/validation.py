@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 
 from digail.data.trajectory import SUBTASK_KEY, Dataset, Trajectory
-from digail.envs.registry import make_env
+from digail.envs.registry import env_spaces, make_env
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec
 
@@ -56,6 +56,18 @@ def read_labels(where: str, infos: Any, n_steps: int) -> np.ndarray | None:
     return labels.astype(np.int64)
 
 
+def _spaces(env_id: str, env_kwargs: dict[str, Any]) -> tuple[gym.Space, gym.Space]:
+    """The env's observation and action spaces: the registry's (`env_spaces`, made once per process) for the
+    default options, else from an env made with `env_kwargs`."""
+    if not env_kwargs:
+        return env_spaces(env_id)
+    env = make_env(env_id, **env_kwargs)
+    try:
+        return env.observation_space, env.action_space
+    finally:
+        env.close()
+
+
 def check_matches_env(dataset: Dataset, env_id: str, **env_kwargs: Any) -> None:
     """Check that `dataset` can train a policy for `env_id`: same observation shape, same action space.
 
@@ -65,17 +77,13 @@ def check_matches_env(dataset: Dataset, env_id: str, **env_kwargs: Any) -> None:
         UserError: naming both spaces and the fix when they differ, or when `env_id` is unknown.
     """
     try:
-        env = make_env(env_id, **env_kwargs)
+        env_obs, env_act = _spaces(env_id, env_kwargs)
     except UserError as exc:
         if env_id != dataset.env_id:
             raise
         raise UserError(f"dataset {dataset.dataset_id} was recorded in {env_id}, which {_cannot_make(exc)}; training "
                         "and evaluation need that environment (install what registers it), while `digail pretrain` "
                         "and `digail segment` work from the dataset alone.") from exc
-    try:
-        env_obs, env_act = env.observation_space, env.action_space
-    finally:
-        env.close()
     if isinstance(env_obs, gym.spaces.Dict):
         env_obs = gym.spaces.flatten_space(env_obs)
     recorded = f" (recorded in {dataset.env_id})" if dataset.env_id else ""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import functools
 import io
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -14,7 +15,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
-from digail.config import Preset, TrainConfig, VAEConfig, get_preset
+from digail.config import Preset, resolve_preset
 from digail.envs.circle_world import CircleWorldVecEnv
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.errors import UserError
@@ -74,6 +75,25 @@ class EnvSpec:
     batched: Callable[..., Any] | None = None
     """the array implementation of N copies that the `sync` backend uses instead of stepping N envs in turn
     (`(env_id, num_envs, **kwargs)`; the same numbers, tested against `digail.envs.vector.VecEnv`)"""
+    labels: tuple[str, ...] = ()
+    """what each oracle sub-task label in `info["subtask"]` means, by label value (empty: the env gives none); the
+    segmentation metrics score codes against these"""
+    reward: Literal["cost", "task", "survival"] = "cost"
+    """the env reward's convention: `cost` never positive (minus a distance, a cost or a per-step penalty until
+    success: higher is better, episodes do not end early for doing badly), `task` a step penalty with a positive
+    reward on success that ends the episode, `survival` a bonus for every step alive that outweighs the rest, with
+    episodes ended by falling (the episode length then carries reward information: log it, and prefer a positive
+    GAIL reward, `--train.reward positive`)"""
+    render: Literal["image", "mujoco", "pygame", "none"] = "mujoco"
+    """how `render_mode="rgb_array"` draws a frame: `image` the env's own array (no extra package), `mujoco`
+    offscreen MuJoCo (`MUJOCO_GL` must be set before MuJoCo is imported: `digail.utils.ensure_offscreen_gl`),
+    `pygame` through pygame (an optional package), `none` it cannot draw"""
+    state_figure: Literal["four_rooms", "pendulum"] | None = None
+    """the env's own figure of the state space a run folder gets beside the generic ones (`viz.run_figures`):
+    the Four Rooms code maps and paths, or Pendulum's code map over angle and velocity"""
+    gait_features: tuple[int, int] | None = None
+    """observation indices of the hip joint's angle and angular velocity whose phase labels a locomotion gait
+    (`digail.eval.gait`; Gymnasium v5 layouts, default options); None: no gait phase"""
 
     @property
     def paper_return(self) -> tuple[float, float] | None:
@@ -85,30 +105,37 @@ class EnvSpec:
         """Info keys an episode loop records per step for the step metrics."""
         return tuple(m.info_key for m in self.step_metrics)
 
+    def spaces(self) -> tuple[gym.Space, gym.Space]:
+        """The observation and action spaces (`env_spaces`: the env is made once per process, then remembered)."""
+        return env_spaces(self.env_id)
+
 
 ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/FourRooms-v0", "four-rooms", 300, "digail.envs.four_rooms:FourRoomsEnv", 64,
             auto_backend="sync", name="Four Rooms",
-            batched=FourRoomsVecEnv, init_pieces=room_visits),
+            batched=FourRoomsVecEnv, init_pieces=room_visits,
+            labels=("top corridor", "right corridor", "bottom corridor", "left corridor", "apple"),
+            reward="task", render="image", state_figure="four_rooms"),
     # Circle-World: counter-clockwise first, then clockwise, the reversed order of the demonstrations
     EnvSpec("digail/CircleWorld-v0", "circle-world", 100, "digail.envs.circle_world:CircleWorldEnv", 120,
             compose_schedule=((1, 60), (0, 60)), auto_backend="sync", name="Circle-World",
-            batched=CircleWorldVecEnv),
+            batched=CircleWorldVecEnv, labels=("clockwise", "counter-clockwise"), render="image"),
     # gymnasium-robotics is imported only when this one is made (digail.envs.fetch), and so is the expert's module
     # The paper's Table 2 measure is the dense return; the sparse one, success and grasp rates stand beside it
     EnvSpec("digail/FetchPickAndPlace-v4", "fetch", 500, "digail.envs.fetch:FlatFetchPickAndPlace", 50,
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
-            ),
+            labels=("reach", "grasp", "carry", "place")),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
-    # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset
+    # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset; the
+    # label is the index of the current waypoint, as many as the course has
     EnvSpec("digail/WaypointCourse-v0", "default", 20, "digail.envs.waypoints:WaypointCourseEnv",
-            auto_backend="sync"),
-    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync"),
-    EnvSpec("InvertedPendulum-v5", "invertedpendulum", 25, envpool=True),
-    EnvSpec("Hopper-v5", "hopper", 50, envpool=True),
-    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True),
+            auto_backend="sync", render="none"),
+    EnvSpec("Pendulum-v1", "pendulum", 25, auto_backend="sync", render="pygame", state_figure="pendulum"),
+    EnvSpec("InvertedPendulum-v5", "invertedpendulum", 25, envpool=True, reward="survival"),
+    EnvSpec("Hopper-v5", "hopper", 50, envpool=True, reward="survival", gait_features=(2, 8)),
+    EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True, reward="survival", gait_features=(2, 11)),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""
 
@@ -116,6 +143,17 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
 def env_spec(env_id: str) -> EnvSpec | None:
     """The registry entry of `env_id`, or None for an environment digail has no entry for."""
     return ENV_SPECS.get(env_id)
+
+
+@functools.cache
+def env_spaces(env_id: str) -> tuple[gym.Space, gym.Space]:
+    """`env_id`'s observation and action spaces; the env is made (`make_env`) and closed once per process, since
+    Gymnasium's registry does not state spaces without making the env."""
+    env = make_env(env_id)
+    try:
+        return env.observation_space, env.action_space
+    finally:
+        env.close()
 
 
 def init_pieces_fn(env_id: str | None) -> Callable[[np.ndarray], np.ndarray] | None:
@@ -133,14 +171,15 @@ def tracked_info_keys(env: gym.Env | str | None) -> tuple[str, ...]:
     return spec.tracked_info_keys() if spec is not None else ()
 
 
+def env_preset(env_id: str | None) -> str | None:
+    """The name of `env_id`'s own preset (None for an env without an entry)."""
+    spec = ENV_SPECS.get(env_id or "")
+    return spec.preset if spec is not None else None
+
+
 def preset_for(env_id: str | None, name: str | None = None) -> Preset:
     """The preset called `name`, else the one of `env_id`'s entry (the defaults for an env without one)."""
-    spec = ENV_SPECS.get(env_id or "")
-    if name is None:
-        if spec is None:
-            return Preset(VAEConfig(), TrainConfig())
-        name = spec.preset
-    return get_preset(name, spec.preset if spec is not None else None)
+    return resolve_preset(name, env_preset(env_id))
 
 
 def register_envs() -> None:

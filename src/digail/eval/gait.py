@@ -19,19 +19,17 @@ from collections.abc import Sequence
 import numpy as np
 from sklearn.metrics import mutual_info_score, normalized_mutual_info_score
 
-# Observation index of the hip angle and of its angular velocity (Gymnasium v5 layouts, default options).
-HIP_FEATURES: dict[str, tuple[int, int]] = {
-    "Hopper": (2, 8),  # thigh_joint angle (qpos[3]) and velocity (qvel[3])
-    "Walker2d": (2, 11),  # right thigh_joint angle (qpos[3]) and velocity (qvel[3])
-}
-
 
 def hip_features(env_id: str) -> tuple[int, int]:
-    """The (angle, velocity) observation indices of the hip joint whose phase labels the gait."""
-    for prefix, idx in HIP_FEATURES.items():
-        if env_id.startswith(prefix):
-            return idx
-    raise ValueError(f"no gait phase is defined for {env_id}; known: {', '.join(HIP_FEATURES)}.")
+    """The (angle, velocity) observation indices of the hip joint whose phase labels the gait
+    (`digail.envs.registry.EnvSpec.gait_features`)."""
+    from digail.envs.registry import ENV_SPECS
+
+    spec = ENV_SPECS.get(env_id)
+    if spec is None or spec.gait_features is None:
+        known = ", ".join(s.env_id for s in ENV_SPECS.values() if s.gait_features is not None)
+        raise ValueError(f"no gait phase is defined for {env_id}; known: {known}.")
+    return spec.gait_features
 
 
 def phase_stats(obs: Sequence[np.ndarray], env_id: str) -> np.ndarray:

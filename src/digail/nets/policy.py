@@ -16,8 +16,8 @@ from digail.nets.mlp import mlp
 
 LOG_STD_BOUNDS = (-5.0, 2.0)
 """the Gaussian policy's log-std is clamped to this range wherever it is used (std 0.0067 .. 7.4); the
-TorchScript gradients (`digail.algos.fast.ppo_grad`, `vae_grad`, `polish`) cannot read module constants and repeat
-it, which `tests/test_fast.py` checks"""
+TorchScript gradients (`digail.algos.fast.ppo_grad`, `vae_grad`, `polish_grad`) cannot read module constants and
+repeat it, which `tests/test_fast.py` checks"""
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,6 @@ from digail.config import FINAL_EVAL_SEED
 from digail.viz import figures as F
 from digail.viz.video import play_episodes
 
-FOUR_ROOMS = "digail/FourRooms-v0"
-
 COMPOSE_SEED_OFFSET = 10_000
 """the composed rollouts start this far past `seed`, so they never replay the closed-loop rollouts' episodes"""
 
@@ -77,8 +75,12 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
                                 "closed-loop rollouts": [c for _, c in gen]}, out / "codes_time.png"))
     paths.append(F.state_pca([o for o, _ in demos + gen], [c for _, c in demos + gen], out / "pca_codes.png",
                              title="demonstration and rollout states (PCA) coloured by code"))
+    from digail.envs.registry import env_spec
+
     dim = _obs_dim(demos[0][0]) if demos else 0
-    if env_id == FOUR_ROOMS:
+    spec = env_spec(env_id)
+    state_figure = spec.state_figure if spec is not None else None
+    if state_figure == "four_rooms":
         from digail.envs.four_rooms import decode_observations
 
         apple = (12, 8)
@@ -95,7 +97,7 @@ def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence
                                      render=False)
             paths.append(composition_figure([(np.asarray(e.obs), np.asarray(e.codes)) for e in composed],
                                             out / "compose.png", schedule_text))
-    if env_id.startswith("Pendulum") and dim == 3:
+    if state_figure == "pendulum" and dim == 3:
         paths.append(F.pendulum_code_map([o for o, _ in demos + gen], [c for _, c in demos + gen],
                                          out / "pendulum_code_map.png"))
     if pair is not None and demos:

@@ -66,8 +66,12 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
     from digail.envs import make_env
     from digail.envs.actions import env_action_fn
     from digail.envs.episodes import Episode, play_batch
+    from digail.envs.registry import env_spec
 
-    if render:
+    spec = env_spec(env_id)
+    if render and spec is not None and spec.render == "none":
+        raise UserError(f"{env_id} cannot draw its frames (it has no rgb_array rendering); its runs have no video.")
+    if render and (spec is None or spec.render == "mujoco"):
         ensure_offscreen_gl()
     env = make_env(env_id, render_mode="rgb_array") if render else make_env(env_id)
     if max_steps is not None:

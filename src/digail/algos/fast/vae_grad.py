@@ -35,7 +35,7 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
 
     Returns `(grads, parts)`: q's weights and biases, pi's weights and biases, log-std (continuous only) and the
     prior table, in that order; `parts` = [total, recon, kl, smooth] (per-step averages). `one` is 1.0 passed as
-    an argument so that TorchScript keeps addmm whole (as `gumbel._chain_loop`).
+    an argument so that TorchScript keeps addmm whole (as `gumbel_chain._chain_loop`).
     """
     T, B, D = obs.shape[0], obs.shape[1], obs.shape[2]
     log_2pi = 1.8378770664093453  # log(2 pi): TorchScript reads no module-level floats
