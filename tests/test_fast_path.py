@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import pytest
 import torch
@@ -13,6 +15,8 @@ import torch
 from digail.algos import fast
 from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
+
+T = TypeVar("T")
 
 
 def _nets_and_grads(seed: int) -> tuple[list[torch.Tensor], torch.optim.Optimizer]:
@@ -83,6 +87,21 @@ def test_environment_variable_turns_the_fast_path_off() -> None:
         assert out == expected
 
 
+def _fast_then_reference(monkeypatch: pytest.MonkeyPatch, module: Any, name: str, run: Callable[[], T],
+                         what: str) -> tuple[T, T]:
+    """`run()` on the fast path, which must call `module.name`, then on the reference path, which must not."""
+    spy: list[int] = []
+    piece = getattr(module, name)
+    monkeypatch.setattr(module, name, lambda *a: (spy.append(1), piece(*a))[1])
+    fast_out = run()
+    assert spy, f"the fast path did not take {what}"
+    spy.clear()
+    with fast.reference():
+        ref_out = run()
+    assert not spy, f"the reference path took {what}"
+    return fast_out, ref_out
+
+
 @pytest.mark.parametrize(("hard", "bptt"), [(False, False), (True, False), (False, True), (True, True)])
 def test_gumbel_chain_reference_matches_the_fast_chain(monkeypatch: pytest.MonkeyPatch, hard: bool,
                                                        bptt: bool) -> None:
@@ -102,15 +121,7 @@ def test_gumbel_chain_reference_matches_the_fast_chain(monkeypatch: pytest.Monke
         loss = (logits * weights).sum() + ((codes * weights.flip(-1)).sum(-1) ** 2).sum()
         return [logits.detach(), codes.detach(), *torch.autograd.grad(loss, list(q.parameters()))]
 
-    spy: list[int] = []
-    chain = gumbel_chain.fast_chain
-    monkeypatch.setattr(gumbel_chain, "fast_chain", lambda *a: (spy.append(1), chain(*a))[1])
-    fast_out = run()
-    assert spy, "the fast path did not take the fast chain"
-    spy.clear()
-    with fast.reference():
-        ref_out = run()
-    assert not spy, "the reference path took the fast chain"
+    fast_out, ref_out = _fast_then_reference(monkeypatch, gumbel_chain, "fast_chain", run, "the fast chain")
     for a, b in zip(fast_out, ref_out, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
 
@@ -144,15 +155,7 @@ def test_polish_reference_matches_the_scripted_step(monkeypatch: pytest.MonkeyPa
                      minibatch=32)
         return torch.cat([p.detach().flatten() for p in [*model.pi.parameters(), *model.q.parameters()]])
 
-    spy: list[int] = []
-    step_grads = polish_grad.step_grads
-    monkeypatch.setattr(polish_grad, "step_grads", lambda *a: (spy.append(1), step_grads(*a))[1])
-    fast_w = run()
-    assert spy, "the fast path did not take the scripted polish step"
-    spy.clear()
-    with fast.reference():
-        ref_w = run()
-    assert not spy, "the reference path took the scripted polish step"
+    fast_w, ref_w = _fast_then_reference(monkeypatch, polish_grad, "step_grads", run, "the scripted polish step")
     assert torch.equal(fast_w, ref_w)
 
 
