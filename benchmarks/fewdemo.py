@@ -7,7 +7,9 @@ Per run: env, method, learner, demonstration setting, seed; the environment step
 the run's budget); the normalised return of its final 100-episode evaluation (eval.json, written by `digail
 evaluate`; for a run stopped early, of its last checkpoint) or, for a run still going, of its last periodic
 evaluation (5 episodes, marked `from_curve`); the env steps at which the periodic evaluation first reached 0.9 and
-0.95 of the expert (None: not yet); the training's wall time (the sum over iterations of steps / steps per second);
+0.95 of the expert (None: not yet); the mean of the periodic evaluations inside a common window of env steps
+(`--window`, default 100k-190k: runs stopped at different steps compared at the same steps; None for a run that
+stopped before the window's end); the training's wall time (the sum over iterations of steps / steps per second);
 and the learning curve (env step, normalised return). Medians over seeds per (env, setting, method, learner, where
 Directed-Info GAIL's policy started) go under `table`. Published references (1 expert trajectory of Hopper, as a
 recent table reports them) go under `references`. `--merge` keeps the entries of `--out` made from run folders
@@ -63,7 +65,19 @@ def first_reach(curve: list[tuple[float, float]], level: float) -> float | None:
     return next((s for s, v in curve if v >= level), None)
 
 
-def summarise_run(run: Path) -> dict[str, Any] | None:
+WINDOW = (100_000.0, 190_000.0)
+
+
+def window_mean(curve: list[tuple[float, float]], window: tuple[float, float]) -> float | None:
+    """The mean periodic evaluation from window[0] to window[1] env steps (None: the curve stops short of window[1])."""
+    lo, hi = window
+    inside = [v for s, v in curve if lo <= s <= hi]
+    if not inside or max(s for s, _ in curve) < hi:
+        return None
+    return float(np.mean(inside))
+
+
+def summarise_run(run: Path, window: tuple[float, float] = WINDOW) -> dict[str, Any] | None:
     config_path = run / "config.json"
     if not config_path.is_file():
         return None
@@ -107,6 +121,8 @@ def summarise_run(run: Path) -> dict[str, Any] | None:
                    from_curve=True)
     rec["steps_to_0.9"] = first_reach(curve, 0.9)
     rec["steps_to_0.95"] = first_reach(curve, 0.95)
+    rec["window"] = list(window)
+    rec["window_mean"] = window_mean(curve, window)
     rec["wall_time_s"] = _wall_time(run)
     return rec
 
@@ -120,10 +136,13 @@ def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for (env, episodes, every, method, learner, init), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
         vals = [r["normalized_return"] for r in rs if isinstance(r.get("normalized_return"), float)
                 and math.isfinite(r["normalized_return"])]
+        inside = [r["window_mean"] for r in rs if r.get("window_mean") is not None]
         out.append({"env": env, "demos_episodes": episodes, "demos_subsample": every, "method": method,
                     "learner": learner, **({"policy_init": init} if init else {}),
                     "seeds": sorted(r["seed"] for r in rs),
                     "median_normalized_return": float(np.median(vals)) if vals else None,
+                    "median_window_mean": float(np.median(inside)) if inside else None,
+                    "window_seeds": sorted(r["seed"] for r in rs if r.get("window_mean") is not None),
                     "partial": any(r.get("partial") for r in rs)})
     return out
 
@@ -136,18 +155,24 @@ def main() -> None:
     parser.add_argument("--commands", type=Path, help="a JSON file {run folder: the command that made it}")
     parser.add_argument("--merge", action="store_true",
                         help="keep the entries of --out whose run folders are not given (runs made elsewhere)")
+    parser.add_argument("--window", type=float, nargs=2, default=WINDOW, metavar=("FROM", "TO"),
+                        help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
     args = parser.parse_args()
     runs = list(args.runs)
     if args.sweep is not None:
         runs += sorted(p.parent for p in args.sweep.glob("*/*/config.json"))
-    records = [r for r in (summarise_run(p) for p in runs) if r is not None]
+    records = [r for r in (summarise_run(p, tuple(args.window)) for p in runs) if r is not None]
     if args.commands is not None:
         commands = json.loads(args.commands.read_text())
         for r in records:
             r["command"] = commands.get(r["run"])
     if args.merge and args.out.is_file():
         given = {r["run"] for r in records}
-        records = [r for r in json.loads(args.out.read_text())["runs"] if r["run"] not in given] + records
+        kept = [r for r in json.loads(args.out.read_text())["runs"] if r["run"] not in given]
+        for r in kept:  # entries made before the window existed, or with another one
+            r["window"] = list(args.window)
+            r["window_mean"] = window_mean([(s, v) for s, v in r.get("curve", [])], tuple(args.window))
+        records = kept + records
     result = {"partial": any(r.get("partial") for r in records), "runs": records, "table": table(records),
               "references": REFERENCES}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,32 @@
+"""The few-demonstration table compares runs stopped at different env steps over one common window of steps."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from fewdemo import first_reach, table, window_mean  # noqa: E402
+
+
+def test_window_mean_averages_only_the_evaluations_inside_the_window() -> None:
+    curve = [(0.0, 0.1), (100_000.0, 0.8), (150_000.0, 0.9), (200_000.0, 1.0), (300_000.0, 0.2)]
+    assert window_mean(curve, (100_000.0, 200_000.0)) == pytest.approx(0.9)
+    assert first_reach(curve, 0.9) == 150_000.0 and first_reach(curve, 1.01) is None
+
+
+def test_a_run_stopped_before_the_window_ends_has_no_window_mean() -> None:
+    """A run stopped at 117k has no figure for 100k-200k: its early evaluations alone would flatter or sink it."""
+    assert window_mean([(100_000.0, 0.9), (110_000.0, 1.0)], (100_000.0, 200_000.0)) is None
+
+
+def test_the_table_takes_medians_over_seeds_of_both_figures() -> None:
+    def run(seed: int, final: float, window: float | None) -> dict[str, object]:
+        return {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "gail", "learner": "sac",
+                "seed": seed, "normalized_return": final, "window_mean": window, "partial": True}
+
+    (row,) = table([run(0, 0.5, None), run(1, 0.9, 0.7), run(2, 1.0, 0.8)])
+    assert row["median_normalized_return"] == pytest.approx(0.9)
+    assert row["median_window_mean"] == pytest.approx(0.75) and row["window_seeds"] == [1, 2]
