@@ -147,6 +147,52 @@ def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def _label(r: dict[str, Any]) -> str:
+    learner = r["learner"].upper() if r["learner"] else ""
+    name = {"digail": "Directed-Info GAIL", "gail": "GAIL"}.get(r["method"], r["method"])
+    init = {"vae": ", policy from the VAE", "fresh": ""}.get(r.get("policy_init") or "", "")
+    return f"{name} + {learner}{init}"
+
+
+def draw_curves(records: list[dict[str, Any]], path: Path) -> None:
+    """Learning curves: one panel per (env, demonstration setting), one line per run (colour: method and learner),
+    BC's median as a dashed line, 0.9 and 0.95 of the expert dotted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = sorted({(r["env"], r["demos_episodes"], r["demos_subsample"]) for r in records}, key=repr)
+    labels = sorted({_label(r) for r in records if r["learner"] is not None})
+    colour = {lab: matplotlib.colormaps["tab10"](i) for i, lab in enumerate(labels)}
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), squeeze=False)
+    for ax, (env, episodes, every) in zip(axes[0], panels, strict=True):
+        mine = [r for r in records if (r["env"], r["demos_episodes"], r["demos_subsample"]) == (env, episodes, every)]
+        shown: set[str] = set()
+        for r in sorted(mine, key=lambda r: (_label(r), r["seed"])):
+            if r["learner"] is None or not r["curve"]:
+                continue
+            lab = _label(r)
+            steps, values = zip(*r["curve"], strict=True)
+            ax.plot(np.asarray(steps) / 1000, values, color=colour[lab], lw=1.2, alpha=0.8,
+                    label=None if lab in shown else lab)
+            shown.add(lab)
+        bc = [r["normalized_return"] for r in mine if r["learner"] is None and r.get("normalized_return") is not None]
+        if bc:
+            ax.axhline(float(np.median(bc)), color="k", ls="--", lw=1, label="BC (the VAE's policy), median")
+        for level in (0.9, 0.95):
+            ax.axhline(level, color="grey", ls=":", lw=0.8)
+        setting = f"{episodes} trajector{'y' if episodes == 1 else 'ies'}"
+        setting += f", every {every}th transition" if every and every > 1 else ", full"
+        ax.set(title=f"{env}: {setting}", xlabel="env steps (thousands)", ylabel="normalised return",
+               ylim=(-0.05, 1.15))
+        ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="*", type=Path)
@@ -157,6 +203,7 @@ def main() -> None:
                         help="keep the entries of --out whose run folders are not given (runs made elsewhere)")
     parser.add_argument("--window", type=float, nargs=2, default=WINDOW, metavar=("FROM", "TO"),
                         help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
+    parser.add_argument("--figure", type=Path, help="draw the learning curves to this PNG")
     args = parser.parse_args()
     runs = list(args.runs)
     if args.sweep is not None:
@@ -179,6 +226,9 @@ def main() -> None:
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     for row in result["table"]:
         print(row)
+    if args.figure is not None:
+        draw_curves(records, args.figure)
+        print(f"drew {args.figure}")
     print(f"wrote {args.out}")
 
 
