@@ -11,8 +11,8 @@ evaluation (5 episodes, marked `from_curve`); the env steps at which the periodi
 (`--window`, default 100k-190k: runs stopped at different steps compared at the same steps; None for a run that
 stopped before the window's end); the training's wall time (the sum over iterations of steps / steps per second);
 and the learning curve (env step, normalised return). Medians over seeds per (env, setting, method, learner, where
-Directed-Info GAIL's policy started) go under `table`. Published references (1 expert trajectory of Hopper, as a
-recent table reports them) go under `references`. `--merge` keeps the entries of `--out` made from run folders
+Directed-Info GAIL's policy started, the BC term's weight) go under `table`. Published references (1 expert
+trajectory of Hopper, as a recent table reports them) go under `references`. `--merge` keeps the entries of `--out` made from run folders
 that are not on this machine.
 """
 
@@ -103,6 +103,8 @@ def summarise_run(run: Path, window: tuple[float, float] = WINDOW) -> dict[str, 
     if method == "digail" and learner is not None:
         # Directed-Info GAIL's policy starts from the VAE's decoder or from fresh weights (q's codes either way)
         rec["policy_init"] = "vae" if train.get("init_from_vae", True) else "fresh"
+    if float(train.get("bc_weight") or 0.0) > 0:
+        rec["bc_weight"] = float(train["bc_weight"])  # the BC / L2 term: its own row
     metrics = run / "metrics.csv"
     if metrics.is_file():
         with metrics.open() as f:
@@ -130,15 +132,16 @@ def summarise_run(run: Path, window: tuple[float, float] = WINDOW) -> dict[str, 
 def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
-        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"], r.get("policy_init"))
+        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"], r.get("policy_init"),
+               r.get("bc_weight"))
         groups.setdefault(key, []).append(r)
     out = []
-    for (env, episodes, every, method, learner, init), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+    for (env, episodes, every, method, learner, init, bc), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
         vals = [r["normalized_return"] for r in rs if isinstance(r.get("normalized_return"), float)
                 and math.isfinite(r["normalized_return"])]
         inside = [r["window_mean"] for r in rs if r.get("window_mean") is not None]
         out.append({"env": env, "demos_episodes": episodes, "demos_subsample": every, "method": method,
-                    "learner": learner, **({"policy_init": init} if init else {}),
+                    "learner": learner, **({"policy_init": init} if init else {}), **({"bc_weight": bc} if bc else {}),
                     "seeds": sorted(r["seed"] for r in rs),
                     "median_normalized_return": float(np.median(vals)) if vals else None,
                     "median_window_mean": float(np.median(inside)) if inside else None,
@@ -151,7 +154,8 @@ def _label(r: dict[str, Any]) -> str:
     learner = r["learner"].upper() if r["learner"] else ""
     name = {"digail": "Directed-Info GAIL", "gail": "GAIL"}.get(r["method"], r["method"])
     init = {"vae": ", policy from the VAE", "fresh": ""}.get(r.get("policy_init") or "", "")
-    return f"{name} + {learner}{init}"
+    bc = f", BC term {r['bc_weight']:g}" if r.get("bc_weight") else ""
+    return f"{name} + {learner}{init}{bc}"
 
 
 def draw_curves(records: list[dict[str, Any]], path: Path) -> None:
