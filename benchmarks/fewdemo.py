@@ -12,8 +12,8 @@ evaluation (5 episodes, marked `from_curve`); the env steps at which the periodi
 stopped before the window's end); the training's wall time (the sum over iterations of steps / steps per second);
 and the learning curve (env step, normalised return). Medians over seeds per (env, setting, method, learner, where
 Directed-Info GAIL's policy started, the BC term's weight) go under `table`. Published references (1 expert
-trajectory of Hopper, as a recent table reports them) go under `references`. `--merge` keeps the entries of `--out` made from run folders
-that are not on this machine.
+trajectory of Hopper, as a recent table reports them) go under `references`. `--merge` keeps the entries of
+`--out` made from run folders that are not on this machine.
 """
 
 from __future__ import annotations
