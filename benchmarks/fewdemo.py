@@ -197,6 +197,46 @@ def draw_curves(records: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def _k(steps: float | None) -> str:
+    return "" if steps is None else f"{steps / 1000:.0f}k"
+
+
+def markdown(records: list[dict[str, Any]]) -> str:
+    """The table of docs/results.md: one row per (env, setting, method, learner, start), seeds side by side."""
+    head = ("| env | demonstrations | method | seeds | env steps | normalised return, median | "
+            "mean over the window, median | first >= 0.9 / 0.95 | wall time per run |")
+    lines = [head, "| " + " | ".join(["---"] * 9) + " |"]
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in records:
+        key = (r["env"], -(r["demos_subsample"] or 1), r["demos_episodes"], r["learner"] or "", _label(r)
+               if r["learner"] else "BC (the VAE's policy)")
+        groups.setdefault(key, []).append(r)
+    for (env, _, episodes, _, label), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+        rs = sorted(rs, key=lambda r: r["seed"])
+        trained = rs[0]["learner"] is not None
+        every = rs[0]["demos_subsample"] or 1
+        setting = f"{episodes}, every {every}th" if every > 1 else f"{episodes}, full"
+        vals = [r.get("normalized_return") for r in rs]
+        finals = " / ".join("" if v is None else f"{v:.3f}" + (" (periodic)" if r.get("from_curve") else "")
+                            for v, r in zip(vals, rs, strict=True))
+        known = [v for v in vals if v is not None]
+        median = f", **{float(np.median(known)):.3f}**" if len(known) > 1 else ""
+        windows = [r.get("window_mean") for r in rs]
+        inside = [w for w in windows if w is not None]
+        window = (" / ".join("-" if w is None else f"{w:.3f}" for w in windows)
+                  + (f", {float(np.median(inside)):.3f}" if len(inside) > 1 else "")) if inside else ""
+        steps = " / ".join(_k(r["env_steps"]) for r in rs) if trained else "0"
+        reach = ", ".join(f"{_k(r['steps_to_0.9']) or '-'} / {_k(r['steps_to_0.95']) or '-'}" for r in rs
+                          ) if trained else ""
+        walls = [r["wall_time_s"] for r in rs if r.get("wall_time_s")]
+        lo, hi = (f"{min(walls) / 60:.0f}", f"{max(walls) / 60:.0f}") if walls else ("", "")
+        wall = "" if not walls or not trained else f"{lo} min" if lo == hi else f"{lo}-{hi} min"
+        seeds = " / ".join(str(r["seed"]) for r in rs)
+        cells = [env, setting, label, seeds, steps, finals + median, window, reach, wall]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="*", type=Path)
@@ -208,6 +248,7 @@ def main() -> None:
     parser.add_argument("--window", type=float, nargs=2, default=WINDOW, metavar=("FROM", "TO"),
                         help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
     parser.add_argument("--figure", type=Path, help="draw the learning curves to this PNG")
+    parser.add_argument("--markdown", type=Path, help="write the table of docs/results.md to this file")
     args = parser.parse_args()
     runs = list(args.runs)
     if args.sweep is not None:
@@ -230,6 +271,9 @@ def main() -> None:
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     for row in result["table"]:
         print(row)
+    if args.markdown is not None:
+        args.markdown.write_text(markdown(records))
+        print(f"wrote {args.markdown}")
     if args.figure is not None:
         draw_curves(records, args.figure)
         print(f"drew {args.figure}")

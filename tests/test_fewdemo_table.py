@@ -30,3 +30,19 @@ def test_the_table_takes_medians_over_seeds_of_both_figures() -> None:
     (row,) = table([run(0, 0.5, None), run(1, 0.9, 0.7), run(2, 1.0, 0.8)])
     assert row["median_normalized_return"] == pytest.approx(0.9)
     assert row["median_window_mean"] == pytest.approx(0.75) and row["window_seeds"] == [1, 2]
+
+
+def test_the_markdown_table_puts_each_seed_in_its_place() -> None:
+    from fewdemo import markdown
+
+    def run(seed: int, final: float | None, learner: str | None) -> dict[str, object]:
+        return {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "gail" if learner else
+                "bc (vae)", "learner": learner, "seed": seed, "normalized_return": final, "window_mean": None,
+                "env_steps": 200_000.0 if learner else 0.0, "steps_to_0.9": 50_000.0, "steps_to_0.95": None,
+                "wall_time_s": 600.0, "from_curve": False}
+
+    text = markdown([run(2, 0.9, "sac"), run(0, 0.5, "sac"), run(1, 0.1, None)])
+    rows = [line for line in text.splitlines() if line.startswith("| Hopper")]
+    assert rows[0].startswith("| Hopper-v5 | 4, every 20th | BC (the VAE's policy) | 1 | 0 | 0.100 |")
+    assert "| GAIL + SAC | 0 / 2 | 200k / 200k | 0.500 / 0.900, **0.700** |" in rows[1]
+    assert "50k / -, 50k / -" in rows[1] and rows[1].endswith("| 10 min |")
