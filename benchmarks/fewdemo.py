@@ -169,8 +169,12 @@ def draw_curves(records: list[dict[str, Any]], path: Path) -> None:
     panels = sorted({(r["env"], r["demos_episodes"], r["demos_subsample"]) for r in records}, key=repr)
     labels = sorted({_label(r) for r in records if r["learner"] is not None})
     colour = {lab: matplotlib.colormaps["tab10"](i) for i, lab in enumerate(labels)}
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4), squeeze=False)
-    for ax, (env, episodes, every) in zip(axes[0], panels, strict=True):
+    cols = min(2, len(panels))
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.5 * cols, 4.2 * rows), squeeze=False)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    for ax, (env, episodes, every) in zip(axes.flat, panels, strict=False):
         mine = [r for r in records if (r["env"], r["demos_episodes"], r["demos_subsample"]) == (env, episodes, every)]
         shown: set[str] = set()
         for r in sorted(mine, key=lambda r: (_label(r), r["seed"])):
