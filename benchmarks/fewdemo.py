@@ -129,14 +129,19 @@ def summarise_run(run: Path, window: tuple[float, float] = WINDOW) -> dict[str, 
     return rec
 
 
-def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def _grouped(records: list[dict[str, Any]], key: Any) -> list[tuple[tuple[Any, ...], list[dict[str, Any]]]]:
+    """The records grouped by `key(record)`, groups in the order of their keys' reprs."""
     groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in records:
-        key = (r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"], r.get("policy_init"),
-               r.get("bc_weight"))
-        groups.setdefault(key, []).append(r)
+        groups.setdefault(key(r), []).append(r)
+    return sorted(groups.items(), key=lambda kv: repr(kv[0]))
+
+
+def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     out = []
-    for (env, episodes, every, method, learner, init, bc), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+    for (env, episodes, every, method, learner, init, bc), rs in _grouped(records, lambda r: (
+            r["env"], r["demos_episodes"], r["demos_subsample"], r["method"], r["learner"], r.get("policy_init"),
+            r.get("bc_weight"))):
         vals = [r["normalized_return"] for r in rs if isinstance(r.get("normalized_return"), float)
                 and math.isfinite(r["normalized_return"])]
         inside = [r["window_mean"] for r in rs if r.get("window_mean") is not None]
@@ -210,12 +215,9 @@ def markdown(records: list[dict[str, Any]]) -> str:
     head = ("| env | demonstrations | method | seeds | env steps | normalised return, median | "
             "mean over the window, median | first >= 0.9 / 0.95 | wall time per run |")
     lines = [head, "| " + " | ".join(["---"] * 9) + " |"]
-    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
-    for r in records:
-        key = (r["env"], -(r["demos_subsample"] or 1), r["demos_episodes"], r["learner"] or "", _label(r)
-               if r["learner"] else "BC (the VAE's policy)")
-        groups.setdefault(key, []).append(r)
-    for (env, _, episodes, _, label), rs in sorted(groups.items(), key=lambda kv: repr(kv[0])):
+    for (env, _, episodes, _, label), rs in _grouped(records, lambda r: (
+            r["env"], -(r["demos_subsample"] or 1), r["demos_episodes"], r["learner"] or "",
+            _label(r) if r["learner"] else "BC (the VAE's policy)")):
         rs = sorted(rs, key=lambda r: r["seed"])
         trained = rs[0]["learner"] is not None
         every = rs[0]["demos_subsample"] or 1
