@@ -6,6 +6,8 @@ does to it, and whether its criterion ranks the oracle labels above what it find
     python benchmarks/segmentation_start.py fetch --ridges 0.01 --oracle
         also the description length (nats) of the oracle labels, of hard EM started from them and of what the
         start finds, under that ridge (`segment_init.hard_em_from`; lower is preferred by the criterion)
+    python benchmarks/segmentation_start.py four-rooms --ridges 0.003 --starts 16 --seeds 0 1
+        the same with more k-means starts, from two seeds
     python benchmarks/segmentation_start.py circle-world --curve rff --ridges 0.01 --seeds 0 1
         the K curve (K = 2 .. 8, held-out description length per step) and the K chosen, as `--codes auto`
         computes it but with this model and ridge (`segment_init.heldout_codes_curve`); `--previous-action`
@@ -61,6 +63,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--previous-action", action="store_true",
                         help="append the previous action (the first step: its own) to every observation")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--starts", type=int, default=4, help="the start's starts (`hard_em_segmentation`)")
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     args = parser.parse_args(argv)
     set_torch_threads(1)
@@ -99,16 +102,17 @@ def main(argv: list[str] | None = None) -> None:
                       + " ".join(f"{c['switches_per_episode']:.1f}" for c in curve)
                       + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
             continue
-        t0 = time.perf_counter()
-        found = hard_em_segmentation(trajs, k, discrete, seed=0, ridge=ridge)
-        line = f"{args.task} ridge {ridge}: {score(found)} ({time.perf_counter() - t0:.0f} s)"
-        if args.oracle:
-            oracle, _ = hard_em_from(trajs, labels, k, discrete, rounds=0, ridge=ridge)
-            from_oracle, seg = hard_em_from(trajs, labels, k, discrete, ridge=ridge)
-            own, _ = hard_em_from(trajs, found, k, discrete, rounds=0, ridge=ridge)
-            line += (f"; nats: oracle labels {oracle:.1f}, hard EM from them {from_oracle:.1f} ({score(seg)}), "
-                     f"found {own:.1f}")
-        print(line, flush=True)
+        for seed in args.seeds:
+            t0 = time.perf_counter()
+            found = hard_em_segmentation(trajs, k, discrete, seed=seed, ridge=ridge, starts=args.starts)
+            line = f"{args.task} ridge {ridge} seed {seed}: {score(found)} ({time.perf_counter() - t0:.0f} s)"
+            if args.oracle:
+                oracle, _ = hard_em_from(trajs, labels, k, discrete, rounds=0, ridge=ridge)
+                from_oracle, seg = hard_em_from(trajs, labels, k, discrete, ridge=ridge)
+                own, _ = hard_em_from(trajs, found, k, discrete, rounds=0, ridge=ridge)
+                line += (f"; nats: oracle labels {oracle:.1f}, hard EM from them {from_oracle:.1f} ({score(seg)}), "
+                         f"found {own:.1f}")
+            print(line, flush=True)
 
 
 if __name__ == "__main__":
