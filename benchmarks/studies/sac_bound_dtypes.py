@@ -1,0 +1,71 @@
+"""How fast could one SAC update be if it were only its matrix products, in float32 and in bfloat16?
+
+    python benchmarks/studies/sac_bound_dtypes.py [--env Hopper-v5] [--sizes 64 256 64:256] [--sb3 FILE]
+
+The products are `benchmarks/sac_speed.py`'s `update_matmuls` (both critics and targets forward, the critics'
+weight and input gradients, the policy's gradient back through the critics, the actor forward twice and
+backward), timed on one thread as `matmul_bound` times them, once with float32 and once with bfloat16 operands.
+With `--sb3` (default benchmarks/results/sac_speed.json) each bound is also divided by that file's SB3 steps per CPU
+second at the same size: the most any SAC update of these nets could gain over SB3 here. Writes
+benchmarks/results/sac_bound_dtypes.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from sac_speed import update_matmuls  # noqa: E402
+
+
+def bound(shapes: list[tuple[int, int, int]], dtype: torch.dtype, rounds: int = 20) -> float:
+    """Updates per CPU second if an update were these products alone, with operands of `dtype` (best of rounds)."""
+    mats = [(torch.randn(m, k).to(dtype), torch.randn(k, n).to(dtype)) for m, k, n in shapes]
+    best = float("inf")
+    for _ in range(rounds):
+        c0 = time.process_time()
+        for _ in range(10):
+            for a, w in mats:
+                torch.mm(a, w)
+        best = min(best, (time.process_time() - c0) / 10)
+    return 1.0 / best
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--env", default="Hopper-v5")
+    parser.add_argument("--sizes", nargs="+", default=["64", "256", "64:256"])
+    parser.add_argument("--sb3", type=Path, default=Path("benchmarks/results/sac_speed.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/sac_bound_dtypes.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    sb3 = json.loads(args.sb3.read_text()) if args.sb3.is_file() else {}
+    result: dict[str, object] = {"env": args.env, "torch": torch.__version__, "torch_threads": 1,
+                                 "cpu_capability": torch.backends.cpu.get_cpu_capability(),
+                                 "loadavg_start": os.getloadavg()[0], "sb3_from": str(args.sb3)}
+    for h in args.sizes:
+        shapes = update_matmuls(args.env, h)
+        for name, dtype in (("float32", torch.float32), ("bfloat16", torch.bfloat16)):
+            rate = bound(shapes, dtype)
+            result[f"bound_{name}_cpu_sps_{h}"] = rate
+            ref = sb3.get(f"sb3_cpu_sps_{h}")
+            if ref:
+                result[f"bound_{name}_over_sb3_{h}"] = rate / ref
+        print({k: round(v, 2) for k, v in result.items() if k.endswith(f"_{h}") and isinstance(v, float)},
+              flush=True)
+    result["loadavg_end"] = os.getloadavg()[0]
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
