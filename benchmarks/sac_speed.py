@@ -122,10 +122,10 @@ def update_matmuls(env_id: str, spec: str) -> list[tuple[int, int, int]]:
     return pi_fwd + 2 * q_fwd + critic_bwd + pi_fwd + q_fwd + to_action + pi_bwd
 
 
-def matmul_bound(shapes: list[tuple[int, int, int]], rounds: int = 20) -> float:
-    """Updates per CPU second if an update were only these float32 matrix products (one thread, best of
-    `rounds`): an upper bound of any SAC implementation's rate with these nets on this machine."""
-    mats = [(torch.randn(m, k), torch.randn(k, n)) for m, k, n in shapes]
+def matmul_bound(shapes: list[tuple[int, int, int]], rounds: int = 20, dtype: torch.dtype = torch.float32) -> float:
+    """Updates per CPU second if an update were only these matrix products with operands of `dtype` (one thread,
+    best of `rounds`): an upper bound of any SAC implementation's rate with these nets on this machine."""
+    mats = [(torch.randn(m, k).to(dtype), torch.randn(k, n).to(dtype)) for m, k, n in shapes]
     best = float("inf")
     for _ in range(rounds):
         c0 = time.process_time()

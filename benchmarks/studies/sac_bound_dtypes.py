@@ -4,7 +4,7 @@
 
 The products are `benchmarks/sac_speed.py`'s `update_matmuls` (both critics and targets forward, the critics'
 weight and input gradients, the policy's gradient back through the critics, the actor forward twice and
-backward), timed on one thread as `matmul_bound` times them, once with float32 and once with bfloat16 operands.
+backward), timed on one thread by its `matmul_bound`, once with float32 and once with bfloat16 operands.
 With `--sb3` (default benchmarks/results/sac_speed.json) each bound is also divided by that file's SB3 steps per CPU
 second at the same size: the most any SAC update of these nets could gain over SB3 here. Writes
 benchmarks/results/sac_bound_dtypes.json.
@@ -16,7 +16,6 @@ import argparse
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 import torch
@@ -24,20 +23,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from sac_speed import update_matmuls  # noqa: E402
-
-
-def bound(shapes: list[tuple[int, int, int]], dtype: torch.dtype, rounds: int = 20) -> float:
-    """Updates per CPU second if an update were these products alone, with operands of `dtype` (best of rounds)."""
-    mats = [(torch.randn(m, k).to(dtype), torch.randn(k, n).to(dtype)) for m, k, n in shapes]
-    best = float("inf")
-    for _ in range(rounds):
-        c0 = time.process_time()
-        for _ in range(10):
-            for a, w in mats:
-                torch.mm(a, w)
-        best = min(best, (time.process_time() - c0) / 10)
-    return 1.0 / best
+from sac_speed import matmul_bound, update_matmuls  # noqa: E402
 
 
 def main() -> None:
@@ -55,7 +41,7 @@ def main() -> None:
     for h in args.sizes:
         shapes = update_matmuls(args.env, h)
         for name, dtype in (("float32", torch.float32), ("bfloat16", torch.bfloat16)):
-            rate = bound(shapes, dtype)
+            rate = matmul_bound(shapes, dtype=dtype)
             result[f"bound_{name}_cpu_sps_{h}"] = rate
             ref = sb3.get(f"sb3_cpu_sps_{h}")
             if ref:
