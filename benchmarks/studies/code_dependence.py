@@ -9,7 +9,8 @@ transitions of its replay buffer (the states the policy visits late in training,
   differs from the current one (q's closed-loop choice);
 - action_spread_across_codes: per state, the standard deviation over the K codes of pi's mean action clipped to
   the env's bounds (what the env would execute), averaged over states and action dimensions;
-- policy_std: pi's own action noise (its state-independent standard deviation), to compare the spread with;
+- policy_std: pi's own action noise (its state-independent standard deviation), to compare the spread with, and
+  log_std its logarithm per action dimension;
 - mean_outside_bounds: the fraction of mean-action components beyond the bounds (the clip decides them).
 
 A spread well above the policy's own noise means the policy acts differently per code at the same state: each code's
@@ -51,7 +52,7 @@ def code_dependence(run: Path, states: int) -> dict[str, object]:
         "codes": K,
         "code_share": (torch.bincount(codes, minlength=K).float() / len(codes)).tolist(),
         "switch_rate": float((codes != next_codes).float().mean()),
-        "action_spread_across_codes": float(torch.maximum(torch.minimum(means, high), low).std(0).mean()) if K > 1
+        "action_spread_across_codes": float(means.clamp(low, high).std(0).mean()) if K > 1
         else 0.0,
         "policy_std": float(model.pi.log_std.detach().exp().mean()),
         "log_std": model.pi.log_std.detach().tolist(),
