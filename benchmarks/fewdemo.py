@@ -1,7 +1,7 @@
 """The few-demonstration benchmark's table from its run folders (benchmarks/sweeps/fewdemo.toml).
 
     python benchmarks/fewdemo.py --sweep runs/sweeps/fewdemo [--out benchmarks/results/fewdemo.json]
-    python benchmarks/fewdemo.py RUN [RUN ...] [--merge]       # any training or VAE run folders
+    python benchmarks/fewdemo.py RUN [RUN ...] [--merge [--drop OLD ...]]   # any training or VAE run folders
 
 Per run: env, method, learner, demonstration setting, seed; the environment steps done (`partial` when fewer than
 the run's budget); the normalised return of its final 100-episode evaluation (eval.json, written by `digail
@@ -251,11 +251,15 @@ def main() -> None:
     parser.add_argument("--commands", type=Path, help="a JSON file {run folder: the command that made it}")
     parser.add_argument("--merge", action="store_true",
                         help="keep the entries of --out whose run folders are not given (runs made elsewhere)")
+    parser.add_argument("--drop", nargs="*", default=[], metavar="RUN",
+                        help="with --merge, remove these entries of --out (runs that longer runs continue)")
     parser.add_argument("--window", type=float, nargs=2, default=WINDOW, metavar=("FROM", "TO"),
                         help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
     parser.add_argument("--figure", type=Path, help="draw the learning curves to this PNG")
     parser.add_argument("--markdown", type=Path, help="write the table of docs/results.md to this file")
     args = parser.parse_args()
+    if args.drop and not args.merge:
+        parser.error("--drop removes entries kept by --merge; add --merge")
     runs = list(args.runs)
     if args.sweep is not None:
         runs += sorted(p.parent for p in args.sweep.glob("*/*/config.json"))
@@ -266,6 +270,10 @@ def main() -> None:
             r["command"] = commands.get(r["run"])
     if args.merge and args.out.is_file():
         given = {r["run"] for r in records}
+        unknown = set(args.drop) - {r["run"] for r in json.loads(args.out.read_text())["runs"]}
+        if unknown:
+            parser.error(f"--drop names runs that are not in {args.out}: {sorted(unknown)}")
+        given |= set(args.drop)
         kept = [r for r in json.loads(args.out.read_text())["runs"] if r["run"] not in given]
         for r in kept:  # entries made before the window existed, or with another one
             r["window"] = list(args.window)

@@ -46,3 +46,23 @@ def test_the_markdown_table_puts_each_seed_in_its_place() -> None:
     assert rows[0].startswith("| Hopper-v5 | 4, every 20th | BC (the VAE's policy) | 1 | 0 | 0.100 |")
     assert "| GAIL + SAC | 0 / 2 | 200k / 200k | 0.500 / 0.900, **0.700** |" in rows[1]
     assert "50k / -, 50k / -" in rows[1] and rows[1].endswith("| 10 min |")
+
+
+def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 1M run continues a 430k one: the 430k entry must leave the table, not share its median."""
+    import json
+
+    from fewdemo import main
+
+    def entry(run: str) -> dict[str, object]:
+        return {"run": run, "env": "Walker2d-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "gail",
+                "learner": "sac", "seed": 0, "normalized_return": 0.5, "curve": [[1000.0, 0.5]], "partial": False}
+
+    out = tmp_path / "fewdemo.json"
+    out.write_text(json.dumps({"runs": [entry("old"), entry("kept")]}))
+    monkeypatch.setattr(sys, "argv", ["fewdemo.py", "--merge", "--drop", "old", "--out", str(out)])
+    main()
+    assert [r["run"] for r in json.loads(out.read_text())["runs"]] == ["kept"]
+    monkeypatch.setattr(sys, "argv", ["fewdemo.py", "--merge", "--drop", "missing", "--out", str(out)])
+    with pytest.raises(SystemExit):
+        main()
