@@ -269,12 +269,12 @@ def main() -> None:
         for r in records:
             r["command"] = commands.get(r["run"])
     if args.merge and args.out.is_file():
-        given = {r["run"] for r in records}
-        unknown = set(args.drop) - {r["run"] for r in json.loads(args.out.read_text())["runs"]}
+        stored = json.loads(args.out.read_text())["runs"]
+        unknown = set(args.drop) - {r["run"] for r in stored}
         if unknown:
             parser.error(f"--drop names runs that are not in {args.out}: {sorted(unknown)}")
-        given |= set(args.drop)
-        kept = [r for r in json.loads(args.out.read_text())["runs"] if r["run"] not in given]
+        given = {r["run"] for r in records} | set(args.drop)
+        kept = [r for r in stored if r["run"] not in given]
         for r in kept:  # entries made before the window existed, or with another one
             r["window"] = list(args.window)
             r["window_mean"] = window_mean([(s, v) for s, v in r.get("curve", [])], tuple(args.window))
