@@ -268,8 +268,8 @@ def main() -> None:
         commands = json.loads(args.commands.read_text())
         for r in records:
             r["command"] = commands.get(r["run"])
-    if args.merge and args.out.is_file():
-        stored = json.loads(args.out.read_text())["runs"]
+    if args.merge:
+        stored = json.loads(args.out.read_text())["runs"] if args.out.is_file() else []
         unknown = set(args.drop) - {r["run"] for r in stored}
         if unknown:
             parser.error(f"--drop names runs that are not in {args.out}: {sorted(unknown)}")

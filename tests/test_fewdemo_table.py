@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -50,8 +51,6 @@ def test_the_markdown_table_puts_each_seed_in_its_place() -> None:
 
 def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A 1M run continues a 430k one: the 430k entry must leave the table, not share its median."""
-    import json
-
     from fewdemo import main
 
     def entry(run: str) -> dict[str, object]:
