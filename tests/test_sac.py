@@ -532,3 +532,49 @@ def test_a_fresh_policy_keeps_the_vaes_q(init_from_vae):
         assert same_pi == init_from_vae
     finally:
         trainer.close()
+
+
+@pytest.mark.parametrize("learner", ["sac", "ppo"])
+@pytest.mark.parametrize("zero", [True, False])
+def test_zero_code_weights_start_every_code_alike(learner, zero):
+    """`--train.zero-code-weights` makes the fresh policy, V and both critics (and their targets) give the same
+    outputs under every code at the start, and only their code inputs' weights differ from the default start."""
+    import copy
+
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.nets.vae import HierarchicalPolicy
+
+    torch.manual_seed(3)
+    vae = HierarchicalPolicy(3, 3, ActionSpec(False, 1), (32, 32))
+
+    def built(zero_code_weights: bool):
+        cfg = TrainConfig(method="digail", learner=learner, hidden=(32, 32), backend="sync", replay_fraction=0.0,
+                          init_from_vae=False, zero_code_weights=zero_code_weights, sac=SACConfig(hidden=(32, 32)))
+        return build_trainer("Pendulum-v1", _pendulum_demos(), cfg, vae_model=copy.deepcopy(vae), seed=0,
+                             run_dir=None, progress=False)
+
+    trainer, default = built(zero), built(False)
+    try:
+        obs, act = torch.randn(5, 3), torch.randn(5, 1)
+        codes = [torch.eye(3)[c].expand(5, 3) for c in range(3)]
+        outs = {"pi": [trainer.model.pi.mode(obs, c) for c in codes],
+                "V": [trainer.value(obs, c) for c in codes]}
+        if learner == "sac":
+            learner_ = trainer.offpolicy.learner
+            for name, net in (("Q", learner_.critic), ("Q target", learner_.critic_target)):
+                outs[name] = [net(torch.cat([obs, c, act], -1)) for c in codes]
+        for name, per_code in outs.items():
+            alike = all(torch.equal(per_code[0], o) for o in per_code[1:])
+            assert alike == zero, name
+        # the same draw as the default apart from the code columns (weights and biases listed in one order)
+        nets = [(trainer.model.pi, default.model.pi), (trainer.value, default.value)]
+        for net, ref in nets:
+            first_w = [k for k in net.state_dict() if k.endswith("weight")][0]
+            for k, v in net.state_dict().items():
+                if k == first_w:
+                    assert torch.equal(v[:, :-3], ref.state_dict()[k][:, :-3])
+                else:
+                    assert torch.equal(v, ref.state_dict()[k]), k
+    finally:
+        trainer.close()
+        default.close()

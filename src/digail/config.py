@@ -418,6 +418,10 @@ class TrainConfig:
     trained to tiny noise makes PPO's probability ratios explode on the first update"""
     init_from_vae: bool = True
     """initialise the sub-task policy from the VAE decoder"""
+    zero_code_weights: bool = False
+    """start the networks trained from scratch that read the code (the policy when not taken from the VAE, PPO's
+    value net, SAC's critics) with zero weights on the code's one-hot inputs: they begin as one code-free network
+    and learn how each code differs from its gradient (a policy from the VAE keeps the decoder's weights)"""
     hidden: tuple[int, ...] = (64, 64)
     """hidden layer sizes of policy, value and discriminator"""
     checkpoint_every: int = 25

@@ -98,6 +98,8 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
             fresh = HierarchicalPolicy(model.obs_dim, model.codes, model.action, cfg.hidden,
                                        decoder_obs=model.decoder_obs)
             model.pi.load_state_dict(fresh.pi.state_dict())
+            if cfg.zero_code_weights:
+                model.pi.zero_code_weights()
         return DirectedInfoGAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device,
                                 progress=progress, reward_fn=reward_fn)
     obs_dim = int(np.asarray(demos[0].obs).reshape(len(demos[0].obs), -1).shape[1])
@@ -107,6 +109,8 @@ def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae
     action = ActionSpec.from_space(probe.action_space)
     probe.close()
     model = HierarchicalPolicy(obs_dim, 1, action, cfg.hidden)
+    if cfg.zero_code_weights:
+        model.pi.zero_code_weights()
     model.normalizer.fit(np.concatenate([np.asarray(t.obs) for t in demos]))
     return GAIL(env_id, demos, model, cfg, seed=seed, run_dir=run_dir, device=device, progress=progress,
                 reward_fn=reward_fn)

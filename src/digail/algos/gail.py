@@ -100,6 +100,8 @@ class GAIL:
         act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
 
         self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
+        if cfg.zero_code_weights:
+            self.value.zero_code_weights()
         self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
         self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.effective_policy_lr},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)

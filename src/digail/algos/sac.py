@@ -88,17 +88,20 @@ class SACLearner:
         bc: optional () -> BC loss on expert pairs and its weight, added to the policy's loss (the +L2 methods).
         bounds: the (low, high) action bounds when `to_env` is the clip to them: the update then runs the
             hand-written gradients of `digail.algos.fast.sac_grad` (without a BC term), else autograd.
+        zero_code_weights: start the critics with zero weights on the code inputs (`TrainConfig.zero_code_weights`).
     """
 
     def __init__(self, pi: SubtaskPolicy, obs_dim: int, codes: int, cfg: SACConfig,
                  to_env: Callable[[torch.Tensor], torch.Tensor], device: torch.device,
                  bc: tuple[Callable[[], torch.Tensor], float] | None = None,
-                 bounds: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 bounds: tuple[np.ndarray, np.ndarray] | None = None, zero_code_weights: bool = False) -> None:
         if pi.action.discrete:
             raise UserError("--train.learner sac needs continuous actions; use --train.learner ppo for this env.")
         self.pi, self.cfg, self.to_env, self.bc = pi, cfg, to_env, bc
         self.act_dim = pi.action.dim
         self.critic = TwinQ(obs_dim, codes, self.act_dim, cfg.hidden).to(device)
+        if zero_code_weights:
+            self.critic.zero_code_weights()
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.log_alpha = torch.tensor(math.log(cfg.init_alpha), device=device, requires_grad=cfg.learn_alpha)
         self.target_entropy = -float(self.act_dim) if cfg.target_entropy is None else cfg.target_entropy
@@ -292,7 +295,8 @@ class OffPolicyLoop:
         space: Any = t.envs.probe.action_space
         clip = getattr(t.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
         bounds = (space.low, space.high) if clip else None
-        self.learner = SACLearner(pi, obs_dim, t.K, self.cfg, t._to_env_actions, t.device, bc=bc, bounds=bounds)
+        self.learner = SACLearner(pi, obs_dim, t.K, self.cfg, t._to_env_actions, t.device, bc=bc, bounds=bounds,
+                                  zero_code_weights=t.cfg.zero_code_weights)
         self.flag = 1 if self.cfg.absorbing else 0
         if self.cfg.absorbing:  # D sees [obs, absorbing flag, action]
             t.disc = Discriminator(obs_dim + 1, act_dim, t.cfg.hidden).to(t.device)

@@ -16,6 +16,14 @@ class ValueNet(nn.Module):
     def __init__(self, obs_dim: int, codes: int, hidden: Sequence[int] = (64, 64)) -> None:
         super().__init__()
         self.net = mlp(obs_dim + codes, 1, hidden)
+        self.codes = codes
+
+    def zero_code_weights(self) -> None:
+        """Zero the first layer's weights on the code inputs: V starts the same under every code."""
+        first = self.net[0]
+        assert isinstance(first, nn.Linear)
+        with torch.no_grad():
+            first.weight[:, first.in_features - self.codes:] = 0.0
 
     def forward(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([obs_n, code_1h], -1)).squeeze(-1)

@@ -64,6 +64,13 @@ class SubtaskPolicy(nn.Module):
         if not action.discrete:
             self.log_std = nn.Parameter(torch.full((action.dim,), init_log_std))
 
+    def zero_code_weights(self) -> None:
+        """Zero the first layer's weights on the code inputs: the policy acts the same under every code."""
+        first = self.net[0]
+        assert isinstance(first, nn.Linear)
+        with torch.no_grad():
+            first.weight[:, first.in_features - self.codes:] = 0.0
+
     def inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """The net's input for normalised observations and codes (the seen slice, then the code)."""
         if self.decoder_obs is not None:
