@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from digail.nets.mlp import mlp
+from digail.nets.mlp import mlp, zero_last_inputs
 
 
 class ValueNet(nn.Module):
@@ -20,10 +20,7 @@ class ValueNet(nn.Module):
 
     def zero_code_weights(self) -> None:
         """Zero the first layer's weights on the code inputs: V starts the same under every code."""
-        first = self.net[0]
-        assert isinstance(first, nn.Linear)
-        with torch.no_grad():
-            first.weight[:, first.in_features - self.codes:] = 0.0
+        zero_last_inputs(self.net, self.codes)
 
     def forward(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([obs_n, code_1h], -1)).squeeze(-1)

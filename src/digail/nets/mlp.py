@@ -25,6 +25,14 @@ def _init(layer: nn.Linear, gain: float) -> nn.Linear:
     return layer
 
 
+def zero_last_inputs(seq: nn.Sequential, n: int) -> None:
+    """Zero the first layer's weights on the last `n` inputs of an `mlp`: its output stops depending on them."""
+    first = seq[0]
+    assert isinstance(first, nn.Linear)
+    with torch.no_grad():
+        first.weight[:, first.in_features - n:] = 0.0
+
+
 def one_hot(codes: torch.Tensor, k: int) -> torch.Tensor:
     """Float one-hot of integer `codes`; a code of -1 (the start input) gives the zero vector."""
     out = torch.zeros(*codes.shape, k, device=codes.device)

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Independent, Normal
 
-from digail.nets.mlp import mlp
+from digail.nets.mlp import mlp, zero_last_inputs
 
 LOG_STD_BOUNDS = (-5.0, 2.0)
 """the Gaussian policy's log-std is clamped to this range wherever it is used (std 0.0067 .. 7.4); the
@@ -66,10 +66,7 @@ class SubtaskPolicy(nn.Module):
 
     def zero_code_weights(self) -> None:
         """Zero the first layer's weights on the code inputs: the policy acts the same under every code."""
-        first = self.net[0]
-        assert isinstance(first, nn.Linear)
-        with torch.no_grad():
-            first.weight[:, first.in_features - self.codes:] = 0.0
+        zero_last_inputs(self.net, self.codes)
 
     def inputs(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         """The net's input for normalised observations and codes (the seen slice, then the code)."""
