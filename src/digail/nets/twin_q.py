@@ -29,14 +29,13 @@ class TwinQ(nn.Module):
         self.biases = nn.ParameterList(
             nn.Parameter(torch.stack([ls[i].bias.detach()[None] for ls in layers]).contiguous())
             for i in range(len(layers[0])))
-
-        self.code_inputs = (obs_dim, obs_dim + codes)
-        """the input rows [start, stop) that carry the one-hot code"""
+        self.code_inputs = slice(obs_dim, obs_dim + codes)
+        """the input rows that carry the one-hot code"""
 
     def zero_code_weights(self) -> None:
         """Zero both critics' first-layer weights on the code inputs: Q starts the same under every code."""
         with torch.no_grad():
-            self.weights[0][:, self.code_inputs[0]:self.code_inputs[1]] = 0.0
+            self.weights[0][:, self.code_inputs] = 0.0
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Both critics' values (2, B) for ready inputs x (B, in) = [obs_n, one-hot code, action]."""
