@@ -243,6 +243,40 @@ def markdown(records: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+SUMMARY_COLUMNS = [(None, None, "BC (the VAE's policy)"), ("gail", "ppo", "GAIL + PPO"),
+                   ("digail", "ppo", "Directed-Info GAIL + PPO"), ("gail", "sac", "GAIL + SAC"),
+                   ("digail", "sac", "Directed-Info GAIL + SAC")]
+
+
+def summary(records: list[dict[str, Any]], budget: float = 1e6) -> str:
+    """The README's table: one row per (env, demonstration setting), one column per method and learner, each cell
+    the median over seeds of the final normalised return, with the env steps where the runs stopped short of the
+    budget. Where a method was run from more than one start, the start with the most seeds stands for it."""
+    names = " | ".join(c[2] for c in SUMMARY_COLUMNS)
+    head = f"| env | demonstrations | {names} | target, Directed-Info GAIL + SAC |"
+    lines = [head, "| " + " | ".join(["---"] * (len(SUMMARY_COLUMNS) + 3)) + " |"]
+    for (env, _, episodes), mine in _grouped(records, lambda r: (
+            r["env"], -(r["demos_subsample"] or 1), r["demos_episodes"])):
+        every = mine[0]["demos_subsample"] or 1
+        cells = [env, f"{episodes}, every {every}th" if every > 1 else f"{episodes}, full"]
+        for method, learner, _ in SUMMARY_COLUMNS:
+            column = [r for r in mine if r["learner"] == learner and (learner is None or r["method"] == method)]
+            starts = _grouped(column, lambda r: (r.get("policy_init"), r.get("bc_weight")))
+            if not starts:
+                cells.append("")
+                continue
+            rs = max((rs for _, rs in starts), key=len)
+            vals = [r["normalized_return"] for r in rs if r.get("normalized_return") is not None]
+            cell = f"{float(np.median(vals)):.3f}" if vals else ""
+            steps = max(r["env_steps"] for r in rs)
+            if learner is not None and steps < 0.99 * budget:
+                cell += f" by {_k(steps)}"
+            cells.append(cell)
+        cells.append(">= 0.95" if every > 1 else ">= 0.9")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="*", type=Path)
@@ -257,6 +291,7 @@ def main() -> None:
                         help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
     parser.add_argument("--figure", type=Path, help="draw the learning curves to this PNG")
     parser.add_argument("--markdown", type=Path, help="write the table of docs/results.md to this file")
+    parser.add_argument("--summary", type=Path, help="write the README's table (medians only) to this file")
     args = parser.parse_args()
     if args.drop and not args.merge:
         parser.error("--drop removes entries kept by --merge; add --merge")
@@ -288,6 +323,9 @@ def main() -> None:
     if args.markdown is not None:
         args.markdown.write_text(markdown(records))
         print(f"wrote {args.markdown}")
+    if args.summary is not None:
+        args.summary.write_text(summary(records))
+        print(f"wrote {args.summary}")
     if args.figure is not None:
         draw_curves(records, args.figure)
         print(f"drew {args.figure}")

@@ -65,3 +65,28 @@ def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypa
     monkeypatch.setattr(sys, "argv", ["fewdemo.py", "--merge", "--drop", "missing", "--out", str(out)])
     with pytest.raises(SystemExit):
         main()
+
+
+def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stopped() -> None:
+    from fewdemo import summary
+
+    def run(seed: int, final: float, init: str | None, steps: float) -> dict[str, object]:
+        return {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "digail", "learner": "sac",
+                "policy_init": init, "seed": seed, "normalized_return": final, "env_steps": steps}
+
+    bc = {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "bc (vae)", "learner": None,
+          "seed": 0, "normalized_return": 0.1, "env_steps": 0.0}
+    records = [bc, run(0, 0.2, "vae", 1e5), run(0, 0.9, None, 2e5), run(1, 1.0, None, 2.2e5), run(2, 0.7, None, 1e6)]
+    (row,) = [line for line in summary(records).splitlines() if line.startswith("| Hopper")]
+    assert row == "| Hopper-v5 | 4, every 20th | 0.100 |  |  |  | 0.900 | >= 0.95 |"
+    records[-1]["env_steps"] = 2.1e5
+    assert "| 0.900 by 220k |" in summary(records)
+
+
+def test_the_readme_table_is_the_stored_results_summary() -> None:
+    """The README's few-demonstration table is `fewdemo.py --summary` of benchmarks/results/fewdemo.json."""
+    from fewdemo import summary
+
+    root = Path(__file__).resolve().parents[1]
+    runs = json.loads((root / "benchmarks/results/fewdemo.json").read_text())["runs"]
+    assert summary(runs) in (root / "README.md").read_text()
