@@ -143,7 +143,7 @@ def test_exported_sac_actor_matches_sb3_deterministic_actions(tmp_path: Path) ->
 
 
 def test_ppo_experts_act_as_before_sac_export() -> None:
-    """The PPO experts shipped before SAC (format digail-expert-v1, no "squash" key) act exactly as they did."""
+    """The PPO experts shipped before SAC (format digail-expert-v1, no "squash" key) act as they did."""
     reference = json.loads(PPO_REFERENCE.read_text())["experts"]
     assert set(reference) == {"InvertedPendulum-v5", "Hopper-v5", "Walker2d-v5"}
     for env_id, ref in reference.items():
@@ -152,7 +152,9 @@ def test_ppo_experts_act_as_before_sac_export() -> None:
         actor, _ = load_expert_actor(env_id)
         assert not actor.squash
         actions = load_expert(env_id)(np.asarray(ref["obs"], dtype=np.float32))
-        np.testing.assert_array_equal(actions, np.asarray(ref["actions"], dtype=np.float32))
+        # Exact up to float32 rounding: CPUs of another make (AMD against Intel) differ in the last bit of a
+        # matrix product, while any change of weights, normalisation or squashing moves actions by far more.
+        np.testing.assert_allclose(actions, np.asarray(ref["actions"], dtype=np.float32), rtol=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
