@@ -67,6 +67,26 @@ def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypa
         main()
 
 
+def test_merge_puts_a_rerun_in_its_place_and_leaves_the_other_entries_alone(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A rerun replaces its entry where it stood; kept entries keep their stored window means, made from full curves."""
+    import fewdemo
+
+    def entry(run: str, final: float) -> dict[str, object]:
+        return {"run": run, "env": "Walker2d-v5", "demos_episodes": 1, "demos_subsample": 1, "method": "gail",
+                "learner": "sac", "seed": 0, "normalized_return": final, "curve": [[150000.0, 0.5]],
+                "partial": False, "window": list(fewdemo.WINDOW), "window_mean": 0.123456789}
+
+    out = tmp_path / "fewdemo.json"
+    out.write_text(json.dumps({"runs": [entry("a", 0.1), entry("b", 0.2), entry("c", 0.3)]}))
+    monkeypatch.setattr(fewdemo, "summarise_run", lambda path, window: entry(str(path), 0.9))
+    monkeypatch.setattr(sys, "argv", ["fewdemo.py", "b", "--merge", "--out", str(out)])
+    fewdemo.main()
+    runs = json.loads(out.read_text())["runs"]
+    assert [(r["run"], r["normalized_return"]) for r in runs] == [("a", 0.1), ("b", 0.9), ("c", 0.3)]
+    assert runs[0]["window_mean"] == 0.123456789
+
+
 def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stopped() -> None:
     from fewdemo import summary
 
