@@ -308,14 +308,13 @@ def main() -> None:
         unknown = set(args.drop) - {r["run"] for r in stored}
         if unknown:
             parser.error(f"--drop names runs that are not in {args.out}: {sorted(unknown)}")
-        for r in stored:  # entries made before the window existed, or with another one
+        # A rerun takes its stored entry's place, so the file's order (and its diff) stays put.
+        fresh = {r["run"]: r for r in records}
+        records = [fresh.pop(r["run"], r) for r in stored if r["run"] not in args.drop] + list(fresh.values())
+        for r in records:  # entries made before the window existed, or with another one
             if r.get("window") != list(args.window):
                 r["window"] = list(args.window)
                 r["window_mean"] = window_mean([(s, v) for s, v in r.get("curve", [])], tuple(args.window))
-        # A rerun takes its stored entry's place, so the file's order (and its diff) stays put.
-        fresh = {r["run"]: r for r in records}
-        merged = [fresh.pop(r["run"], r) for r in stored if r["run"] not in args.drop]
-        records = merged + list(fresh.values())
     result = {"partial": any(r.get("partial") for r in records), "runs": records, "table": table(records),
               "references": REFERENCES}
     args.out.parent.mkdir(parents=True, exist_ok=True)
