@@ -262,8 +262,11 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
                                else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
-    if cfg.init == "em" and cfg.codes > 1:
-        first = _start(trajs, cfg, action_spec.discrete, seed, pieces)
+    if cfg.init == "em":
+        # one code has one segmentation (every step is code 0): the start is then plain behaviour cloning, which
+        # the flat baselines need (the same decoder, data and steps as the K > 1 VAE, no codes to find)
+        first = (_start(trajs, cfg, action_spec.discrete, seed, pieces) if cfg.codes > 1
+                 else [np.zeros(len(t.acts), np.int64) for t in trajs])
         fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
         model.train()
     data = pad_demos(trajs, model, dev)
