@@ -495,3 +495,22 @@ def test_polish_with_anticipation_switches_one_state_earlier() -> None:
     assert [c.tolist() for c in segment_many(polished[0], trajs)] == [c.tolist() for c in codes]
     assert [c.tolist() for c in segment_many(polished[1], trajs)] == \
         [anticipate_switches(c, 1).tolist() for c in codes]
+
+
+def test_one_code_pretraining_is_behaviour_cloning() -> None:
+    """With K = 1 the hard-EM start is one segment, so the decoder is fitted to the demonstrations (the flat
+    baselines' behaviour-cloned start); it used to be left at its random initial weights."""
+    # the clockwise half of each loop: there the action is a function of the state, which a flat policy can learn
+    trajs = [Trajectory(t.obs[:11], t.acts[:10], None, None, False) for t in two_phase_demos(n=8)]
+    cfg = VAEConfig(codes=1, epochs=None, steps=0, init="em", init_steps=300)
+    model, _ = pretrain(trajs, cfg, seed=0, progress=False)
+    fresh = HierarchicalPolicy(2, 1, ActionSpec(False, 2), cfg.hidden)
+    obs = torch.as_tensor(np.concatenate([t.obs[:-1] for t in trajs]))
+    acts = torch.as_tensor(np.concatenate([t.acts for t in trajs]))
+    code = torch.ones(len(obs), 1)
+
+    def mse(m: HierarchicalPolicy) -> float:
+        with torch.no_grad():
+            return float(((m.pi.mode(m.normalizer(obs), code) - acts) ** 2).mean())
+
+    assert mse(model) < 0.2 * mse(fresh), (mse(model), mse(fresh))
