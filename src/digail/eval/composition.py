@@ -1,8 +1,15 @@
-"""Composition: run the learned sub-task policies under a code schedule instead of the macro-policy.
+"""Composition: run the learned sub-task policies in an order of the user's instead of the macro-policy's.
 
-The paper's reversed-circles experiment: on Circle-World, schedule "1:60,0:60" asks for code 1's policy first and
-code 0's second. Which code learned which circle is arbitrary (`mapping` in the run's segmentation.json); with code
-1 the counter-clockwise one, this is the order never demonstrated. `digail run` translates for you.
+Two ways to say the order:
+
+- open loop, a code schedule (`parse_schedule`, `compose`): code:steps pairs, so the user gives every sub-task's
+  duration. The paper's reversed-circles experiment: on Circle-World, schedule "1:60,0:60" asks for code 1's
+  policy first and code 0's second. Which code learned which circle is arbitrary (`mapping` in the run's
+  segmentation.json); with code 1 the counter-clockwise one, this is the order never demonstrated. `digail run`
+  translates for you.
+- closed loop, a code order (`parse_order`, `compose_order`): codes only; each sub-task policy runs until the
+  macro-policy q says its sub-task is over, then the next code of the order takes over (`OrderSwitch` states the
+  rule). No durations to guess, but q can only end a sub-task the way the demonstrations ended it.
 """
 
 from __future__ import annotations
@@ -12,8 +19,14 @@ import itertools
 from collections.abc import Sequence
 from typing import Any, overload
 
+import numpy as np
+import torch
+
+from digail.envs.episodes import BatchAct, Episode, play_batch
 from digail.errors import UserError
 from digail.eval.returns import run_episodes, summarize
+from digail.nets.mlp import one_hot
+from digail.nets.vae import HierarchicalPolicy
 
 MAX_SCHEDULE_STEPS = 1_000_000
 """bound on a schedule's total steps when the environment has no time limit"""
@@ -116,3 +129,205 @@ def schedule_in_codes(pairs: tuple[tuple[int, int], ...], mapping: dict[str, int
             {lb for lb, _ in pairs}):
         return None
     return ",".join(f"{by_label[label]}:{steps}" for label, steps in pairs)
+
+
+# ------------------------------------------------------------------------------------------ closed loop
+DEFAULT_HOLD = 1
+"""steps in a row q must say "switch away" before the next code of an order takes over (see `OrderSwitch`)"""
+
+
+def parse_order(text: str, codes: int) -> list[int]:
+    """'2,0,1' -> [2, 0, 1]: the codes a closed-loop composition runs, in turn.
+
+    Raises:
+        UserError: one sentence naming what is wrong: nothing given, something that is not a code number, a code
+            the policy does not have, or one code twice in a row (its sub-task would end the moment it began).
+    """
+    parts = [p.strip() for p in str(text).split(",")]
+    if not any(parts):
+        raise UserError(f"the order is empty; write the codes to run, in turn, such as '1,0' (codes 0 to "
+                        f"{codes - 1}).")
+    if not all(p.isascii() and p.isdigit() for p in parts):
+        raise UserError(f"cannot read the order {text[:60]!r}{'...' if len(text) > 60 else ''}; write code numbers "
+                        f"separated by commas, such as '1,0' (codes 0 to {codes - 1}).")
+    for p in parts:
+        if len(p) > 12 or not int(p) < codes:
+            raise UserError(f"the order uses code {p[:12]}{'...' if len(p) > 12 else ''} but the policy has "
+                            f"{codes} code{'s' if codes != 1 else ''} (0 to {codes - 1}).")
+    order = [int(p) for p in parts]
+    for a, b in itertools.pairwise(order):
+        if a == b:
+            raise UserError(f"the order runs code {a} twice in a row; write it once (its policy runs until the "
+                            "macro-policy says its sub-task is over).")
+    return order
+
+
+class OrderSwitch:
+    """The closed-loop switching rule of one episode under a code order.
+
+    The current code is `order[i]`, which took over at step `t_i` (0 for the first). At every later step t of its
+    turn the macro-policy is asked what comes next as if that code had been running:
+    `k_t = argmax q(. | s_t, c_{t-1} = order[i])`. When `k_t != order[i]` for `hold` steps in a row, the sub-task
+    is over: `order[i + 1]` runs from that step on (step t's action already comes from it) and t is noted in
+    `switch_steps`. Which code q would switch *to* is ignored; only that it leaves the current one counts, since
+    the user's order, not q, says what comes next.
+
+    The step a code takes over is never asked: its state is where the previous sub-task (or the episode) ended,
+    which q may rightly read as an end (on Circle-World the origin ends the clockwise circle and starts it too).
+
+    A code in `lengths` is a code whose end q never saw (the demonstrations leave it only by ending the episode):
+    it runs `lengths[code]` steps instead, its demonstrated length (`demonstrated_lengths`). The last code of the
+    order runs until the episode ends; where q says it is over too, the step is noted in `last_over_step`.
+    """
+
+    def __init__(self, order: Sequence[int], hold: int = DEFAULT_HOLD, lengths: dict[int, int] | None = None
+                 ) -> None:
+        if not order or hold < 1:
+            raise ValueError(f"OrderSwitch needs a non-empty order and hold >= 1, got {list(order)} and {hold}.")
+        self.order = [int(c) for c in order]
+        self.hold = int(hold)
+        self.lengths = {int(c): int(n) for c, n in (lengths or {}).items()}
+        self.index = 0
+        self.started = 0
+        self.streak = 0
+        self.switch_steps: list[int] = []
+        """steps at which the next code of the order took over (one fewer than the order's codes when it ran
+        to the end)"""
+        self.switch_by: list[str] = []
+        """per switch, what ended the sub-task: "q" or "length" (a code in `lengths`)"""
+        self.last_over_step: int | None = None
+        """first step at which q said the order's last sub-task was over (None: never)"""
+
+    @property
+    def current(self) -> int:
+        """the code that runs now"""
+        return self.order[self.index]
+
+    @property
+    def completed(self) -> bool:
+        """whether every code of the order took its turn"""
+        return self.index == len(self.order) - 1
+
+    def step(self, t: int, q_next: int) -> int:
+        """The code of step t, given `q_next = argmax q(. | s_t, c_{t-1} = self.current)`."""
+        if t <= self.started:  # a code's first step is never asked (see the class docstring)
+            return self.current
+        by = ""
+        if self.current in self.lengths and not self.completed:
+            by = "length" if t - self.started >= self.lengths[self.current] else ""
+        else:
+            self.streak = self.streak + 1 if int(q_next) != self.current else 0
+            by = "q" if self.streak >= self.hold else ""
+        if by:
+            self.streak = 0
+            if not self.completed:
+                self.index += 1
+                self.started = int(t)
+                self.switch_steps.append(int(t))
+                self.switch_by.append(by)
+            elif self.last_over_step is None:
+                self.last_over_step = int(t)
+        return self.current
+
+
+def demonstrated_lengths(codes: Sequence[np.ndarray]) -> dict[int, int]:
+    """The codes whose end q never saw, each with its demonstrated length.
+
+    From the causal codes of the demonstrations (one array per demonstration): a code that every one of its
+    segments keeps until the demonstration ends (q never switched away from it) maps to the median length of its
+    segments, rounded; codes q did leave somewhere are not listed. Such a code is typically the last sub-task of
+    every demonstration (Circle-World's counter-clockwise circle): q can say when it starts, never when it is over.
+    """
+    ends: dict[int, list[bool]] = {}
+    spans: dict[int, list[int]] = {}
+    for seq in codes:
+        seq = np.asarray(seq).reshape(-1)
+        if not len(seq):
+            continue
+        cuts = np.flatnonzero(np.diff(seq)) + 1
+        starts, stops = np.r_[0, cuts], np.r_[cuts, len(seq)]
+        for a, b in zip(starts, stops, strict=True):
+            ends.setdefault(int(seq[a]), []).append(bool(b < len(seq)))
+            spans.setdefault(int(seq[a]), []).append(int(b - a))
+    return {c: int(round(float(np.median(spans[c])))) for c in sorted(ends) if not any(ends[c])}
+
+
+def order_act(model: HierarchicalPolicy, order: Sequence[int], to_env: Any, hold: int = DEFAULT_HOLD,
+              lengths: dict[int, int] | None = None, deterministic: bool = True) -> tuple[BatchAct, dict[int, tuple[Episode, OrderSwitch]]]:
+    """The model under a closed-loop code order, as a policy for `play_batch`: each episode's codes come from its
+    `OrderSwitch` (q, batched over the envs), the actions from pi (its mode when `deterministic`).
+
+    Returns:
+        The policy and the table it fills: id(episode) -> (episode, its switch), the episode kept so that its id
+        stays unique while the table lives.
+    """
+    model.eval()
+    device = next(model.parameters()).device
+    K = model.codes
+    eye = torch.eye(K, device=device)
+    switches: dict[int, tuple[Episode, OrderSwitch]] = {}
+
+    @torch.no_grad()
+    def act(envs: list[Any], obs: list[Any], eps: list[Episode]) -> Any:
+        obs_n = model.normalizer(torch.as_tensor(np.stack([np.asarray(o, np.float32) for o in obs]), device=device))
+        rules = [switches.setdefault(id(e), (e, OrderSwitch(order, hold, lengths)))[1] for e in eps]
+        current = torch.as_tensor([r.current for r in rules], device=device)
+        q_next = model.q(obs_n, one_hot(current, K)).argmax(-1).tolist()
+        codes = [r.step(e.length, k) for r, e, k in zip(rules, eps, q_next, strict=True)]
+        for e, c in zip(eps, codes, strict=True):
+            e.codes.append(c)
+        code_1h = eye[torch.as_tensor(codes, device=device)]
+        acts = model.pi.mode(obs_n, code_1h) if deterministic else model.pi.dist(obs_n, code_1h).sample()
+        acts_np = acts.cpu().numpy()
+        return to_env(acts_np) if to_env is not None else acts_np
+
+    return act, switches
+
+
+def play_order(model: HierarchicalPolicy, envs: Sequence[Any], order: Sequence[int], episodes: int, seed: int,
+               hold: int = DEFAULT_HOLD, lengths: dict[int, int] | None = None, keep_obs: int = 8
+               ) -> tuple[list[Episode], list[OrderSwitch]]:
+    """`episodes` deterministic episodes (episode e reset with seed + e) on `envs` under the closed-loop `order`;
+    returns the episodes and, in the same order, their switches."""
+    from digail.envs.actions import env_action_fn
+
+    act, table = order_act(model, order, env_action_fn(envs[0]), hold, lengths)
+    eps = play_batch(list(envs), act, episodes, seed, keep=keep_obs)
+    return eps, [table[id(e)][1] for e in eps]
+
+
+def order_summary(switches: Sequence[OrderSwitch]) -> dict[str, Any]:
+    """What compose.json records of a closed-loop order: the rule, the switch steps of every episode (and what
+    made each), the share of episodes whose order ran to its last code, and when q said the last sub-task was
+    over."""
+    first = switches[0] if switches else OrderSwitch([0])
+    done = [s for s in switches if s.completed]
+    per_switch = [float(np.mean([s.switch_steps[i] for s in done])) for i in range(len(first.order) - 1)] \
+        if done else []
+    return {"order": first.order, "hold": first.hold,
+            "rule": f"next code once argmax q(. | s_t, c_(t-1) = current code) differs from it {first.hold} "
+                    "step(s) in a row, from a code's second step on",
+            "demonstrated_lengths": {str(c): n for c, n in first.lengths.items()},
+            "order_completed_rate": float(np.mean([s.completed for s in switches])) if switches else 0.0,
+            "mean_switch_steps": per_switch,
+            "switch_steps": [s.switch_steps for s in switches],
+            "switch_by": [s.switch_by for s in switches],
+            "last_over_steps": [s.last_over_step for s in switches]}
+
+
+def compose_order(model: HierarchicalPolicy, env_id: str, order: Sequence[int], episodes: int, seed: int,
+                  hold: int = DEFAULT_HOLD, lengths: dict[int, int] | None = None, keep_obs: int = 8,
+                  num_envs: int = 8) -> tuple[dict[str, Any], list[Episode]]:
+    """Roll out under the closed-loop code `order` (see `OrderSwitch`); returns the summary (the env's task
+    metrics and `order_summary`) and the episodes (the first `keep_obs` keep observations)."""
+    from digail.envs import make_env
+
+    envs = [make_env(env_id) for _ in range(max(min(num_envs, episodes), 1))]
+    try:
+        eps, switches = play_order(model, envs, order, episodes, seed, hold, lengths, keep_obs)
+    finally:
+        for env in envs:
+            env.close()
+    out = summarize(eps, env_id)
+    out.update(env_id=env_id, seed=seed, **order_summary(switches))
+    return out, eps

@@ -222,14 +222,21 @@ def segmentation_pair(obs: Sequence[np.ndarray], codes_a: Sequence[np.ndarray], 
     return _save(fig, path)
 
 
-def planar_trajectories(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, title: str = "") -> Path:
-    """Paths in the plane coloured by code (left) and by time (right). Size 10 x 4.6 inches."""
+def planar_trajectories(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, title: str = "",
+                        switches: Sequence[Sequence[int]] | None = None) -> Path:
+    """Paths in the plane coloured by code (left) and by time (right); `switches[i]` (steps of episode i at which
+    a new code took over) drawn as black crosses on both. Size 10 x 4.6 inches."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4.6))
     _planar(ax1, episodes)
-    ax1.set_title("coloured by code", fontsize=9)
+    ax1.set_title("coloured by code" + (", x: switches" if switches else ""), fontsize=9)
     _code_legend(ax1, [int(c) for _, codes in episodes for c in np.unique(codes)])
     mappable = _planar(ax2, episodes, by="time")
     ax2.set_title("coloured by time", fontsize=9)
+    for (obs, _), steps in zip(episodes, switches or [], strict=False):
+        xy = np.asarray(obs, np.float64).reshape(len(obs), -1)[:, :2]
+        at = [t for t in steps if 0 <= t < len(xy)]
+        for ax in (ax1, ax2):
+            ax.plot(xy[at, 0], xy[at, 1], "kx", ms=8, mew=1.6)
     if mappable is not None:
         fig.colorbar(mappable, ax=ax2, label="step")
     fig.suptitle(title, fontsize=10)
@@ -249,8 +256,10 @@ def _strips(ax: Any, codes: Sequence[np.ndarray], names: Sequence[str]) -> None:
     ax.set_xlabel("step")
 
 
-def code_strips(groups: Mapping[str, Sequence[np.ndarray]], path: Path, episodes: int = 8) -> Path:
-    """Codes against time, one strip per episode, one panel per group (e.g. demonstrations, rollouts).
+def code_strips(groups: Mapping[str, Sequence[np.ndarray]], path: Path, episodes: int = 8,
+                switches: Mapping[str, Sequence[Sequence[int]]] | None = None) -> Path:
+    """Codes against time, one strip per episode, one panel per group (e.g. demonstrations, rollouts);
+    `switches[group][i]` (steps at which a new code took over in episode i) drawn as black ticks.
     Size 9 x (1 + 0.3 rows) inches, rows counted over all panels."""
     rows = sum(min(episodes, len(v)) for v in groups.values())
     fig, axes = plt.subplots(len(groups), 1, figsize=(9, 1.0 + 0.3 * rows + 0.6 * len(groups)), squeeze=False,
@@ -259,6 +268,9 @@ def code_strips(groups: Mapping[str, Sequence[np.ndarray]], path: Path, episodes
     for ax, (title, codes) in zip(axes[:, 0], groups.items(), strict=True):
         shown = [np.asarray(c) for c in codes[:episodes]]
         _strips(ax, shown, [f"ep {i}" for i in range(len(shown))])
+        for row, steps in enumerate(list((switches or {}).get(title) or [])[:len(shown)]):
+            for t in steps:
+                ax.plot([t, t], [row - 0.1, row + 0.95], color="k", lw=1.5)
         ax.set_title(title, fontsize=9)
         used += [int(k) for c in shown for k in np.unique(c)]
     _code_legend(axes[0, 0], used, loc="upper right")

@@ -32,14 +32,18 @@ def _obs_dim(obs: np.ndarray) -> int:
     return int(np.prod(np.shape(obs)[1:]))
 
 
-def composition_figure(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, schedule_text: str = "") -> Path:
-    """Episodes run under a code schedule: paths coloured by code and by time for 2-D observations (the
-    reversed-order Circle-World), else code strips. Written by `digail compose` and by `digail run`."""
-    title = f"composition under the schedule {schedule_text}".strip()
+def composition_figure(episodes: Sequence[tuple[np.ndarray, np.ndarray]], path: Path, schedule_text: str = "",
+                       switches: Sequence[Sequence[int]] | None = None, kind: str = "schedule") -> Path:
+    """Episodes run under a composed order: paths coloured by code and by time for 2-D observations (the
+    reversed-order Circle-World), else code strips; `switches` (the steps at which each episode's next code took
+    over, closed-loop orders) are marked on both; `kind` names what `schedule_text` is ("schedule" or "order").
+    Written by `digail compose` and by `digail run`."""
+    title = f"composition under the {kind} {schedule_text}".strip()
+    marks = [list(s) for s in switches] if switches is not None else None
     shown = [(o, c) for o, c in episodes if len(o)]
     if shown and _obs_dim(shown[0][0]) == 2:
-        return F.planar_trajectories(shown, path, title=title)
-    return F.code_strips({title: [c for _, c in episodes]}, path)
+        return F.planar_trajectories(shown, path, title=title, switches=marks)
+    return F.code_strips({title: [c for _, c in episodes]}, path, switches={title: marks} if marks else None)
 
 
 def write_run_figures(run_dir: Path, model: Any, env_id: str, demo_obs: Sequence[np.ndarray],
