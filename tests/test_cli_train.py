@@ -48,6 +48,9 @@ def test_train_evaluate_compose_segment_smoke(smoke_runs, capsys):
     assert main(["compose", str(run), "--schedule", "1:60,0:60", "--episodes", "3"]) == 0
     comp = json.loads((run / "compose.json").read_text())
     assert "order_reversed_rate" in comp and (run / "figures" / "compose.png").exists()
+    assert main(["compose", str(run), "--order", "1,0", "--episodes", "3"]) == 0
+    comp = json.loads((run / "compose.json").read_text())
+    assert comp["order"] == [1, 0] and len(comp["switch_steps"]) == 3 and "order_reversed_rate" in comp
     gail = root / "gail"
     assert main(["train", "--method", "gail", "--demos", str(demos), "--preset", "smoke", "--out", str(gail)]) == 0
     assert json.loads((gail / "config.json").read_text())["method"] == "gail"

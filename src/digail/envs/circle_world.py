@@ -55,6 +55,17 @@ def reference_point(radius: float, step: int, steps_per_circle: int = STEPS_PER_
     return np.array([radius * math.cos(theta), radius + radius * math.sin(theta)])
 
 
+def reversed_reference_point(radius: float, step: int, steps_per_circle: int = STEPS_PER_CIRCLE) -> np.ndarray:
+    """Point after `step` steps of the order never demonstrated: the same circle counter-clockwise first (the
+    reference path's second half, from the origin), then clockwise (its first half), float64 of shape (2,).
+
+    What `digail.experts.scripted.circle_reversed_expert` follows; the reversed composition is scored against it.
+    """
+    n = int(steps_per_circle)
+    k = min(max(int(step), 0), 2 * n)
+    return reference_point(radius, n - k if k <= n else k - n, n)
+
+
 def _signed_area(points: np.ndarray) -> float:
     """Shoelace signed area of the closed polygon through `points` (positive = counter-clockwise)."""
     x, y = points[:, 0], points[:, 1]

@@ -201,6 +201,15 @@ def room_visits(obs: np.ndarray) -> np.ndarray:
     return np.cumsum(np.r_[False, on_corridor[1:] & ~on_corridor[:-1]]).astype(np.int64)
 
 
+def corridor_entries(obs: np.ndarray) -> list[int]:
+    """The corridors (labels 0..3) a path of (T, 52) observations steps onto, in order: one entry each time the
+    agent moves onto a corridor cell from a room cell (standing on it counts once). A route is followed when
+    these are exactly its corridors."""
+    agent, _ = decode_observations(obs)
+    labels = [_CORRIDOR_LABEL.get((int(x), int(y)), -1) for x, y in agent]
+    return [lb for prev, lb in zip([-1, *labels[:-1]], labels, strict=True) if lb >= 0 and prev < 0]
+
+
 def decode_observations(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`encode_observation` undone for a batch: (T, 52) observations -> (T, 2) agent cells and (T, 2) apple cells,
     each (x, y) as int64."""

@@ -253,7 +253,8 @@ def demonstrated_lengths(codes: Sequence[np.ndarray]) -> dict[int, int]:
 
 
 def order_act(model: HierarchicalPolicy, order: Sequence[int], to_env: Any, hold: int = DEFAULT_HOLD,
-              lengths: dict[int, int] | None = None, deterministic: bool = True) -> tuple[BatchAct, dict[int, tuple[Episode, OrderSwitch]]]:
+              lengths: dict[int, int] | None = None, deterministic: bool = True
+              ) -> tuple[BatchAct, dict[int, tuple[Episode, OrderSwitch]]]:
     """The model under a closed-loop code order, as a policy for `play_batch`: each episode's codes come from its
     `OrderSwitch` (q, batched over the envs), the actions from pi (its mode when `deterministic`).
 

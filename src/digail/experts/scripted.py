@@ -7,14 +7,14 @@ deterministic, so demonstrations recorded from a seeded env are reproducible.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from digail.envs.circle_world import CircleWorldEnv, reference_point
-from digail.envs.four_rooms import FourRoomsEnv, shortest_paths_to
+from digail.envs.circle_world import CircleWorldEnv, reference_point, reversed_reference_point
+from digail.envs.four_rooms import CORRIDORS, FourRoomsEnv, shortest_paths_to
 from digail.experts.fetch import fetch_expert
 
 
@@ -50,6 +50,38 @@ def circle_expert(env: gym.Env) -> np.ndarray:
     if norm < 1e-12:
         return np.zeros(2, dtype=np.float32)
     return (offset / norm).astype(np.float32)
+
+
+def circle_reversed_expert(env: gym.Env) -> np.ndarray:
+    """`circle_expert` for the order never demonstrated: counter-clockwise first, then clockwise
+    (`digail.envs.circle_world.reversed_reference_point`); the reference a reversed composition is scored against."""
+    base: CircleWorldEnv = _unwrapped(env, CircleWorldEnv)
+    if base.t >= base.episode_steps:
+        return np.zeros(2, dtype=np.float32)
+    offset = reversed_reference_point(base.radius, base.t + 1, base.steps_per_circle) - base.position
+    norm = float(np.linalg.norm(offset))
+    return (offset / norm).astype(np.float32) if norm >= 1e-12 else np.zeros(2, dtype=np.float32)
+
+
+class FourRoomsRouteExpert:
+    """Shortest paths through the corridors of `route` in turn, then to the apple: a route the shortest-path
+    expert may never take (e.g. the long way round). Call `reset()` at every episode start."""
+
+    def __init__(self, route: Sequence[int]) -> None:
+        self.route = [int(c) for c in route]
+        self.next = 0
+
+    def reset(self) -> None:
+        """Start again at the route's first corridor."""
+        self.next = 0
+
+    def __call__(self, env: gym.Env) -> int:
+        base: FourRoomsEnv = _unwrapped(env, FourRoomsEnv)
+        while self.next < len(self.route) and base.agent == CORRIDORS[self.route[self.next]]:
+            self.next += 1
+        target = CORRIDORS[self.route[self.next]] if self.next < len(self.route) else base.apple
+        x, y = base.agent
+        return int(shortest_paths_to(target).action[y, x])
 
 
 SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
