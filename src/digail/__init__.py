@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # what the lazy names below resolve to, for type checkers and
     from digail.checkpoint import load_model, save_model
     from digail.config import TrainConfig, VAEConfig, get_preset
     from digail.data.minari_io import Dataset, load_dataset
-    from digail.eval.composition import compose
+    from digail.eval.composition import compose, compose_order
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import segmentation_metrics
     from digail.nets.vae import HierarchicalPolicy
@@ -45,6 +45,7 @@ _PUBLIC: dict[str, str] = {
     "train": "digail.algos.directed_info_gail",
     "evaluate": "digail.eval.returns",
     "compose": "digail.eval.composition",
+    "compose_order": "digail.eval.composition",
     "segmentation_metrics": "digail.eval.segmentation",
     "HierarchicalPolicy": "digail.nets.vae",
     "save_model": "digail.checkpoint",
@@ -53,7 +54,7 @@ _PUBLIC: dict[str, str] = {
 
 __all__ = [
     "Dataset", "HierarchicalPolicy", "TrainConfig", "Trajectory", "UserError", "VAEConfig", "__version__", "compose",
-    "evaluate", "get_preset", "load_dataset", "load_model", "pretrain", "save_model", "segment",
+    "compose_order", "evaluate", "get_preset", "load_dataset", "load_model", "pretrain", "save_model", "segment",
     "segmentation_metrics", "train",
 ]
 
