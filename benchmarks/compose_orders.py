@@ -53,6 +53,17 @@ ROOMS_ENV = "digail/FourRooms-v0"
 SEED = 20_000
 """seed of the first episode, as `digail compose`'s default"""
 
+TRAINING = {
+    "circle": ["digail run digail/CircleWorld-v0 --seed S --out runs/cw_sS  # S = 0, 1, 2",
+               "digail pretrain --demos digail/circleworld/expert-v0 --codes 1 --seed S --out runs/cw_flat_sS"],
+    "rooms": ["digail run digail/FourRooms-v0 --preset four-rooms-subtasks --seed 0 --out runs/frs_s0",
+              "digail pretrain --demos digail/fourrooms/expert-v0 --preset four-rooms-subtasks --seed S "
+              "--out runs/frs_vae_sS  # S = 1, 2",
+              "digail run digail/FourRooms-v0 --seed 0 --out runs/fr_s0",
+              "digail pretrain --demos digail/fourrooms/expert-v0 --codes 1 --seed S --out runs/fr_flat_sS"],
+}
+"""how the run folders measured here were made (from the repository root, `PYTHONPATH=src`)"""
+
 
 # ------------------------------------------------------------------------------------------ shared
 def _models(run: Path) -> list[tuple[str, Any]]:
@@ -179,15 +190,31 @@ def _pool(parts: list[dict[str, float]]) -> dict[str, float]:
     return {k: float(np.mean([p[k] for p in parts])) for k in parts[0] if all(k in p for p in parts)}
 
 
+def _code_dependence(run: Path, model: Any) -> float:
+    """Share of the demonstrations' states at which pi's most likely action is not the same under every code: 0
+    means the code changes nothing pi does, so no code order can steer it."""
+    import torch
+
+    trajs = load_dataset(read_config(run)["demos"]).trajs
+    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:len(t)], np.float32) for t in trajs]))
+    with torch.no_grad():
+        obs_n = model.normalizer(obs)
+        acts = torch.stack([model.pi.mode(obs_n, torch.eye(model.codes)[[k] * len(obs_n)])
+                            for k in range(model.codes)])
+    return float((acts != acts[:1]).any(0).float().mean())
+
+
 def rooms(args: argparse.Namespace) -> dict[str, Any]:
     per_room = max(args.episodes // 4, 1)
     envs_of = {r: [RouteStarts(make_env(ROOMS_ENV), r) for _ in range(8)] for r in range(4)}
-    expert_parts = []
+    expert_parts: list[dict[str, float]] = []
+    room0: dict[str, list[Episode]] = {}
     for r in range(4):
         ex = FourRoomsRouteExpert(route_of(r))
         eps = play_episodes(envs_of[r][0], lambda env, obs, ex=ex: ex(env), per_room, SEED, keep=True,
                             on_episode=lambda e, ex=ex: ex.reset())
         expert_parts.append(_route_scores(eps, route_of(r)))
+        room0.setdefault("scripted route expert", eps)
     rows: list[dict[str, Any]] = []
     for run in args.runs:
         for name, model in _models(run):
@@ -197,7 +224,8 @@ def rooms(args: argparse.Namespace) -> dict[str, Any]:
                        for lb in range(APPLE_LABEL + 1) if np.any(flat_labels == lb)}
             lengths = demonstrated_lengths(codes)
             row: dict[str, Any] = {"run": str(run), "model": name, "code_of_label": code_of,
-                                   "demonstrated_lengths": lengths, "orders": {}}
+                                   "demonstrated_lengths": lengths, "orders": {},
+                                   "pi_code_dependence": _code_dependence(run, model)}
             composed, own = [], []
             for r in range(4):
                 route = route_of(r)
@@ -216,17 +244,26 @@ def rooms(args: argparse.Namespace) -> dict[str, Any]:
                 row["orders"][str(r)] = {"route": route, "codes": order, **scores,
                                          "order_completed_rate": order_summary(sw)["order_completed_rate"]}
                 composed.append(scores)
+                if r == 0:
+                    room0.setdefault(f"{run.name} ({name}), order {','.join(map(str, order))}", eps)
             row["order"], row["own_macro_policy"] = _pool(composed), _pool(own)
             rows.append(row)
     flat = []
     for run in args.flat:
         model = load_model(run / "model.pt")[0]
-        flat.append({"run": str(run), "codes": model.codes, "closed_loop": _pool(
-            [_route_scores(_play(model, envs_of[r], per_room, SEED), route_of(r)) for r in range(4)])})
+        parts = [_play(model, envs_of[r], per_room, SEED) for r in range(4)]
+        room0.setdefault(f"{run.name} (one code)", parts[0])
+        flat.append({"run": str(run), "codes": model.codes,
+                     "closed_loop": _pool([_route_scores(e, route_of(r)) for r, e in enumerate(parts)])})
     for envs in envs_of.values():
         for env in envs:
             env.close()
     expert = _pool(expert_parts)
+    if args.figure is not None:
+        from digail.viz.figures import four_rooms_trajectories
+
+        four_rooms_trajectories({k: [(np.asarray(e.obs), np.asarray(e.codes or [0] * e.length)) for e in v]
+                                 for k, v in room0.items()}, args.figure)
     return {"task": "Four Rooms, the long way round: start room r, apple in room r + 1, corridors r - 1, r - 2, "
                     "r - 3, then the apple", "episodes": per_room * 4, "seed": SEED, "hold": args.hold,
             "expert": expert, "runs": rows, "flat": flat,
@@ -241,10 +278,12 @@ def main() -> None:
     ap.add_argument("--flat", type=Path, nargs="*", default=[], help="run folders of one-code (flat) policies")
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--hold", type=int, default=1)
+    ap.add_argument("--figure", type=Path, default=None, help="rooms: paths from room 0, one panel per policy")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/compose_orders.json"))
     args = ap.parse_args()
     result = circle(args) if args.task == "circle" else rooms(args)
     result["command"] = "python " + " ".join(sys.argv)
+    result["training_commands"] = TRAINING[args.task]
     data = json.loads(args.out.read_text()) if args.out.is_file() else {}
     data[args.task] = result
     write_json(args.out, data)
