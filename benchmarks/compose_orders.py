@@ -55,7 +55,9 @@ SEED = 20_000
 
 TRAINING = {
     "circle": ["digail run digail/CircleWorld-v0 --seed S --out runs/cw_sS  # S = 0, 1, 2",
-               "digail pretrain --demos digail/circleworld/expert-v0 --codes 1 --seed S --out runs/cw_flat_sS"],
+               "digail pretrain --demos digail/circleworld/expert-v0 --codes 1 --seed S --out runs/cw_flat_sS",
+               "digail train --demos digail/circleworld/expert-v0 --vae runs/cw_flat_s0 --seed 0 "
+               "--out runs/cw_flatgail_s0"],
     "rooms": ["digail run digail/FourRooms-v0 --preset four-rooms-subtasks --seed 0 --out runs/frs_s0",
               "digail pretrain --demos digail/fourrooms/expert-v0 --preset four-rooms-subtasks --seed S "
               "--out runs/frs_vae_sS  # S = 1, 2",
