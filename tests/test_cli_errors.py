@@ -61,6 +61,13 @@ def _write(name: str, data: bytes | str) -> Callable[[Path, pytest.MonkeyPatch],
     return setup
 
 
+def _forget_demos(tmp: Path, _: pytest.MonkeyPatch) -> None:
+    path = tmp / "run" / "config.json"
+    config = json.loads(path.read_text())
+    config.pop("demos", None)
+    path.write_text(json.dumps(config))
+
+
 def _torch_bytes(obj: object) -> bytes:
     import io
 
@@ -194,6 +201,8 @@ CASES: dict[str, Case] = {
     "order unreadable": Case(["compose", RUN, "--order", "first,second"], "code numbers", watch=RUN),
     "order unknown code": Case(["compose", RUN, "--order", "0,9"], "the policy has", watch=RUN),
     "order repeats a code": Case(["compose", RUN, "--order", "1,1"], "twice in a row", watch=RUN),
+    "order, no demonstrations recorded": Case(["compose", RUN, "--order", "1,0"], "pass --demos", watch=RUN,
+                                              setup=_forget_demos),
     "order --hold 0": Case(["compose", RUN, "--order", "1,0", "--hold", "0"], "--hold must be at least 1",
                            watch=RUN),
     # 5. broken files

@@ -70,7 +70,9 @@ def compose_command(args: ComposeArgs) -> dict[str, Any]:
         env_id = run_env_id(run, meta)
         if args.order is not None:
             order = parse_order(args.order, model.codes)
-            lengths = _fallback_lengths(run, model, meta, args) if args.fallback == "length" else {}
+            # only codes before the last can need a length: the last runs until the episode ends anyway
+            lengths = _fallback_lengths(run, model, meta, args) if args.fallback == "length" and len(order) > 1 \
+                else {}
             result, eps = compose_order(model, env_id, order, args.episodes, args.seed, hold=args.hold,
                                         lengths={c: n for c, n in lengths.items() if c in order[:-1]})
             text, kind, switches = args.order, "order", result["switch_steps"]
