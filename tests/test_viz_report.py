@@ -203,3 +203,15 @@ def test_minimal_run_folder_report(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps({"method": "digail", "env_id": "Pendulum-v1", "seed": 0}))
     text = write_report(tmp_path).read_text()
     assert "has not learned the task" in text and "-994" in text
+
+
+def test_report_names_a_closed_loop_order(tmp_path):
+    """compose.json from `digail compose --order` is reported as the order it ran, with its completion rate."""
+    (tmp_path / "config.json").write_text(json.dumps({"method": "digail", "env_id": "digail/CircleWorld-v0"}))
+    (tmp_path / "compose.json").write_text(json.dumps({"episodes": 4, "order": [1, 0], "hold": 1,
+                                                       "order_reversed_rate": 0.75, "order_completed_rate": 1.0,
+                                                       "switch_steps": [[61]] * 4}))
+    text = write_report(tmp_path).read_text()
+    _check_page_text(text)
+    assert "Composition (order <code>1,0</code>)" in text and "composed (order 1,0): reversed order drawn" in text
+    assert "episodes whose code order ran to its last code" in text

@@ -67,6 +67,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "true_switches_per_episode": ("oracle switches per episode", "num"),
     "steps": ("steps scored", "int"),
     "schedule_length": ("schedule length", "steps"),
+    "order_completed_rate": ("episodes whose code order ran to its last code", "pct"),
+    "hold": ("steps in a row q must leave a code before the next takes over", "int"),
     "codes": ("codes K", "int"),
 }
 TASK_KEYS = ("success_rate", "order_correct_rate", "order_reversed_rate", "path_length_ratio", "radius_error")
@@ -141,6 +143,13 @@ def _table(header: Sequence[str], rows: Iterable[Sequence[str]], numeric_from: i
         return ""
     head = "".join(f"<th>{_esc(h)}</th>" for h in header)
     return f"<div class='scroll'><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>"
+
+
+def _composition_name(comp: Mapping[str, Any]) -> str:
+    """'order 1,0' for a closed-loop composition (`digail compose --order`), else 'schedule 1:60,0:60'."""
+    if isinstance(comp.get("order"), list):
+        return "order " + ",".join(str(c) for c in comp["order"])
+    return f"schedule {comp.get('schedule', '')}"
 
 
 def metric_rows(columns: Sequence[Mapping[str, Any] | None], keys: Iterable[str] | None = None) -> list[list[str]]:
@@ -220,7 +229,8 @@ FIGURE_CAPTIONS = {
                         "free cell, the apple (red) fixed.",
     "four_rooms_paths": "Paths on the grid coloured by the active code; a star marks the start, red the apple.",
     "generated": "Closed-loop rollouts of the hierarchical policy, coloured by code (left) and by time (right).",
-    "compose": "Composition: the sub-task policies run under a fixed code schedule instead of the macro-policy.",
+    "compose": "Composition: the sub-task policies run in an order of the user's (a closed-loop code order or a fixed "
+               "code schedule) instead of the macro-policy's.",
     "segmentation_pair": "Two segmentations of the same demonstrations side by side, each column titled with what "
                          "made it (on Circle-World: the VAE with and without the smoothing term): positions coloured "
                          "by code above the codes against time.",
@@ -323,7 +333,7 @@ def headline(run_dir: Path) -> str:
     if "accuracy" in seg:
         rows.append(["segmentation accuracy (demonstrations)", fmt(seg["accuracy"], "pct"), "–", "–"])
     if isinstance(comp.get("order_reversed_rate"), int | float):
-        rows.append([f"composed ({comp.get('schedule', 'schedule')}): reversed order drawn",
+        rows.append([f"composed ({_composition_name(comp)}): reversed order drawn",
                      fmt(comp["order_reversed_rate"], "pct"), "–", "–"])
     episodes = f" over {_esc(fmt(ev['episodes'], 'int'))} closed-loop episodes" if ev.get("episodes") else ""
     header = ["", "this run", "expert, same episodes", "paper (Directed-Info GAIL)"]
@@ -398,7 +408,8 @@ def write_report(run_dir: Path, out: Path | None = None) -> Path:
             parts.append("<p>The demonstrations carry no oracle labels, so only the switch count is reported.</p>")
     parts.append(_smoothing_table(run_dir))
     if comp:
-        parts.append(f"<h2>Composition (schedule <code>{_esc(comp.get('schedule', ''))}</code>)</h2>")
+        kind, text = _composition_name(comp).split(" ", 1)
+        parts.append(f"<h2>Composition ({kind} <code>{_esc(text)}</code>)</h2>")
         parts.append(_table(["metric", "value"], metric_rows([comp])))
     if timings:
         parts.append("<h2>Timings</h2>")
