@@ -145,9 +145,7 @@ MARKER = ".digail"
 
 def write_marker(folder: Path) -> None:
     """Mark `folder` as one digail made (`MARKER`), so a later `--force` may replace it."""
-    from digail.version import __version__
-
-    (Path(folder) / MARKER).write_text(f"made by digail {__version__}; `--force` may replace this folder\n")
+    (Path(folder) / MARKER).write_text("made by digail: `digail ... --force` may replace this folder\n")
 
 
 def digail_made(folder: Path) -> bool:

@@ -135,7 +135,11 @@ class ReplayBuffer:
         arrays = {name: state[name].numpy() for name in FIELDS}
         shapes = {"obs": (self.obs_dim,), "next_obs": (self.obs_dim,), "acts": (self.act_dim,)}
         for name, arr in arrays.items():
-            if arr.shape[1:] != shapes.get(name, ()) or len(arr) != n:
+            held = len(arr) if arr.ndim else 0
+            if arr.ndim < 1 or held != n:
+                raise UserError(f"the checkpoint's replay buffer records {n} transitions but holds {held} in "
+                                f"'{name}'; {damaged}.")
+            if arr.shape[1:] != shapes.get(name, ()):
                 raise UserError("the checkpoint's replay buffer does not fit this model's observations or actions; "
                                 "resume with the run's own settings.")
             if np.issubdtype(arr.dtype, np.floating) and not np.isfinite(arr).all():

@@ -114,6 +114,9 @@ class _Arrays:
                             "never loads; save it as a numeric array.") from None
         if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
             raise UserError(f"{self.where} has '{key}' of dtype {arr.dtype}; it must be a numeric array.")
+        if arr.ndim == 0:
+            raise UserError(f"{self.where} has '{key}' as a single number; it must be an array with a row per step "
+                            "(or per episode).")
         if np.iscomplexobj(arr):  # a cast to float would drop the imaginary part without a word
             raise UserError(f"{self.where} has complex values in '{key}'; digail reads real numbers only, so save "
                             "the real and imaginary parts as separate columns.")

@@ -184,8 +184,8 @@ NESTED_SETTINGS = ("vae", "train")
 """prefixes whose keys are fields of the stage's nested config (`VAEConfig`, `TrainConfig`): hyper-parameters by
 construction, none of them a path"""
 
-SWEEP_OWNED_FIELDS = ("train.method",)
-"""nested fields the sweep itself sets (from its methods)"""
+SWEEP_OWNED_FIELDS = ("train.method", "vae.codes")
+"""nested fields the command line does not take: the sweep sets the method, and K is `pretrain.codes`"""
 
 _KEY_RE = re.compile(r"[a-z][a-z0-9_]*(\.[a-z][a-z0-9_]*)+")
 
