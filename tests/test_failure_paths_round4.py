@@ -194,7 +194,7 @@ for _pid, _target, _what, _expect in [
     ("force-parent", "..", "`..`", "a folder holding the current directory"),
     ("force-grandparent", "../..", "`../..`", "a folder holding the current directory"),
     ("force-cwd-absolute", "TMP/a/inner", "the current directory by its absolute path", "the current directory"),
-    ("force-root", "/", "`/`", "--force would delete /"),
+    ("force-root", "/", "`/`", "--force would delete /, a filesystem root"),
     ("force-marker-folder", "TMP/marker-dir", "a folder whose `.digail` is a folder", "is not a folder digail made"),
     ("force-other-config", "TMP/otherconfig", "a folder whose config.json is another tool's",
      "is not a folder digail made"),
@@ -355,7 +355,9 @@ IMPORT_PROBES: list[tuple[str, str, str, Callable[[Path], None], str | None]] = 
     ("npz-object", "d.npz", "an object array (pickled)", _npz(observations=np.array([None] * 20, dtype=object)),
      "pickled Python objects"),
     ("npz-raw-pickle", "d.npz", "a raw pickle named .npz", _raw(pickle.dumps({"observations": [1.0]})),
-     "as an .npz file"),
+     "is a Python pickle, not an .npz file"),
+    ("npz-text", "d.npz", "a text file named .npz", _raw(b"observations,actions\n1,2\n"),
+     "neither a zip archive nor an .npy array"),
     ("npz-single-npy", "d.npz", "a single .npy array named .npz", lambda p: p.write_bytes(_npy(np.zeros(3))),
      "holds a single array"),
     ("npz-scalar-obs", "d.npz", "a 0-d observations array", _npz(observations=np.float32(1.0)),
@@ -497,7 +499,7 @@ for _pid, _change, _what, _expect, _kw in [
     probe(_pid, f"a checkpoint's replay buffer: {_what}", _expect)(_replay(_change, **_kw))
 
 
-@probe("replay-huge", "`--train.sac.buffer-size 10^12` (a 47 TiB buffer)", "of memory is available")
+@probe("replay-huge", "`--train.sac.buffer-size 10^12` (Hopper's sizes: 146 TiB)", "of memory is available")
 def _replay_huge(_: Path) -> None:
     from digail.algos.replay import ReplayBuffer
 
@@ -534,14 +536,32 @@ def _lock_folder(tmp: Path) -> None:
     cli(tmp, "segment", "run")
 
 
-@probe("lock-dangling-link", "a run folder whose `.digail.lock` is a link to nothing", None)
+@probe("lock-dangling-link", "a run folder whose `.digail.lock` is a link to a file elsewhere (not created)",
+       "is a link, not digail's lock file")
 def _lock_dangling(tmp: Path) -> None:
     from digail.utils import run_dir_lock
 
     (tmp / "run").mkdir()
     (tmp / "run" / ".digail.lock").symlink_to(tmp / "elsewhere")
-    with run_dir_lock(tmp / "run"):
-        pass
+    try:
+        with run_dir_lock(tmp / "run"):
+            pass
+    finally:
+        assert not (tmp / "elsewhere").exists(), "the lock was written outside the run folder"
+
+
+@probe("lock-link-to-file", "a run folder whose `.digail.lock` is a link to a user's file", "is a link")
+def _lock_link(tmp: Path) -> None:
+    from digail.utils import run_dir_lock
+
+    (tmp / "run").mkdir()
+    (tmp / "notes.txt").write_text("a user's file\n")
+    (tmp / "run" / ".digail.lock").symlink_to(tmp / "notes.txt")
+    try:
+        with run_dir_lock(tmp / "run"):
+            pass
+    finally:
+        assert (tmp / "notes.txt").read_text() == "a user's file\n", "the lock wrote into a user's file"
 
 
 # ------------------------------------------------------------------------------------------------ schedules

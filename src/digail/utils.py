@@ -189,13 +189,13 @@ def check_replaceable(path: Path, flag: str = "--out") -> None:
         real = path.resolve()
     except (OSError, RuntimeError):  # a loop of links
         raise UserError(f"{path} is a link that leads nowhere; remove it or choose another {flag}.") from None
+    if real == Path(real.anchor) or real == Path.home().resolve():
+        what = "a filesystem root" if real == Path(real.anchor) else "the home folder"
+        raise UserError(f"--force would delete {path}, {what}; choose another {flag}.")
     cwd = Path.cwd().resolve()
     if real == cwd or real in cwd.parents:
         here = "the current directory" if real == cwd else "a folder holding the current directory"
         raise UserError(f"--force would delete {path}, {here}; choose another {flag}.")
-    if real == Path(real.anchor) or real == Path.home().resolve():
-        what = "a filesystem root" if real == Path(real.anchor) else "the home folder"
-        raise UserError(f"--force would delete {path}, {what}; choose another {flag}.")
     if not real.exists():
         raise UserError(f"{path} is a link to nothing; remove it or choose another {flag}.")
     if not real.is_dir():
@@ -293,11 +293,12 @@ def _same_file(fd: int, path: Path) -> bool:
 def _lock_file(folder: Path, fcntl: Any) -> int:
     path = folder / LOCK_FILE
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        except OSError as exc:  # a folder or an unreadable file in the lock file's place
-            if path.is_dir():
-                raise UserError(f"{path} is a folder, not digail's lock file; remove it and run the command "
+        try:  # never through a link: the lock file is created in the run folder, nowhere else
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        except OSError as exc:  # a folder, a link or an unreadable file in the lock file's place
+            if path.is_dir() or path.is_symlink():
+                what = "a link" if path.is_symlink() else "a folder"
+                raise UserError(f"{path} is {what}, not digail's lock file; remove it and run the command "
                                 "again.") from None
             reason = (exc.strerror or type(exc).__name__).lower()
             raise UserError(f"cannot open the lock file {path} ({reason}); remove it or fix its permissions.") \

@@ -164,7 +164,20 @@ def _open(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[_Arrays, 
     if suffix == ".npz":
         try:
             npz = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
+        except ValueError as exc:
+            if "pickle" not in str(exc):
+                raise UserError(f"cannot read {where} as an .npz file ({one_line(exc)}); the file is damaged or not "
+                                "written by numpy.savez.") from exc
+            # numpy takes anything that is neither a zip nor an .npy for a pickle, and its text would suggest
+            # loading it unsafely
+            with open(path, "rb") as f:
+                pickled = f.read(1) == b"\x80"  # the opcode every pickle since protocol 2 starts with
+            if pickled:
+                raise UserError(f"{where} is a Python pickle, not an .npz file, and digail never loads pickles; save "
+                                "the arrays with numpy.savez.") from None
+            raise UserError(f"cannot read {where} as an .npz file (it is neither a zip archive nor an .npy array); "
+                            "the file is damaged or not written by numpy.savez.") from None
+        except (OSError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
             raise UserError(f"cannot read {where} as an .npz file ({one_line(exc)}); the file is damaged or not "
                             "written by numpy.savez.") from exc
         if not hasattr(npz, "files"):
