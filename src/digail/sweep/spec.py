@@ -21,6 +21,10 @@ Override keys name a field of the stage that takes it: `vae.*` and `train.*` are
 flag (`pretrain.codes`). `train.bc_weight` becomes `--bc-weight`, which also sets the weight of the `-l2` methods.
 `demos.episodes` and `demos.subsample` choose the demonstrations of both the VAE and the training
 (`--demos-episodes`, `--demos-subsample`).
+
+Overrides set hyper-parameters only, by an allow-list (`check_key`): the nested configs' fields and the stage settings
+of `STAGE_OWN_SETTINGS`. A stage's outputs, inputs and control flags (`out`, `force`, `resume`, `demos`, `vae`,
+`device`) belong to the sweep, which keeps every trial inside its folder.
 """
 
 from __future__ import annotations
