@@ -581,6 +581,44 @@ for _pid, _text, _expect in [
         lambda tmp, t=_text: __import__("digail.eval.composition", fromlist=["x"]).parse_schedule(t, 2, 120))
 
 
+RUN = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "runs" / "pendulum_vae_s2"
+"""a committed run folder (a Pendulum VAE): the analysis commands' probes work on a copy of it"""
+
+
+def _on_run(*argv: str, damage: str | None = None) -> Callable[[Path], None]:
+    def run(tmp: Path) -> None:
+        import shutil
+
+        shutil.copytree(RUN, tmp / "run")
+        if damage is not None:
+            data = (tmp / "run" / damage).read_bytes()
+            (tmp / "run" / damage).write_bytes(data[: len(data) // 2])
+        cli(tmp, *argv)
+
+    return run
+
+
+for _pid, _argv, _damage, _expect in [
+    ("compose-cli-code", ["compose", "run", "--schedule", "9:10", "--episodes", "1"], None,
+     "uses code 9 but the policy has"),
+    ("compose-cli-episodes", ["compose", "run", "--episodes", "0"], None, "--episodes must be at least 1"),
+    ("compose-cli-truncated-model", ["compose", "run", "--schedule", "0:10", "--episodes", "1"], "model.pt",
+     "is corrupt, truncated or not a digail file"),
+    ("evaluate-cli-episodes", ["evaluate", "run", "--episodes", "0"], None, "--episodes must be at least 1"),
+    ("evaluate-cli-seed", ["evaluate", "run", "--seed", "-1"], None, "--seed must be between"),
+    ("evaluate-cli-truncated-config", ["evaluate", "run", "--episodes", "1"], "config.json", "is not valid JSON"),
+    ("segment-cli-users-demos", ["segment", "run", "--demos", "nowhere/nothing-v0"], None, "nowhere/nothing-v0"),
+    ("report-cli-users-folder", ["report", "mine"], None, "mine"),
+]:
+    def _run_on(tmp: Path, argv: tuple[str, ...] = tuple(_argv), damage: str | None = _damage) -> None:
+        (tmp / "mine").mkdir()
+        (tmp / "mine" / "thesis.tex").write_text("x\n")
+        _on_run(*argv, damage=damage)(tmp)
+
+    probe(_pid, f"`digail {' '.join(_argv)}` on a copy of a committed Pendulum VAE run"
+          + (f" with its {_damage} cut in half" if _damage else ""), _expect)(_run_on)
+
+
 # ------------------------------------------------------------------------------------------------ resume paths
 def _config(tmp: Path, data: object) -> None:
     (tmp / "run").mkdir(exist_ok=True)
