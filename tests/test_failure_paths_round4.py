@@ -699,3 +699,13 @@ def test_probe(p: Probe, tmp_path: Path) -> None:
 
 def test_at_least_a_hundred_probes() -> None:
     assert len(PROBES) >= 100 and len({p.id for p in PROBES}) == len(PROBES)
+
+
+def test_the_reliability_page_lists_every_probe() -> None:
+    """docs/reference/errors.md publishes these probes: one row each, under the same words."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "errors.md").read_text()
+    section = page.split("## Probes", 1)[1].split("::: digail.errors", 1)[0]
+    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith(("| tried", "| ---"))]
+    assert len(rows) == len(PROBES)
+    missing = [p.id for p in PROBES if f"| {p.what.replace('|', chr(92) + '|')} |" not in section]
+    assert not missing, f"probes without a row in the reliability page: {missing}"
