@@ -407,3 +407,15 @@ def test_sweep_folders_carry_the_marker(tmp_path):
     save_plan(tmp_path / "sweep", spec, plan(spec))
     assert (tmp_path / "sweep" / MARKER).is_file() and digail_made(tmp_path / "sweep")
     shutil.rmtree(tmp_path / "sweep")
+
+
+@pytest.mark.parametrize("spec_file", sorted((REPO / "benchmarks" / "sweeps").glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_sweep_spec_passes_the_checks_before_ray(spec_file):
+    """The allow-list keeps every override the published sweeps use; `demos.*` keys are checked against both the
+    VAE's and the training's command (they once crashed the check with a KeyError)."""
+    from digail.commands.sweep import check_spec
+    from digail.sweep.plan import plan
+    from digail.sweep.spec import build_spec
+
+    spec = build_spec(spec_file=spec_file)
+    check_spec(spec, plan(spec) if spec.search is None else [])
