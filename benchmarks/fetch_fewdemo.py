@@ -8,7 +8,7 @@ Per run folder (`runs/fetchfew/d<N>/<method>_s<seed>`, the VAEs as `bc_k4_s<seed
 demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: success,
 grasp and lift rates, the dense return that the paper's Table 2 reports, the sparse return; a run without it is
 listed as `running` with its last periodic evaluation), the learning curve (success of the 20-episode evaluation
-every 5 iterations against env steps), the env steps where that curve first reached 0.5 and 0.9 success, and the
+every 5 PPO iterations or 20k SAC steps against env steps), the env steps where that curve first reached 0.5 and 0.9 success, and the
 command that made the run. Medians over seeds per (N, method) go under `table`.
 """
 
@@ -29,6 +29,9 @@ METHODS = {
     "gail-l2": "GAIL + L2, fresh policy",
     "flatbc-l2": "GAIL + L2 from the flat BC policy",
     "digail-l2": "Directed-Info GAIL + L2",
+    "gail-l2-sac": "GAIL + L2 + SAC, fresh policy",
+    "flatbc-l2-sac": "GAIL + L2 + SAC from the flat BC policy",
+    "digail-l2-sac": "Directed-Info GAIL + L2 + SAC",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
 KEYS = ("success_rate", "grasp_rate", "lift_rate", "dense_return", "sparse_return")
