@@ -117,8 +117,8 @@ def read_imitation_folder(path: str | Path) -> dict[str, Any]:
     _check_consistent(where, trajs)
     notes = []
     if kept_truncated:
-        notes.append(f"{kept_truncated} trajectories flagged terminal end with '{TIME_LIMIT_KEY}' in their last "
-                     "info and were kept as truncated (a time limit, not a terminal state)")
+        notes.append(f"{kept_truncated} of {len(trajs)} trajectories flagged terminal end with '{TIME_LIMIT_KEY}' "
+                     "in their last info and were kept as truncated (a time limit, not a terminal state)")
     fields = [c for c in ("obs", "acts", "infos", "terminal", "rews") if c in columns]
     found = (f"an imitation trajectories folder (HuggingFace datasets, {len(trajs)} rows with "
              f"{', '.join(fields)})")
@@ -167,6 +167,7 @@ def read_imitation_transitions(arrays: Any) -> tuple[list[Any], list[str]]:
     unflagged = int(np.sum(jumps & ~dones[:-1]))
     notes = []
     if unflagged or not dones[-1]:
-        notes.append(f"{unflagged + int(not dones[-1])} trajectories end without a 'dones' flag (where 'next_obs' "
-                     "is not the next row's 'obs', or at the end of the file) and were kept as truncated")
+        notes.append(f"{unflagged + int(not dones[-1])} of {len(trajs)} trajectories end without a 'dones' flag "
+                     "(where 'next_obs' is not the next row's 'obs', or at the end of the file) and were kept as "
+                     "truncated")
     return trajs, notes

@@ -9,10 +9,12 @@ flag per step, 0 until that sub-task has ended and 1 from then on.
 
 Reading: the chosen observation keys (default: every low-dimensional key, i.e. at most one axis per step and not
 uint8 images, in sorted name order) are flattened and joined in that order; image keys are skipped and said so.
-The state after the last action comes from `next_obs`; without it the last action is dropped. robomimic's `dones`
+The state after the last action comes from `next_obs`; without it, or where every demonstration's last `next_obs`
+repeats its last state (robomimic's D4RL conversion writes that in place of the state it does not have), the
+last action is dropped. robomimic's `dones`
 marks every demonstration's last step, ended or not, so episodes are kept as truncated (bootstrapped). Existing
 sub-task termination signals become oracle labels: the label of a step is how many signals have turned 1 by then
-(each signal counts from its first 1 on).
+(each signal counts from its first 1 on); signals digail exported itself are not counted.
 
 Writing (`write_subtask_signals`): a copy of the file, with digail's segmentation added as termination signals in
 MimicGen's place; the input is never opened for writing.
@@ -136,6 +138,11 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
             if not chosen:
                 raise UserError(f"{where} has only image observations ({', '.join(images)}); digail reads "
                                 "low-dimensional keys (e.g. robot0_eef_pos, object) with --obs-keys.")
+        # robomimic's D4RL conversion, having no state after an episode's last action, repeats the last state as
+        # the last next_obs in every demonstration; a robot at rest at the end of a real one does that only in some
+        placeholder = all("next_obs" in data[k] and all(
+            np.array_equal(data[k]["obs"][c][-1], data[k]["next_obs"][c][-1]) for c in chosen
+            if c in data[k]["obs"] and c in data[k]["next_obs"]) for k in keys)
         trajs, dropped, signal_names = [], 0, set()
         labels: list[np.ndarray | None] = []
         kept: list[str] = []
@@ -151,8 +158,9 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
                 raise UserError(f"{row} has {len(obs)} observations, {n} actions"
                                 f"{'' if rews is None else f', {len(rews)} rewards'}; robomimic stores one of each "
                                 "per step.")
-            if "next_obs" in demo:
-                obs = np.concatenate([obs, _flat(demo["next_obs"], chosen, f"{row}/next_obs")[-1:]])
+            last = _flat(demo["next_obs"], chosen, f"{row}/next_obs")[-1:] if "next_obs" in demo else None
+            if last is not None and not placeholder:
+                obs = np.concatenate([obs, last])
             else:
                 dropped += 1
                 acts, rews = acts[:-1], None if rews is None else rews[:-1]
@@ -160,10 +168,11 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
                     continue
             kept.append(key)
             signals = demo.get(SIGNALS_PATH)
-            if isinstance(signals, h5py.Group) and len(signals):
-                signal_names.update(signals)
+            oracle = _oracle_signals(signals) if isinstance(signals, h5py.Group) else []
+            if oracle:
+                signal_names.update(oracle)
                 ended = np.stack([np.maximum.accumulate(np.asarray(signals[s][()]).reshape(-1) != 0)
-                                  for s in sorted(signals)]).sum(axis=0)
+                                  for s in oracle]).sum(axis=0)
                 step_labels = np.concatenate([ended, ended[-1:]])[:len(obs)]
                 labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
             else:
@@ -178,8 +187,10 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
     if images:
         notes.append(f"image observations skipped: {', '.join(images)} (digail reads low-dimensional keys)")
     if dropped:
-        notes.append(f"{dropped} demonstrations store no next_obs, so their last action was dropped (no state "
-                     "after it) and they were kept as truncated")
+        why = ("every demonstration repeats its last state as its last next_obs (robomimic's D4RL conversion "
+               "writes that for want of the next state)" if placeholder else
+               f"{dropped} of {len(keys)} demonstrations store no next_obs")
+        notes.append(f"{why}, so the last action of each was dropped and the demonstration kept as truncated")
     if all(lab is not None for lab in labels):
         from dataclasses import replace
 
@@ -201,6 +212,16 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
     found = (f"a robomimic file ({len(keys)} demonstrations data/{keys[0]} .. data/{keys[-1]}{of_env}; observation "
              f"keys {', '.join(chosen)} flattened in this order{filters})")
     return {"trajs": trajs, "notes": notes, "found": found, "episode_keys": kept, "metadata": metadata}
+
+
+def _oracle_signals(group: Any) -> list[str]:
+    """The signals of a demonstration's group that are annotations, not digail's own export (which lists its
+    signals in the group's `digail_signals` attribute), sorted."""
+    try:
+        ours = set(json.loads(group.attrs.get("digail_signals", "[]")))
+    except (TypeError, ValueError):
+        ours = set()
+    return sorted(k for k in group if k not in ours)
 
 
 def term_signals(codes: np.ndarray, n_steps: int, n_codes: int) -> np.ndarray:
@@ -269,7 +290,8 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
                                     "--names for the exported signals.")
                 for name, signal in zip(names, term_signals(demo_codes, n, len(names)), strict=True):
                     group.create_dataset(name, data=signal)
-                group.attrs["digail_signals"] = json.dumps(list(names))
+                earlier = [n for n in group if n not in names and n not in _oracle_signals(group)]
+                group.attrs["digail_signals"] = json.dumps(sorted([*earlier, *names]))
         os.replace(tmp, out)
     except BaseException:
         with signals_deferred(), contextlib.suppress(FileNotFoundError):
