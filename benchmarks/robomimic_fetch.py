@@ -111,7 +111,7 @@ def plot(path: Path, pred: list[np.ndarray], true: list[np.ndarray], episodes: i
     fig, ax = plt.subplots(figsize=(8, 0.5 * episodes + 1.2))
     for i in range(episodes):
         y = episodes - 1 - i
-        for strip, seq, offset in (("exported", pred[i], 0.05), ("oracle", true[i], -0.35)):
+        for seq, offset in ((pred[i], 0.05), (true[i], -0.35)):  # exported above, oracle below
             colours = ["tab:blue" if v == 0 else "tab:orange" for v in seq]
             ax.bar(np.arange(len(seq)), 0.3, bottom=y + offset, width=1.0, color=colours, linewidth=0)
         for b in np.flatnonzero(np.diff(true[i])) + 1:

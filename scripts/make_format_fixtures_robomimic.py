@@ -1,9 +1,10 @@
 """Write the robomimic fixtures (tests/data/formats/robomimic_*.hdf5), or check an exported copy with robomimic's
 own loader.
 
-Runs in its own virtual environment, not digail's:
+Runs in its own virtual environment, not digail's (robomimic 0.3.0 imports `six` without declaring it):
 
-    python3.11 -m venv venv-robomimic && venv-robomimic/bin/pip install torch==2.13.0 robomimic==0.3.0 six  # robomimic 0.3.0 imports six without requiring it
+    python3.11 -m venv venv-robomimic
+    venv-robomimic/bin/pip install torch==2.13.0 robomimic==0.3.0 six
     venv-robomimic/bin/python scripts/make_format_fixtures_robomimic.py                 # writes the fixtures
     venv-robomimic/bin/python scripts/make_format_fixtures_robomimic.py --check FILE --signals pick place
 
