@@ -271,3 +271,5 @@ def test_cli_segment_exports(robomimic_vae, capsys):
         assert main(["segment", str(root / "vae"), "--demos", str(ROBOSUITE), *argv]) == 2
         assert phrase in capsys.readouterr().err
     assert not (root / "lr").exists() and not (root / "x.csv").exists()
+    assert main(["segment", str(root / "vae"), "--demos", str(root / "demos"), "--obs-keys", "object"]) == 2
+    assert "--obs-keys applies when --demos is a robomimic file" in capsys.readouterr().err

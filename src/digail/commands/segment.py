@@ -73,6 +73,9 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
             trajs, source, source_format = imported.trajs, imported.source, imported.fmt
             episode_keys = imported.episode_keys
         else:
+            if args.obs_keys:
+                raise UserError(f"--obs-keys applies when --demos is a robomimic file or a LeRobot dataset; {demos} is "
+                                "a Minari dataset, whose observations were chosen when it was imported, drop it.")
             dataset = load_dataset(demos)
             if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
                 raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
