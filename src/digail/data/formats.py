@@ -15,12 +15,9 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from digail.errors import UserError
-
-if TYPE_CHECKING:
-    from digail.data.importers import Imported
 
 STRUCTURED = ("imitation-dataset", "lerobot", "robomimic")
 """the layouts read here"""
@@ -47,9 +44,14 @@ def detect(path: Path) -> str | None:
     return None
 
 
-def read_structured(source: str | os.PathLike[str], fmt: str, obs_keys: Sequence[str] | None) -> Imported | None:
+def read_structured(source: str | os.PathLike[str], fmt: str,
+                    obs_keys: Sequence[str] | None) -> dict[str, Any] | None:
     """`source` read as a structured layout (`fmt`, or the detected one under "auto"), or None when it is none
     of them and should be read as named arrays.
+
+    Returns:
+        The reader's dict (`episodes`, `notes`, `found`, `episode_keys`, `metadata`) with `fmt` and `source`
+        added, which `digail.data.importers.read_demonstrations` checks and turns into an `Imported`.
 
     Raises:
         UserError: a folder of no layout digail reads (naming those it tried), a file that is not the layout
@@ -94,13 +96,4 @@ def read_structured(source: str | os.PathLike[str], fmt: str, obs_keys: Sequence
             raise UserError("--obs-keys applies to robomimic files and LeRobot datasets; drop it for imitation's "
                             "trajectories.")
         read = read_imitation_folder(path)
-    return _imported(path, kind, read)
-
-
-def _imported(path: Path, kind: str, read: dict[str, Any]) -> Imported:
-    from digail.data.importers import Imported, spaces_from_data
-
-    obs_space, act_space = spaces_from_data(read["trajs"])
-    return Imported(trajs=read["trajs"], fmt=kind, observation_space=obs_space, action_space=act_space,
-                    source=os.fspath(path), notes=read["notes"], found=read["found"],
-                    episode_keys=read["episode_keys"], metadata=read["metadata"])
+    return {**read, "fmt": kind, "source": os.fspath(path)}

@@ -79,14 +79,13 @@ def read_imitation_folder(path: str | Path) -> dict[str, Any]:
     """Trajectories from an imitation datasets folder; see the module docstring.
 
     Returns:
-        A dict with `trajs`, `notes`, `found`, `episode_keys` (the row numbers) and `metadata`, which
-        `digail.data.importers.read_demonstrations` turns into an `Imported`.
+        A dict with `episodes` (per trajectory its arrays, as `digail.data.importers.trajectories_from_episodes`
+        takes them), `notes`, `found`, `episode_keys` (the row numbers) and `metadata`, which
+        `digail.data.importers.read_demonstrations` checks and turns into an `Imported`.
 
     Raises:
         UserError: a missing column, an unreadable file, trajectories whose arrays do not fit together.
     """
-    from digail.data.importers import _actions, _Arrays, _check_consistent, _traj
-
     path = Path(path)
     table = _read_table(_arrow_files(path))
     where = str(path)
@@ -99,30 +98,23 @@ def read_imitation_folder(path: str | Path) -> dict[str, Any]:
     obs_col, acts_col, term_col = (table.column(c).combine_chunks() for c in ("obs", "acts", "terminal"))
     rews_col = table.column("rews").combine_chunks() if "rews" in columns else None
     infos_col = table.column("infos").combine_chunks() if "infos" in columns else None
-    trajs, kept_truncated = [], 0
+    eps, kept_truncated = [], 0
     for i in range(table.num_rows):
-        row = f"{where}, trajectory {i}"
-        arrays = _Arrays(row, {"obs": _cell(obs_col, i), "acts": _cell(acts_col, i),
-                               **({"rews": _cell(rews_col, i)} if rews_col is not None else {})})
-        obs, acts, rews = arrays.get("obs"), arrays.get("acts"), arrays.optional("rews")
-        if acts.ndim < 1 or len(obs) != len(acts) + 1:
-            raise UserError(f"{row} has {len(obs)} observations for {len(acts)} actions; imitation stores one more "
-                            "observation than actions.")
         terminal = bool(term_col[i].as_py())
         if terminal and infos_col is not None and _time_limited(infos_col[i].as_py()):
             terminal, kept_truncated = False, kept_truncated + 1
-        trajs.append(_traj(row, obs, _actions(row, "acts", acts), rews, terminal))
-    if not trajs:
+        eps.append({"where": f"{where}, trajectory {i}", "obs": _cell(obs_col, i), "acts": _cell(acts_col, i),
+                    "rews": None if rews_col is None else _cell(rews_col, i), "terminated": terminal})
+    if not eps:
         raise UserError(f"{where} holds no trajectories; save at least one.")
-    _check_consistent(where, trajs)
     notes = []
     if kept_truncated:
-        notes.append(f"{kept_truncated} of {len(trajs)} trajectories flagged terminal end with '{TIME_LIMIT_KEY}' "
+        notes.append(f"{kept_truncated} of {len(eps)} trajectories flagged terminal end with '{TIME_LIMIT_KEY}' "
                      "in their last info and were kept as truncated (a time limit, not a terminal state)")
     fields = [c for c in ("obs", "acts", "infos", "terminal", "rews") if c in columns]
-    found = (f"an imitation trajectories folder (HuggingFace datasets, {len(trajs)} rows with "
+    found = (f"an imitation trajectories folder (HuggingFace datasets, {len(eps)} rows with "
              f"{', '.join(fields)})")
-    return {"trajs": trajs, "notes": notes, "found": found, "episode_keys": [str(i) for i in range(len(trajs))],
+    return {"episodes": eps, "notes": notes, "found": found, "episode_keys": [str(i) for i in range(len(eps))],
             "metadata": {}}
 
 
@@ -137,37 +129,37 @@ def _time_limited(infos: Any) -> bool:
     return isinstance(last, dict) and bool(last.get(TIME_LIMIT_KEY, False))
 
 
-def read_imitation_transitions(arrays: Any) -> tuple[list[Any], list[str]]:
+def read_imitation_transitions(arrays: Any) -> tuple[list[dict[str, Any]], list[str]]:
     """Trajectories from imitation's flattened transitions (`obs`, `acts`, `next_obs`, `dones`, optional `rews`).
 
-    `arrays` is the importer's checked view of the file (`digail.data.importers._Arrays`).
+    `arrays` is the importer's checked view of the file (`digail.data.importers._Arrays`: `get`, `optional`,
+    `where`). Returns the episodes (as `digail.data.importers.trajectories_from_episodes` takes them) and notes.
     """
-    from digail.data.importers import _actions, _rows, _traj
-
     where = arrays.where
     obs, acts, next_obs = arrays.get("obs"), arrays.get("acts"), arrays.get("next_obs")
     dones = arrays.get("dones", kind="flag")
+    rews = arrays.optional("rews")
     n = len(obs) if obs.ndim >= 1 else 0
-    for name, arr in (("acts", acts), ("next_obs", next_obs), ("dones", dones)):
-        _rows(where, name, arr, n, "observations")
+    if n == 0:
+        raise UserError(f"{where} holds no transitions; save at least one.")
+    for name, arr in (("acts", acts), ("next_obs", next_obs), ("dones", dones), ("rews", rews)):
+        if arr is not None and (arr.ndim < 1 or len(arr) != n):
+            raise UserError(f"{where} has {len(arr) if arr.ndim else 'a scalar'} rows of '{name}' but {n} "
+                            "observations; the arrays must have matching lengths.")
     if next_obs.shape[1:] != obs.shape[1:]:
         raise UserError(f"{where} has 'next_obs' of shape {next_obs.shape[1:]} per step but 'obs' of "
                         f"{obs.shape[1:]}; they must match.")
-    rews = arrays.optional("rews")
-    if rews is not None:
-        _rows(where, "rews", rews, n, "observations")
-    acts = _actions(where, "acts", acts)
     # a trajectory ends on a done flag, or where the next row does not start from the state this one led to
     jumps = ~np.all(np.isclose(next_obs[:-1].reshape(n - 1, -1), obs[1:].reshape(n - 1, -1)), axis=1) \
         if n > 1 else np.zeros(0, bool)
     ends = np.flatnonzero(dones[:-1] | jumps) + 1
     bounds = list(zip([0, *ends.tolist()], [*ends.tolist(), n], strict=True))
-    trajs = [_traj(where, np.concatenate([obs[a:b], next_obs[b - 1:b]]), acts[a:b],
-                   None if rews is None else rews[a:b], bool(dones[b - 1])) for a, b in bounds]
+    eps = [{"where": where, "obs": np.concatenate([obs[a:b], next_obs[b - 1:b]]), "acts": acts[a:b],
+            "rews": None if rews is None else rews[a:b], "terminated": bool(dones[b - 1])} for a, b in bounds]
     unflagged = int(np.sum(jumps & ~dones[:-1]))
     notes = []
     if unflagged or not dones[-1]:
-        notes.append(f"{unflagged + int(not dones[-1])} of {len(trajs)} trajectories end without a 'dones' flag "
+        notes.append(f"{unflagged + int(not dones[-1])} of {len(eps)} trajectories end without a 'dones' flag "
                      "(where 'next_obs' is not the next row's 'obs', or at the end of the file) and were kept as "
                      "truncated")
-    return trajs, notes
+    return eps, notes

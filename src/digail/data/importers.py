@@ -260,7 +260,11 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
 
         structured = read_structured(source, fmt, obs_keys)
         if structured is not None:
-            return structured
+            trajs = trajectories_from_episodes(structured["source"], structured["episodes"])
+            obs_space, act_space = spaces_from_data(trajs)
+            return Imported(trajs=trajs, fmt=structured["fmt"], observation_space=obs_space, action_space=act_space,
+                            source=structured["source"], notes=structured["notes"], found=structured["found"],
+                            episode_keys=structured["episode_keys"], metadata=structured["metadata"])
     if obs_keys:
         what = "the given arrays" if isinstance(source, Mapping) else source
         raise UserError(f"--obs-keys applies to robomimic files and LeRobot datasets; {what} is read as named "
@@ -272,11 +276,14 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
             if not any(k in arrays for k in key.split("|")):
                 raise UserError(f"{arrays.where} has no '{key.split('|')[0]}' array, which the {kind} layout needs; "
                                 f"{arrays._hint()}.")
-        from digail.data.imitation_hf import read_imitation_transitions
+        if kind == "imitation-transitions":
+            from digail.data.imitation_hf import read_imitation_transitions
 
-        reader = {"sb3": _read_sb3, "imitation": _read_imitation, "d4rl": _read_d4rl, "arrays": _read_arrays,
-                  "imitation-transitions": read_imitation_transitions}[kind]
-        trajs, notes = reader(arrays)
+            episodes, notes = read_imitation_transitions(arrays)
+            trajs = trajectories_from_episodes(arrays.where, episodes)
+        else:
+            reader = {"sb3": _read_sb3, "imitation": _read_imitation, "d4rl": _read_d4rl, "arrays": _read_arrays}[kind]
+            trajs, notes = reader(arrays)
         found = f"the {kind} layout ({', '.join(arrays.keys())})"
     finally:
         if handle is not None:
@@ -420,6 +427,35 @@ def _read_imitation(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
     trajs = [_traj(where, o, a, r, bool(t))
              for o, a, r, t in zip(obs_splits, act_splits, rew_splits, terminal, strict=True)]
     return trajs, []
+
+
+def trajectories_from_episodes(where: str, episodes: Sequence[Mapping[str, Any]]) -> list[Trajectory]:
+    """Validated episodes from the per-episode arrays the structured readers return (`digail.data.formats`).
+
+    Each entry: `where` (the episode, for messages), `obs` (T + 1 rows), `acts` (T rows; `acts_name` names them in
+    messages), optional `rews` (T), `terminated`, optional `subtasks` (T + 1 oracle labels). The checks are the
+    named-array layouts': numbers only, finite, matching lengths, one observation shape.
+    """
+    trajs = []
+    for ep in episodes:
+        name, acts_name = ep["where"], ep.get("acts_name", "acts")
+        arrays = _Arrays(name, {"obs": ep["obs"], acts_name: ep["acts"],
+                                **({"rews": ep["rews"]} if ep.get("rews") is not None else {})})
+        obs, acts, rews = arrays.get("obs"), arrays.get(acts_name), arrays.optional("rews")
+        if obs.ndim < 1 or acts.ndim < 1 or len(obs) != len(acts) + 1:
+            n_obs, n_acts = len(obs) if obs.ndim else 0, len(acts) if acts.ndim else 0
+            raise UserError(f"{name} has {n_obs} observations for {n_acts} actions; an episode needs one more "
+                            "observation (the state after its last action).")
+        if rews is not None:
+            _rows(name, "rewards", rews.reshape(-1), len(acts), "actions")
+        traj = _traj(name, obs, _actions(name, acts_name, acts), rews, bool(ep.get("terminated", False)))
+        if ep.get("subtasks") is not None:
+            traj = replace(traj, subtasks=np.asarray(ep["subtasks"], dtype=np.int64))
+        trajs.append(traj)
+    if not trajs:
+        raise UserError(f"{where} holds no episode; import a source with at least one.")
+    _check_consistent(where, trajs)
+    return trajs
 
 
 def trajectories_from_objects(items: Sequence[Any]) -> list[Trajectory]:

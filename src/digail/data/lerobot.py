@@ -89,16 +89,15 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
             else every numeric `observation.*` feature, sorted).
 
     Returns:
-        A dict with `trajs`, `notes`, `found`, `episode_keys` (the episode indices), `obs_keys` and `metadata`,
-        which `digail.data.importers.read_demonstrations` turns into an `Imported`.
+        A dict with `episodes` (per episode its arrays, as `digail.data.importers.trajectories_from_episodes`
+        takes them), `notes`, `found`, `episode_keys` (the episode indices) and `metadata`, which
+        `digail.data.importers.read_demonstrations` checks and turns into an `Imported`.
 
     Raises:
         UserError: missing features or columns, video features asked for, episodes of one frame only.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from digail.data.importers import _actions, _Arrays, _check_consistent, _traj
 
     path = Path(path)
     where = str(path)
@@ -142,34 +141,26 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     order = np.lexsort((frame, episode))
     obs = np.concatenate([_column(table, k, where).reshape(table.num_rows, -1).astype(np.float32)
                           for k in chosen], axis=1)[order]
-    arrays = _Arrays(where, {"action": _column(table, "action", where).reshape(table.num_rows, -1)[order],
-                             "observations": obs})
-    acts, obs = arrays.get("action"), arrays.get("observations")
+    acts = _column(table, "action", where).reshape(table.num_rows, -1)[order]
     rews = _column(table, "next.reward", where).reshape(-1)[order] if "next.reward" in table.column_names else None
     labels = (_column(table, SUBTASK_COLUMN, where).reshape(-1)[order].astype(np.int64)
               if SUBTASK_COLUMN in table.column_names else None)
     episode = episode[order]
     starts = np.flatnonzero(np.diff(np.concatenate([[-1], episode])) != 0)
     ends = [*starts[1:].tolist(), len(episode)]
-    acts = _actions(where, "action", acts)
-    trajs, keys, short = [], [], 0
+    eps, keys, short = [], [], 0
     for a, b in zip(starts.tolist(), ends, strict=True):
         if b - a < 2:
             short += 1
             continue
-        traj = _traj(f"{where}, episode {episode[a]}", obs[a:b], acts[a:b - 1],
-                     None if rews is None else rews[a:b - 1], False)
-        if labels is not None:
-            from dataclasses import replace
-
-            traj = replace(traj, subtasks=labels[a:b])
-        trajs.append(traj)
+        eps.append({"where": f"{where}, episode {episode[a]}", "obs": obs[a:b], "acts": acts[a:b - 1],
+                    "acts_name": "action", "rews": None if rews is None else rews[a:b - 1], "terminated": False,
+                    "subtasks": None if labels is None else labels[a:b]})
         keys.append(str(int(episode[a])))
-    if not trajs:
+    if not eps:
         raise UserError(f"{where} holds no episode of two frames or more; digail needs a state after each action.")
-    _check_consistent(where, trajs)
     notes = [f"LeRobot frames hold no state after an episode's last action, so the last action of each of "
-             f"{len(trajs)} episodes was dropped and the episodes kept as truncated"]
+             f"{len(eps)} episodes was dropped and the episodes kept as truncated"]
     if short:
         notes.append(f"{short} episodes of a single frame were skipped")
     if cameras:
@@ -177,11 +168,11 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     if labels is not None:
         notes.append(f"oracle sub-task labels read from the '{SUBTASK_COLUMN}' column")
     version = info.get("codebase_version", "unknown")
-    found = (f"a LeRobot dataset (format {version}, {len(trajs)} episodes, {table.num_rows} frames; observation "
+    found = (f"a LeRobot dataset (format {version}, {len(eps)} episodes, {table.num_rows} frames; observation "
              f"{' + '.join(chosen)}, action 'action')")
     metadata = {"obs_keys": chosen, "lerobot": {k: info[k] for k in ("codebase_version", "fps", "robot_type")
                                                 if k in info}}
-    return {"trajs": trajs, "notes": notes, "found": found, "episode_keys": keys, "metadata": metadata}
+    return {"episodes": eps, "notes": notes, "found": found, "episode_keys": keys, "metadata": metadata}
 
 
 def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Sequence[str],

@@ -95,15 +95,14 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
         obs_keys: observation keys to flatten and join, in this order (default: all low-dimensional keys, sorted).
 
     Returns:
-        A dict with `trajs`, `notes`, `found`, `episode_keys` (the demo group names), `obs_keys` and `metadata`
-        (`env_args`), which `digail.data.importers.read_demonstrations` turns into an `Imported`.
+        A dict with `episodes` (per demonstration its arrays, as `digail.data.importers.trajectories_from_episodes`
+        takes them), `notes`, `found`, `episode_keys` (the demo group names) and `metadata` (the observation keys,
+        `env_args`), which `digail.data.importers.read_demonstrations` checks and turns into an `Imported`.
 
     Raises:
         UserError: no demonstrations, a missing or image key asked for, arrays that do not fit together.
     """
     import h5py
-
-    from digail.data.importers import _actions, _Arrays, _check_consistent, _traj
 
     path = Path(path)
     where = str(path)
@@ -143,16 +142,15 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
         placeholder = all("next_obs" in data[k] and all(
             np.array_equal(data[k]["obs"][c][-1], data[k]["next_obs"][c][-1]) for c in chosen
             if c in data[k]["obs"] and c in data[k]["next_obs"]) for k in keys)
-        trajs, dropped, signal_names = [], 0, set()
+        eps, dropped, signal_names = [], 0, set()
         labels: list[np.ndarray | None] = []
         kept: list[str] = []
         for key in keys:
             demo = data[key]
             row = f"{where}, data/{key}"
             obs = _flat(demo["obs"], chosen, row)
-            arrays = _Arrays(row, {"actions": demo["actions"][()],
-                                   **({"rewards": demo["rewards"][()]} if "rewards" in demo else {})})
-            acts, rews = arrays.get("actions"), arrays.optional("rewards")
+            acts = np.asarray(demo["actions"][()])
+            rews = np.asarray(demo["rewards"][()]).reshape(-1) if "rewards" in demo else None
             n = len(acts)
             if len(obs) != n or (rews is not None and len(rews) != n):
                 raise UserError(f"{row} has {len(obs)} observations, {n} actions"
@@ -177,12 +175,12 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
                 labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
             else:
                 labels.append(None)
-            trajs.append(_traj(row, obs, _actions(row, "actions", acts), rews, False))
+            eps.append({"where": row, "obs": obs, "acts": acts, "acts_name": "actions", "rews": rews,
+                        "terminated": False})
         env_args = data.attrs.get("env_args")
         masks = sorted(f["mask"]) if isinstance(f.get("mask"), h5py.Group) else []
-    if not trajs:
+    if not eps:
         raise UserError(f"{where} holds no demonstration with at least one step; import longer ones.")
-    _check_consistent(where, trajs)
     notes = []
     if images:
         notes.append(f"image observations skipped: {', '.join(images)} (digail reads low-dimensional keys)")
@@ -192,9 +190,8 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
                f"{dropped} of {len(keys)} demonstrations store no next_obs")
         notes.append(f"{why}, so the last action of each was dropped and the demonstration kept as truncated")
     if all(lab is not None for lab in labels):
-        from dataclasses import replace
-
-        trajs = [replace(t, subtasks=lab) for t, lab in zip(trajs, labels, strict=True)]
+        for ep, lab in zip(eps, labels, strict=True):
+            ep["subtasks"] = lab
         notes.append(f"oracle sub-task labels read from {SIGNALS_PATH} ({', '.join(sorted(signal_names))}): a "
                      "step's label is how many of these signals have turned 1")
     elif any(lab is not None for lab in labels):
@@ -211,7 +208,7 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
     filters = f"; filter keys {', '.join(masks)} ignored, all demonstrations read" if masks else ""
     found = (f"a robomimic file ({len(keys)} demonstrations data/{keys[0]} .. data/{keys[-1]}{of_env}; observation "
              f"keys {', '.join(chosen)} flattened in this order{filters})")
-    return {"trajs": trajs, "notes": notes, "found": found, "episode_keys": kept, "metadata": metadata}
+    return {"episodes": eps, "notes": notes, "found": found, "episode_keys": kept, "metadata": metadata}
 
 
 def _oracle_signals(group: Any) -> list[str]:
