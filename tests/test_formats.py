@@ -273,3 +273,11 @@ def test_cli_segment_exports(robomimic_vae, capsys):
     assert not (root / "lr").exists() and not (root / "x.csv").exists()
     assert main(["segment", str(root / "vae"), "--demos", str(root / "demos"), "--obs-keys", "object"]) == 2
     assert "--obs-keys applies when --demos is a robomimic file" in capsys.readouterr().err
+
+
+def test_pretrain_on_a_foreign_folder_points_to_import(tmp_path, capsys):
+    before = digest(LEROBOT)
+    assert main(["pretrain", "--demos", str(LEROBOT), "--preset", "smoke", "--out", str(tmp_path / "vae")]) == 2
+    err = capsys.readouterr().err
+    assert f"digail import {LEROBOT} --out NEW_FOLDER" in err and "digail demos" not in err, err
+    assert digest(LEROBOT) == before and not (tmp_path / "vae").exists()
