@@ -281,3 +281,28 @@ def test_pretrain_on_a_foreign_folder_points_to_import(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"digail import {LEROBOT} --out NEW_FOLDER" in err and "digail demos" not in err, err
     assert digest(LEROBOT) == before and not (tmp_path / "vae").exists()
+
+
+def test_exports_match_what_the_libraries_loaded(tmp_path, eps):
+    """scripts/check_format_exports.py exported the fixtures' phases and recorded what robomimic 0.3.0's
+    SequenceDataset and LeRobot 0.6.1's LeRobotDataset loaded; digail's export of the same codes writes exactly
+    that today."""
+    names = ["reach", "carry"]
+    rm = json.loads((FIXTURES / "robomimic.check.json").read_text())
+    im = read_demonstrations(ROBOSUITE)
+    codes = [e["phase"][:len(t)] for e, t in zip(eps, im.trajs, strict=True)]
+    out = export_segmentation("robomimic", tmp_path / "rm.hdf5", im.episode_keys, codes, names, source=im.source)
+    with h5py.File(out, "r") as f:
+        for key, loaded in rm["signals"].items():
+            for name in names:
+                assert f[f"data/{key}/datagen_info/subtask_term_signals/{name}"][()].tolist() == loaded[name]
+    lr = json.loads((FIXTURES / "lerobot.check.json").read_text())
+    assert lr["lerobot"] == "0.6.1" and "subtask_index" in lr["features"] and lr["subtasks"] == {"reach": 0,
+                                                                                               "carry": 1}
+    im = read_demonstrations(LEROBOT)
+    codes = [e["phase"][:len(t)] for e, t in zip(eps, im.trajs, strict=True)]
+    out = export_segmentation("lerobot", tmp_path / "lr", im.episode_keys, codes, names, source=im.source)
+    table = pq.read_table(out / "data" / "chunk-000" / "file-000.parquet").to_pydict()
+    for episode, loaded in lr["subtask_index"].items():
+        rows = [i for i, e in enumerate(table["episode_index"]) if e == int(episode)]
+        assert [table["subtask_index"][i] for i in rows] == loaded
