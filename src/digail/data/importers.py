@@ -54,9 +54,6 @@ _LAYOUTS = ("SB3 rollouts (obs, actions, episode_starts), imitation trajectories
             "timeouts), plain arrays (observations, actions, episode_ends) or a robomimic file (data/demo_<n> "
             "groups)")
 
-_KEYED = ("robomimic", "lerobot")
-"""the layouts whose observation keys can be chosen (`obs_keys`)"""
-
 _REQUIRED = {
     "imitation-transitions": ("obs", "acts", "next_obs", "dones"),
     "sb3": ("obs", "actions", "episode_starts"),
