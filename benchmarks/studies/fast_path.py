@@ -15,13 +15,20 @@ interleaved in one process, medians of per-round ratios.
   scripted sampling loop) and `--vae.bptt` (the hand-written backward pass), against q's module step by step;
 - `polish`: 1000 polish steps (`fit_to_codes`, minibatch 256) on the shipped Circle-World and Four Rooms
   demonstrations, the scripted loss-and-gradient step against autograd through the modules;
-- `rollout`: Directed-Info GAIL rollouts (`GAIL.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
-  Rooms, the NumPy snapshots against the modules' torch forward passes.
+- `rollout`: Directed-Info GAIL rollouts (`PPOLearner.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
+  Rooms, the NumPy snapshots against the modules' torch forward passes;
+- `iteration`: whole training iterations (`GAIL.iterate`: rollout, D, reward, update) with each env's preset
+  (sync envs), GAIL with a fresh policy: PPO on Circle-World and Hopper as `fast` (every piece on, PPO's
+  hand-written gradient), `compiled` (every piece on but PPO's loss through `torch.compile` instead of the hand
+  gradient), `reference+compile` (the reference path, the loss compiled) and `reference`; SAC on Hopper
+  (`--train.sac.steps-per-iteration 200`, after 1000 steps of warm-up) as `fast` against `reference` (SAC has no
+  compiled path).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import time
@@ -216,7 +223,7 @@ def rollout_study(rounds: int) -> dict[str, Any]:
 
         def run(trainer: Any = trainer) -> None:
             for _ in range(3):
-                trainer.collect()
+                trainer.learner.collect()
 
         def reference(run: Callable[[], None] = run) -> None:
             with fast.reference():
@@ -229,16 +236,64 @@ def rollout_study(rounds: int) -> dict[str, Any]:
     return out
 
 
+def iteration_study(rounds: int) -> dict[str, Any]:
+    import dataclasses
+
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.commands.train import load_demos
+    from digail.data.demos import default_dataset_id
+    from digail.envs.registry import preset_for
+
+    def trainer(env_id: str, learner: str, *, compile_: bool, reference: bool) -> Any:
+        base = preset_for(env_id).train
+        cfg = dataclasses.replace(base, method="gail", learner=learner, backend="sync", value_warmup=0,
+                                  ppo=dataclasses.replace(base.ppo, compile=compile_),
+                                  sac=dataclasses.replace(base.sac, steps_per_iteration=200, learning_starts=1000,
+                                                          policy_warmup=0))
+        demos, _ = load_demos(default_dataset_id(env_id), env_id)
+        with fast.reference() if reference else _nothing():
+            tr = build_trainer(env_id, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
+            for _ in range(2 if learner == "ppo" else 6):  # first resets, allocations, compiles; SAC's buffer
+                tr.iterate()
+        return tr
+
+    def timed(tr: Any, reference: bool) -> Callable[[], None]:
+        def run() -> None:
+            with fast.reference() if reference else _nothing():
+                tr.iterate()
+        return run
+
+    out: dict[str, Any] = {}
+    cases = {("digail/CircleWorld-v0", "ppo"): {"fast": (False, False), "compiled": (True, False),
+                                               "reference+compile": (True, True), "reference": (False, True)},
+             ("Hopper-v5", "ppo"): {"fast": (False, False), "compiled": (True, False),
+                                    "reference+compile": (True, True), "reference": (False, True)},
+             ("Hopper-v5", "sac"): {"fast": (False, False), "reference": (False, True)}}
+    for (env_id, learner), variants in cases.items():
+        trainers = {name: trainer(env_id, learner, compile_=c, reference=r) for name, (c, r) in variants.items()}
+        fns = {name: timed(trainers[name], variants[name][1]) for name in variants}
+        out[f"{env_id} {learner} (one iteration)"] = _summary(_interleaved(fns, rounds), "fast")
+        print(env_id, learner, out[f"{env_id} {learner} (one iteration)"], flush=True)
+        for tr in trainers.values():
+            tr.close()
+    return out
+
+
+@contextlib.contextmanager
+def _nothing() -> Any:
+    yield
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--only", nargs="*",
-                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout"])
+                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
     args = parser.parse_args()
     set_torch_threads(1)
     studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
-               "polish": polish_study, "rollout": rollout_study}
+               "polish": polish_study, "rollout": rollout_study, "iteration": iteration_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")

@@ -4,7 +4,7 @@ Why: one env step of SAC is one update, so a run makes a million of them, each a
 whose dispatch and autograd bookkeeping cost more than the arithmetic with 64x64 nets; and autograd's policy step
 would also compute the critics' weight gradients it then throws away. Here two scripted functions compute the
 critics' loss and gradient (target included) and the policy's loss and gradient (back through the critics to the
-action only): the same maths as `SACLearner.update`'s autograd path, to float rounding (tests/test_sac.py checks
+action only): the same maths as `SACUpdate.update`'s autograd path, to float rounding (tests/test_sac.py checks
 them against autograd in float64). `sac_update` runs a whole update in one call: both gradients, the three Adam
 steps (torch's fused Adam kernel on the optimisers' own state, as `torch.optim.Adam(fused=True).step` calls it)
 and the targets' Polyak step; `disc_update` does the same for D. Used for Gaussian policies whose executed action
@@ -125,7 +125,7 @@ def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor
                q_adam: list[list[Tensor]], q_hyper: list[float], pi_adam: list[list[Tensor]], pi_hyper: list[float],
                alpha_adam: list[list[Tensor]], alpha_hyper: list[float], train_policy: bool,
                learn_alpha: bool) -> Tensor:
-    """One whole SAC update in `SACLearner.update`'s order: the critics' gradient and Adam step, the policy's
+    """One whole SAC update in `SACUpdate.update`'s order: the critics' gradient and Adam step, the policy's
     gradient against the updated critics and its step (`train_policy`), the temperature's step (`learn_alpha` and
     `train_policy`), the targets' Polyak step with rate `tau`.
 
@@ -151,7 +151,7 @@ def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor
                                      q_w, q_b)
     if train_policy:
         fused_adam(pi_params, pi_grads, pi_adam, pi_hyper)
-    # the temperature's loss log_alpha (H - H_target), its gradient H - H_target (see `SACLearner`)
+    # the temperature's loss log_alpha (H - H_target), its gradient H - H_target (see `SACUpdate`)
     alpha_loss = log_alpha * (entropy - target_entropy)
     if learn_alpha and train_policy:
         fused_adam(alpha_params, [(entropy - target_entropy).reshape(())], alpha_adam, alpha_hyper)
