@@ -80,3 +80,56 @@ def test_the_reward_is_ds_plus_the_weighted_bonus_for_every_learner():
             torch.testing.assert_close(rews, disc_rew + 0.5 * batch["bonus"] + 0.5 * math.log(3))
         finally:
             trainer.close()
+
+
+# ------------------------------------------------------------------------------------------------ the fast switch
+SRC = Path(__file__).resolve().parents[1] / "src" / "digail"
+
+
+def test_private_torch_ops_live_in_one_module():
+    """`torch._x` and `torch.ops.` appear in `digail.algos.fast.ops` only (the module that checks them)."""
+    offences = []
+    for path in sorted(SRC.rglob("*.py")):
+        if path.name == "ops.py" and path.parent.name == "fast":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "torch"
+                    and (node.attr == "ops" or (node.attr.startswith("_") and not node.attr.startswith("__")))):
+                offences.append(f"{path.relative_to(SRC)}:{node.lineno} {ast.unparse(node)}")
+    assert offences == []
+
+
+def test_an_untested_torch_turns_the_fast_path_off_with_one_warning():
+    import subprocess
+    import sys
+
+    code = ("import warnings, torch\nwarnings.simplefilter('always')\ntorch.__version__ = '2.99.0'\n"
+            "from digail.algos import fast\nfrom digail.algos.fast import step, ops\nprint(fast.enabled())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    assert out.stderr.count("fast path is off") == 1 and "2.99.0 is outside" in out.stderr, out.stderr
+
+
+def test_the_trainer_reads_the_switch_once_when_it_is_built(monkeypatch):
+    from digail.algos import fast
+
+    trainer = _trainer("ppo")
+    try:
+        assert trainer.fast_path is fast.enabled() is True
+        seen = []
+        monkeypatch.setattr(trainer.learner, "iterate", lambda: seen.append(fast.enabled()) or {})
+        monkeypatch.setenv("DIGAIL_REFERENCE", "1")  # too late for this trainer
+        trainer.iterate()
+        assert seen == [True] and not fast.enabled()
+    finally:
+        trainer.close()
+    with fast.reference():
+        trainer = _trainer("ppo")
+    try:
+        monkeypatch.delenv("DIGAIL_REFERENCE")
+        assert trainer.fast_path is False and fast.enabled()
+        monkeypatch.setattr(trainer.learner, "iterate", lambda: seen.append(fast.enabled()) or {})
+        trainer.iterate()
+        assert seen == [True, False]
+    finally:
+        trainer.close()

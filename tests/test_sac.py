@@ -491,6 +491,7 @@ def test_cli_smoke_train_resume_evaluate(tmp_path):
     assert main(argv) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["train"]["learner"] == "sac" and config["args"]["demos_subsample"] == 5
+    assert config["fast_path"] is True  # the switch the trainer read when it was built
     header = (run / "metrics.csv").read_text().splitlines()[0]
     for key in ("losses/critic", "sac/alpha", "disc/grad_penalty", "perf/sps"):
         assert key in header

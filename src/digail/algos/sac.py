@@ -183,7 +183,8 @@ class SACUpdate:
             self.log_alpha.grad = (entropy - self.target_entropy).reshape(())
             self.alpha_optimizer.step()
         with torch.no_grad():
-            torch._foreach_lerp_(self._target_params, self._q_params, self.cfg.tau)
+            for target, source in zip(self._target_params, self._q_params, strict=True):
+                target.lerp_(source, self.cfg.tau)
         return alpha_loss
 
     @torch.no_grad()

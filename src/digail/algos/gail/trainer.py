@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from digail.algos import fast
 from digail.algos.expert_data import expert_data
 from digail.algos.gail.discriminator import PenaltyStep, discriminator_update
 from digail.algos.learners import LEARNERS, Learner
@@ -92,6 +93,9 @@ class GAIL:
         obs_dim = model.obs_dim
 
         entry = LEARNERS[cfg.learner]
+        self.fast_path = fast.enabled()
+        """whether this trainer runs the fast path (`digail.algos.fast`): read once, here, and kept for every
+        iteration (`digail train` records it in the run's config.json)"""
         # the rollouts ignore the per-step infos, so the parallel backends skip shipping them
         self.envs = make_vec_env(env_id, entry.num_envs(cfg), cfg.backend, workers=cfg.env_workers, infos=False)
         probe = self.envs.probe
@@ -108,9 +112,10 @@ class GAIL:
         self._q_snap: Any = None  # weight snapshot of q, set while the codes are frozen (`frozen_codes`)
 
         try:
-            # the learner's nets draw their initial weights before D's (the order of PPO runs before learners)
-            self.learner: Learner = entry.build(self)
-            """what trains pi: its nets, optimisers and buffers (`digail.algos.learners`)"""
+            with fast.pinned(self.fast_path):
+                # the learner's nets draw their initial weights before D's (the order of PPO runs before learners)
+                self.learner: Learner = entry.build(self)
+                """what trains pi: its nets, optimisers and buffers (`digail.algos.learners`)"""
         except BaseException:
             self.envs.close()
             raise
@@ -118,7 +123,8 @@ class GAIL:
         # with absorbing states D sees [obs, absorbing flag, action]
         self.disc = Discriminator(obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
-        self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
+        with fast.pinned(self.fast_path):
+            self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
         """D's step with the gradient penalty on replayed pairs (the off-policy learners')"""
 
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
@@ -275,8 +281,10 @@ class GAIL:
 
     # ---------------------------------------------------------------------------------------- iteration
     def iterate(self) -> dict[str, float]:
-        """One training iteration of the learner; returns its scalars."""
-        out = self.learner.iterate()
+        """One training iteration of the learner (on the fast path or not, as when the trainer was built); returns
+        its scalars."""
+        with fast.pinned(self.fast_path):
+            out = self.learner.iterate()
         self.iteration += 1
         return out
 
