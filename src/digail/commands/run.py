@@ -270,6 +270,8 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
         write_run_config(run_dir, config)
         trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                                 device=device)
+        config["fast_path"] = trainer.fast_path  # what the trainer read when it was built
+        write_run_config(run_dir, config)
         trainer.model_config = config
         ckpt = run_dir / "checkpoint.pt"
         try:
