@@ -8,8 +8,8 @@ Per run folder (`runs/fetchfew/d<N>/<method>_s<seed>`, the VAEs as `bc_k4_s<seed
 demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: success,
 grasp and lift rates, the dense return that the paper's Table 2 reports, the sparse return; a run without it is
 listed as `running` with its last periodic evaluation), the learning curve (success of the 20-episode evaluation
-every 5 PPO iterations or 20k SAC steps against env steps), the env steps where that curve first reached 0.5 and 0.9 success, and the
-command that made the run. Medians over seeds per (N, method) go under `table`.
+every 5 PPO iterations or 20k SAC steps against env steps), the env steps where that curve first reached 0.5 and
+0.9 success, and the command that made the run. Medians over seeds per (N, method) go under `table`.
 """
 
 from __future__ import annotations
