@@ -7,16 +7,17 @@ is that landmark's number, so a sub-task is the same behaviour (head for one lan
 route. The default order, the one the shipped demonstrations show, is `DEMO_ORDER` = (0, 2, 1, 3): north-east,
 across the centre to south-west, up to north-west, across the centre again to south-east, about 195 steps (173-219).
 
-Why this layout. The two diagonal legs cross near the centre, where the route also starts, so the observation
-alone does not say where to go there: a flat (memoryless) policy cannot follow the route, while a macro-policy that
-remembers its code can (the label changes only when the point reaches the current target, so it is decided by the
-state and the previous label). The touch sensors make that decision one feature: a leg ends where the sensor of
-its landmark comes on. With positions alone the macro-policy must learn a distance threshold from about one
-switching state per leg, and with the defaults it missed 10-25 % of the switches (segmentation accuracy 0.88-0.95
-over the variants tried, 1.00 with the sensors: docs/experiments/2026-12-05-landmark-route.md). Straight legs
-between corners never pass within `REACH` of a third landmark, so any order can be driven without touching a
-landmark out of turn, and a new order (`order=(3, 2, 1, 0)`, say) is a task the demonstrations never showed that
-the scripted expert still solves (`digail.experts.scripted.route_expert`).
+Why this layout. The second leg leaves the first landmark back along the line the first leg came in on, and the
+two diagonal legs cross near the centre, so the same positions are driven in different directions at different
+times of an episode: a flat (memoryless) policy cannot be right on both, while a macro-policy that remembers its
+code can (the label changes only when the point reaches the current target, so it is decided by the state and
+the previous label). The touch sensors make that decision one feature: a leg ends where the sensor of its landmark
+comes on. With positions alone the macro-policy must learn a distance threshold from about one switching state per
+leg, and with the defaults it missed 5-30 % of the switches (segmentation accuracy 0.73-0.95 over the variants
+tried, 1.00 with the sensors: docs/experiments/2026-12-05-landmark-route.md). Straight legs between corners never
+pass within `REACH` of a third landmark, so any order can be driven without touching a landmark out of turn, and a
+new order (`order=(3, 2, 1, 0)`, say) is a task the demonstrations never showed that the scripted expert still
+solves (`digail.experts.scripted.route_expert`).
 
 - **Observation** (float32, 14): the point's position `(x, y)`, the four landmarks' positions in label order (8),
   and a touch sensor per landmark (4: 1.0 while the point is within `REACH` of it, else 0.0).
