@@ -306,6 +306,16 @@ def test_landmark_route_judges_the_order() -> None:
     assert gym_env.unwrapped.order == (2, 0, 1)
 
 
+def test_landmark_route_draws_a_path_that_leaves_the_view_only_inside_it() -> None:
+    env = LandmarkRouteEnv(render_mode="rgb_array")
+    env.reset(seed=0)
+    background = int((env.render() == 255).all(-1).sum())
+    for _ in range(120):  # far off to the south-west, out of the picture
+        env.step(np.array([-0.7, -0.7], np.float32))
+    image = env.render()
+    assert image is not None and abs(int((image == 255).all(-1).sum()) - background) < 2000
+
+
 def test_landmark_route_bad_orders_raise_user_error() -> None:
     assert parse_order("2, 0,1") == (2, 0, 1) and parse_order([3, 0]) == (3, 0)
     for bad, words in (("", "no legs"), ("a,b", "comma-separated"), ("0,4", "outside 0-3"), ((1, 1, 2), "twice")):

@@ -217,6 +217,7 @@ class LandmarkRouteEnv(gym.Env[np.ndarray, np.ndarray]):
             pa, pb = pixel(a), pixel(b)
             for s in np.linspace(0.0, 1.0, max(2, int(np.abs(pb - pa).max()) + 1)):
                 r, c = np.rint(pa + s * (pb - pa)).astype(int)
-                image[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2] = self.COLOURS[label]
+                if 0 <= r < size and 0 <= c < size:  # a path that leaves the view is drawn up to its edge
+                    image[max(r - 1, 0):r + 2, max(c - 1, 0):c + 2] = self.COLOURS[label]
         disc(self.pos, 4, (0, 0, 0))
         return image
