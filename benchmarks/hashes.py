@@ -1,5 +1,6 @@
 """Behaviour fingerprint: sha256 of the weights and metrics of short fixed-seed runs on Circle-World, Four Rooms
-and Hopper (pre-training with each env's preset, then a few Directed-Info GAIL iterations).
+and Hopper (pre-training with each env's preset, then a few Directed-Info GAIL iterations with PPO, and with SAC on
+Circle-World and Hopper: the reference update with a BC term and the hand-written one with absorbing states).
 
 A refactor that must not change behaviour prints the same lines before and after:
 
@@ -34,6 +35,17 @@ RUNS: dict[str, tuple[str, list[str], list[str]]] = {
                ["--vae.init-steps", "200"],
                ["--train.iterations", "2", "--train.value-warmup", "1", "--train.ppo.batch-size", "512",
                 "--train.ppo.minibatch-size", "128", "--train.ppo.no-compile", "--train.backend", "sync"]),
+    "circle-world-sac": ("digail/circleworld/expert-v0",
+                         ["--vae.init-steps", "300", "--vae.polish-steps", "200"],
+                         ["--train.learner", "sac", "--train.iterations", "2", "--train.sac.steps-per-iteration",
+                          "200", "--train.sac.learning-starts", "100", "--train.sac.batch-size", "64",
+                          "--train.sac.policy-warmup", "50", "--train.sac.hidden", "64", "64",
+                          "--train.anchor-weight", "0", "--train.bc-weight", "0.1"]),
+    "hopper-sac": ("digail/hopper/expert-v0",
+                   ["--vae.init-steps", "200"],
+                   ["--train.learner", "sac", "--train.iterations", "2", "--train.sac.steps-per-iteration", "200",
+                    "--train.sac.learning-starts", "100", "--train.sac.batch-size", "64", "--train.sac.policy-warmup",
+                    "50", "--train.sac.hidden", "64", "64", "--train.sac.absorbing", "--train.backend", "sync"]),
 }
 
 

@@ -91,9 +91,8 @@ def ours_runner(env_id: str, spec: str, *, gail: bool, hand: bool = True, seed: 
     reward_fn = None if gail else (lambda logits, batch: batch["rews"])
     trainer = build_trainer(env_id, demos, cfg, vae_model=None, seed=seed, run_dir=None, progress=False,
                             reward_fn=reward_fn)
-    assert trainer.offpolicy is not None
-    loop = trainer.offpolicy
-    loop.learner.hand = hand and loop.learner.hand
+    loop = trainer.learner
+    loop.sac.hand = hand and loop.sac.hand
     trainer.iterate()
     trainer.iterate()
 

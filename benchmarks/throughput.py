@@ -137,7 +137,7 @@ def main() -> None:
 
     def rollouts() -> None:
         for _ in range(args.iterations):
-            trainers["sync"].collect()
+            trainers["sync"].learner.collect()
 
     shares: dict[str, list[float]] = {b: [] for b in backends}  # per round: rollout share of the iterations' time
 

@@ -84,6 +84,10 @@ class Index:
         full = self.imports[module].get(head)
         if full is None:
             full = f"{module}.{head}"
+        home, _, attr = full.rpartition(".")
+        if (full not in self.classes and full not in self.functions and home != module
+                and attr in self.imports.get(home, {})):
+            full = self.resolve(home, attr)  # a name a package's `__init__` re-exports: its home module's
         return f"{full}.{rest}" if rest else full
 
     def method(self, cls: str, name: str) -> str | None:

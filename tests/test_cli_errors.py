@@ -284,12 +284,17 @@ def test_bad_input_is_one_sentence_exit_2_and_nothing_written(name, runs, tmp_pa
     assert not marker.exists(), "a hostile pickle ran"
 
 
-def test_force_replaces_a_file_and_empties_a_folder(runs, tmp_path):
-    """--out FILE --force leaves a folder and no orphan; --force empties an old folder before the new run."""
+def test_force_refuses_a_file_and_empties_a_folder(runs, tmp_path, capsys):
+    """--out FILE --force is refused (a file is not a folder digail made); --force empties an old run folder
+    before the new run, and the new folder carries the marker that lets a later --force replace it."""
     out = tmp_path / "out"
     out.write_text("an old file\n")
+    assert main(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out), "--force"]) == 2
+    assert "is a file, and --force replaces only a folder digail made" in capsys.readouterr().err
+    assert out.read_text() == "an old file\n"
+    out.unlink()
     assert main(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out), "--force"]) == 0
-    assert (out / "model.pt").is_file()
+    assert (out / "model.pt").is_file() and (out / ".digail").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"], "an orphan was left beside the output"
 
     old = tmp_path / "old"

@@ -139,11 +139,11 @@ def test_rollout_equals_the_modules_step_by_step(env_id, demos_fixture, decoder_
         return out
 
     trainer.start_episodes, trainer.envs.step = recording_start, recording_step
-    b = trainer.collect()
+    b = trainer.learner.collect()
     done = (b["terminated"] | b["truncated"]).numpy()
     assert done.sum() >= N and b["truncated"].any()
 
-    eye, q, pi, v, norm = trainer.eye, model.q, model.pi, trainer.value, model.normalizer
+    eye, q, pi, v, norm = trainer.eye, model.q, model.pi, trainer.learner.value, model.normalizer
     flat = b["obs"].reshape(T * N, -1)
     code_1h = eye[b["codes"].reshape(-1)]
     acts = b["acts"].reshape(T * N, *b["acts"].shape[2:])

@@ -223,7 +223,7 @@ def test_training_rollout_on_the_reference_path_builds_no_snapshot(monkeypatch: 
         cfg = TrainConfig(ppo=PPOConfig(num_envs=2, batch_size=160, minibatch_size=80), closed_loop_codes="argmax")
         trainer = DirectedInfoGAIL("digail/CircleWorld-v0", circle_demos, model, cfg, seed=0, progress=False)
         try:
-            return trainer.collect()
+            return trainer.learner.collect()
         finally:
             trainer.close()
 

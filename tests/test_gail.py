@@ -28,7 +28,7 @@ def test_bonus_is_log_q_of_the_chosen_code_and_credited_to_the_producing_transit
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, SMALL, vae_model=_vae_model(circle_demos),
                             seed=0, run_dir=None, progress=False)
     assert isinstance(trainer, DirectedInfoGAIL)
-    batch = trainer.collect()
+    batch = trainer.learner.collect()
     T, N = batch["bonus"].shape
     assert (T, N) == (32, 4)
     assert torch.all(batch["bonus"] <= 0)  # log-probabilities
@@ -70,14 +70,14 @@ def test_gail_has_one_code_and_no_bonus(circle_demos):
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
                             seed=0, run_dir=None, progress=False)
     assert type(trainer) is GAIL and trainer.K == 1
-    batch = trainer.collect()
+    batch = trainer.learner.collect()
     assert torch.all(batch["bonus"] == 0) and torch.all(batch["codes"] == 0)
 
 
 def test_discriminator_loss_falls_on_fixed_batches(circle_demos):
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
                             seed=0, run_dir=None, progress=False)
-    batch = trainer.collect()
+    batch = trainer.learner.collect()
     obs = batch["obs"].reshape(-1, 2)
     act_in = trainer.act_input(batch["acts"].reshape(-1, 2))
     first = trainer.update_discriminator(obs, act_in)["disc/loss"]
@@ -232,10 +232,10 @@ def test_policy_lr_and_linear_annealing(circle_demos):
     lrs = []
     for _ in range(4):
         trainer.iterate()
-        lrs.append([g["lr"] for g in trainer.optimizer.param_groups])
+        lrs.append([g["lr"] for g in trainer.learner.optimizer.param_groups])
     # iteration i (0-based) runs at (1 - i / 4) of the base rates: policy group first, value second
     np.testing.assert_allclose(lrs, [[1e-4 * f, 1e-3 * f] for f in (1.0, 0.75, 0.5, 0.25)], rtol=1e-6)
-    policy_group = {id(p) for p in trainer.optimizer.param_groups[0]["params"]}
+    policy_group = {id(p) for p in trainer.learner.optimizer.param_groups[0]["params"]}
     assert policy_group == {id(p) for p in trainer.model.pi.parameters()}
 
 

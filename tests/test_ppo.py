@@ -74,7 +74,7 @@ def test_lean_step_equals_clip_grad_norm_and_torch_adam():
     from torch import nn
 
     from digail.algos.fast.step import LeanStep
-    from digail.algos.gail import adam
+    from digail.algos.optim import adam
 
     nets = [_nets(), _nets()]
     opts = [adam([{"params": list(p.parameters()), "lr": 1e-3}, {"params": list(v.parameters())}], lr=3e-3)
@@ -109,7 +109,7 @@ def test_compiled_update_matches_eager_and_falls_back(monkeypatch):
     import pytest
 
     import digail.algos.ppo as ppo_mod
-    from digail.algos.gail import adam
+    from digail.algos.optim import adam
 
     results = []
     for compile_ in (False, True):

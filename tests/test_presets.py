@@ -38,6 +38,8 @@ def test_every_departure_departs_and_says_why_and_where() -> None:
             assert d.why.strip() and "\n" not in d.why, f"{name}: {d.key} needs a one-line reason"
             if d.see.startswith("docs/"):
                 page, _, anchor = d.see.partition("#")
+                # a preset is read by users: its reason points at the guide or the results, not the dated logs
+                assert not page.startswith("docs/experiments"), f"{name}: {d.key} points into a dated log"
                 assert (ROOT / page).is_file(), f"{name}: {d.key} links to a missing page {page}"
                 assert not anchor or anchor in _anchors((ROOT / page).read_text()), f"{name}: no heading #{anchor}"
             elif name != "smoke":

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from digail.algos.sac import SACBatch, SACLearner
+from digail.algos.sac import SACBatch, SACUpdate
 from digail.config import SACConfig, TrainConfig
 from digail.errors import UserError
 from digail.nets.policy import ActionSpec, SubtaskPolicy
@@ -27,7 +27,7 @@ def _np_mlp(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.nd
     return x @ w.T + b
 
 
-def _tiny(hand: bool, seed: int = 0) -> tuple[SACLearner, SACBatch, torch.Tensor, torch.Tensor]:
+def _tiny(hand: bool, seed: int = 0) -> tuple[SACUpdate, SACBatch, torch.Tensor, torch.Tensor]:
     """A float64 learner with 2-d observations, K = 2 codes, 1-d actions in [-1, 1], 3-unit nets, and a 3-row
     batch whose last row ends by termination (absorbing value 2.5)."""
     dtype = torch.float64
@@ -39,7 +39,7 @@ def _tiny(hand: bool, seed: int = 0) -> tuple[SACLearner, SACBatch, torch.Tensor
         with torch.no_grad():
             pi.log_std.fill_(-0.7)
         cfg = SACConfig(hidden=(3,), gamma=0.9, tau=0.1, init_alpha=0.2, lr=1e-2, alpha_lr=1e-2)
-        learner = SACLearner(pi, 2, 2, cfg, lambda a: a.clamp(-1.0, 1.0), torch.device("cpu"),
+        learner = SACUpdate(pi, 2, 2, cfg, lambda a: a.clamp(-1.0, 1.0), torch.device("cpu"),
                              bounds=(np.array([-1.0]), np.array([1.0])) if hand else None)
     finally:
         torch.set_default_dtype(previous)
@@ -125,7 +125,7 @@ def test_hand_gradients_equal_autograd():
         torch.testing.assert_close(p_hand, p_auto, rtol=1e-10, atol=1e-12)
 
 
-def _all_weights(learner: SACLearner) -> list[torch.Tensor]:
+def _all_weights(learner: SACUpdate) -> list[torch.Tensor]:
     return [p.detach().clone() for p in (*learner.critic.parameters(), *learner.critic_target.parameters(),
                                          *learner.pi.parameters(), learner.log_alpha)]
 
@@ -246,13 +246,12 @@ def test_resume_continues_to_the_same_weights(tmp_path):
     first.train(iterations=1)
     resumed = _trainer(tmp_path / "b")
     resumed.load_checkpoint(tmp_path / "b" / "checkpoint.pt")
-    assert resumed.offpolicy is not None and resumed.offpolicy.buffer.size == 100
+    assert resumed.learner.buffer.size == 100
     resumed.train(iterations=2)
     for name in ("model", "disc"):
         a, b = getattr(straight, name).state_dict(), getattr(resumed, name).state_dict()
         assert all(torch.equal(a[k], b[k]) for k in a), name
-    assert straight.offpolicy is not None and resumed.offpolicy is not None
-    ca, cb = straight.offpolicy.learner.critic.state_dict(), resumed.offpolicy.learner.critic.state_dict()
+    ca, cb = straight.learner.sac.critic.state_dict(), resumed.learner.sac.critic.state_dict()
     assert all(torch.equal(ca[k], cb[k]) for k in ca)
     for tr in (straight, first, resumed):
         tr.close()
@@ -381,16 +380,16 @@ def _toy_return(model) -> float:
 def test_bonus_is_log_q_of_the_next_code_and_enters_the_reward():
     tr = _toy_trainer("bonus")
     tr.cfg = dataclasses.replace(tr.cfg, bonus_weight=2.0)
-    tr.offpolicy.cfg = dataclasses.replace(tr.offpolicy.cfg, learning_starts=10_000)
+    tr.learner.cfg = dataclasses.replace(tr.learner.cfg, learning_starts=10_000)
     tr.iterate()
-    buf = tr.offpolicy.buffer
+    buf = tr.learner.buffer
     n = buf.size
     l1 = np.abs(buf.next_obs[:n]).sum(1)
     expected = -np.logaddexp(0.0, -1.5 * np.maximum(0.0, 4.0 - l1))  # log q(code 0 | s'), the argmax
     np.testing.assert_allclose(buf.bonus[:n], expected, rtol=1e-5, atol=1e-6)
     assert (buf.next_codes[:n] == 0).all()
     b = buf.get(np.arange(n))
-    rews, disc_rew, _ = tr.offpolicy.rewards(b)
+    rews, disc_rew, _ = tr.learner.rewards(b)
     torch.testing.assert_close(rews, disc_rew + 2.0 * b["bonus"])
     tr.close()
 
@@ -412,8 +411,8 @@ def test_learns_from_the_relabelled_reward_or_from_the_bonus(signal):
 
 def test_discriminator_hand_gradient_equals_autograd():
     """D's cross-entropy plus gradient penalty: the hand-written gradient equals autograd's (float64)."""
-    from digail.algos.discriminator import disc_loss
     from digail.algos.fast.sac_grad import disc_grads
+    from digail.algos.gail.discriminator import disc_loss
     from digail.nets.critic import Discriminator
 
     torch.manual_seed(0)
@@ -441,14 +440,14 @@ def test_discriminator_scripted_step_gives_the_bits_of_the_pieces():
     runs = []
     for fused in (False, True):
         tr = _trainer(disc_every=1, learning_starts=10_000)
-        loop = tr.offpolicy
-        assert loop is not None and loop.hand_disc
+        loop, step = tr.learner, tr.penalty_step
+        assert step.hand
         tr.iterate()  # fills the buffer; no update yet
         if not fused:
-            loop._d_adam.lists = lambda: None  # type: ignore[method-assign]  # every step in pieces
+            step._d_adam.lists = lambda: None  # type: ignore[method-assign]  # every step in pieces
         for _ in range(3):
             loop.update_discriminator()
-        assert (loop._d_adam.lists() is not None) == fused  # after the first step: the scripted call's condition
+        assert (step._d_adam.lists() is not None) == fused  # after the first step: the scripted call's condition
         state = [t.clone() for st in tr.disc_optimizer.state.values() for t in st.values()]
         runs.append(([p.detach().clone() for p in tr.disc.parameters()], state))
         tr.close()
@@ -466,13 +465,13 @@ def test_absorbing_states_reach_d_and_the_target():
     sac = SACConfig(steps_per_iteration=60, learning_starts=10_000, hidden=(8,), absorbing=True, gamma=0.9)
     cfg = TrainConfig(method="gail", learner="sac", hidden=(8,), backend="sync", sac=sac)
     tr = build_trainer(TOY, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
-    loop = tr.offpolicy
+    loop, expert_in = tr.learner, tr.expert_disc_in
     assert tr.disc.net[0].in_features == 2 + 1 + 2
-    assert len(loop.expert_in) == 60 + 1 and loop.expert_in[-1, 2] == 1.0 and loop.expert_in[:-1, 2].eq(0).all()
+    assert len(expert_in) == 60 + 1 and expert_in[-1, 2] == 1.0 and expert_in[:-1, 2].eq(0).all()
     tr.iterate()
     b = loop.buffer.get(np.arange(10))
     _, _, v_abs = loop.rewards(b)
-    logit = tr.disc.net(loop.absorbing_row()).squeeze()
+    logit = tr.disc.net(tr.absorbing_row()).squeeze()
     torch.testing.assert_close(v_abs, torch.nn.functional.softplus(logit).detach() / 0.1)
     tr.close()
 
@@ -492,6 +491,7 @@ def test_cli_smoke_train_resume_evaluate(tmp_path):
     assert main(argv) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["train"]["learner"] == "sac" and config["args"]["demos_subsample"] == 5
+    assert config["fast_path"] is True  # the switch the trainer read when it was built
     header = (run / "metrics.csv").read_text().splitlines()[0]
     for key in ("losses/critic", "sac/alpha", "disc/grad_penalty", "perf/sps"):
         assert key in header
@@ -558,16 +558,18 @@ def test_zero_code_weights_start_every_code_alike(learner, zero):
         obs, act = torch.randn(5, 3), torch.randn(5, 1)
         codes = [torch.eye(3)[c].expand(5, 3) for c in range(3)]
         outs = {"pi": [trainer.model.pi.mode(obs, c) for c in codes],
-                "V": [trainer.value(obs, c) for c in codes]}
+                **({"V": [trainer.learner.value(obs, c) for c in codes]} if learner == "ppo" else {})}
         if learner == "sac":
-            learner_ = trainer.offpolicy.learner
+            learner_ = trainer.learner.sac
             for name, net in (("Q", learner_.critic), ("Q target", learner_.critic_target)):
                 outs[name] = [net(torch.cat([obs, c, act], -1)) for c in codes]
         for name, per_code in outs.items():
             alike = all(torch.equal(per_code[0], o) for o in per_code[1:])
             assert alike == zero, name
         # the same draw as the default apart from the code columns (weights and biases listed in one order)
-        nets = [(trainer.model.pi, default.model.pi), (trainer.value, default.value)]
+        nets = [(trainer.model.pi, default.model.pi)]
+        if learner == "ppo":
+            nets.append((trainer.learner.value, default.learner.value))
         for net, ref in nets:
             first_w = [k for k in net.state_dict() if k.endswith("weight")][0]
             for k, v in net.state_dict().items():

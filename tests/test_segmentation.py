@@ -173,6 +173,7 @@ class _FakeDataset:
     trajs: list[Trajectory]
     env_id: str | None
     dataset_id: str
+    metadata: dict = dataclasses.field(default_factory=dict)
 
 
 def fake_minari(monkeypatch: pytest.MonkeyPatch, trajs: list[Trajectory], env_id: str = "toy/TwoPhase-v0") -> None:

@@ -29,6 +29,9 @@ SPECS = {
     "no_demos.toml": f'envs = ["{CW}"]\ndemos = "nope/nothing-v0"\n',
     "other_demos.toml": f'envs = ["{CW}"]\ndemos = "digail/fourrooms/expert-v0"\n',
     "bad_set.toml": f'envs = ["{CW}"]\nmethods = ["vae"]\nset = {{ "train.no_such_field" = 1 }}\n',
+    "set_out.toml": f'envs = ["{CW}"]\nmethods = ["vae"]\n[set]\n"pretrain.out" = "/tmp"\n',
+    "grid_set_out.toml": f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.out" = "../../x" }}\n',
+    "tuple_flag.toml": f'envs = ["{CW}"]\nset = {{ "train.hidden" = [[64, "--out", "/tmp"]] }}\n',
 }
 
 
@@ -43,11 +46,26 @@ CASES: list[tuple[str, str]] = [
     ("--spec SPEC/unknown_env.toml --out OUT", "unknown environment id 'digail/NoSuchEnv-v0'"),
     ("--spec SPEC/no_demos.toml --out OUT", "its demonstrations 'nope/nothing-v0' cannot be read"),
     ("--spec SPEC/other_demos.toml --out OUT", "were recorded in digail/FourRooms-v0"),
-    (f"--envs {CW} --set train.no_such_field=1 --out OUT", "has no option --train.no-such-field"),
-    (f"--envs {CW} --methods vae --set train.no_such_field=1 --out OUT", "has no option --train.no-such-field"),
-    (f"--envs {CW} --methods vae --set vae.no_such_field=1 --out OUT", "`digail pretrain` has no option"),
-    (f"--envs {CW} --methods gail --set evaluate.no_such=1 --out OUT", "`digail evaluate` has no option"),
-    ("--spec SPEC/bad_set.toml --out OUT", "has no option --train.no-such-field"),
+    (f"--envs {CW} --set train.no_such_field=1 --out OUT", "'train.no_such_field' is not a setting a sweep may"),
+    (f"--envs {CW} --methods vae --set train.no_such_field=1 --out OUT", "'train.no_such_field' is not a setting"),
+    (f"--envs {CW} --methods vae --set vae.no_such_field=1 --out OUT", "'vae.no_such_field' is not a setting"),
+    (f"--envs {CW} --methods gail --set evaluate.no_such=1 --out OUT", "'evaluate.no_such' is not a setting"),
+    ("--spec SPEC/bad_set.toml --out OUT", "'train.no_such_field' is not a setting a sweep may"),
+    # an override sets hyper-parameters only: never a stage's output, input or control flag
+    (f"--envs {CW} --methods vae --set pretrain.out=PLACES/victim --out OUT", "'pretrain.out' is not a setting"),
+    (f"--envs {CW} --set train.out=../../x --out OUT", "'train.out' is not a setting"),
+    (f"--envs {CW} --set pretrain.force=true --out OUT", "'pretrain.force' is not a setting"),
+    (f"--envs {CW} --set pretrain.demos=x --out OUT", "'pretrain.demos' is not a setting"),
+    (f"--envs {CW} --set segment.demos=x --out OUT", "'segment.demos' is not a setting"),
+    (f"--envs {CW} --set pretrain.device=cpu --out OUT", "'pretrain.device' is not a setting"),
+    (f"--envs {CW} --set pretrain.resume=x --out OUT", "'pretrain.resume' is not a setting"),
+    (f"--envs {CW} --set demos.path=x --out OUT", "'demos.path' is not a setting"),
+    (f"--envs {CW} --set train.method=gail --out OUT", "'train.method' is not a setting"),
+    (f"--envs {CW} --set train.ppo=1 --out OUT", "'train.ppo' is not a setting"),
+    (f"--envs {CW} --set train.bonus_weight=--force --out OUT", "may not start with '-'"),
+    ("--spec SPEC/set_out.toml --out OUT", "'pretrain.out' is not a setting"),
+    ("--spec SPEC/grid_set_out.toml --out OUT", "'train.out' is not a setting"),
+    ("--spec SPEC/tuple_flag.toml --out OUT", "may not start with '-'"),
     (f"--envs {CW} --set train.bonus_weight=abc --out OUT", "train.bonus_weight=abc"),
     (f"--envs {CW} --set train.bonus_weight=0.1.. --out OUT", "range '0.1..' is malformed"),
     (f"--envs {CW} --set train.bonus_weight=..0.1x --out OUT", "train.bonus_weight=..0.1x"),
@@ -81,6 +99,8 @@ def places(tmp_path_factory):
     for name, text in SPECS.items():
         (root / "spec" / name).write_text(text)
     (root / "file").write_text("not a folder\n")
+    (root / "victim").mkdir()
+    (root / "victim" / "thesis.tex").write_text("a user's file\n")
     (root / "broken").mkdir()
     (root / "broken" / "sweep.json").write_text('{"name": "x", "jo')
     (root / "truncated" / "trials").mkdir(parents=True)
@@ -107,8 +127,8 @@ def test_bad_sweep_input_is_one_sentence_exit_2_nothing_written_no_ray(argv, fra
     out = tmp_path / "out"
     words = (argv.replace("SPEC", str(places / "spec")).replace("OUT", str(out)).replace("FILE", str(places / "file"))
              .replace("BROKEN", str(places / "broken")).replace("TRUNCATED", str(places / "truncated"))
-             .replace("PORT", str(_free_port()))).split()
-    before = {p: _tree(places / p) for p in ("broken", "truncated")}
+             .replace("PORT", str(_free_port())).replace("PLACES", str(places))).split()
+    before = {p: _tree(places / p) for p in ("broken", "truncated", "victim")}
     ray_dirs = set(glob.glob(os.path.join(tempfile.gettempdir(), "digail-ray-*")))
     code = main(["sweep", *words])
     err = capsys.readouterr().err
@@ -118,7 +138,7 @@ def test_bad_sweep_input_is_one_sentence_exit_2_nothing_written_no_ray(argv, fra
     assert fragment in lines[0], lines[0]
     assert "Traceback" not in err
     assert not out.exists(), "a refused sweep wrote its folder"
-    assert before == {p: _tree(places / p) for p in ("broken", "truncated")}
+    assert before == {p: _tree(places / p) for p in ("broken", "truncated", "victim")}
     assert not ray.is_initialized(), "Ray was started for a sweep that could not run"
     assert set(glob.glob(os.path.join(tempfile.gettempdir(), "digail-ray-*"))) == ray_dirs
 

@@ -15,13 +15,24 @@ interleaved in one process, medians of per-round ratios.
   scripted sampling loop) and `--vae.bptt` (the hand-written backward pass), against q's module step by step;
 - `polish`: 1000 polish steps (`fit_to_codes`, minibatch 256) on the shipped Circle-World and Four Rooms
   demonstrations, the scripted loss-and-gradient step against autograd through the modules;
-- `rollout`: Directed-Info GAIL rollouts (`GAIL.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
-  Rooms, the NumPy snapshots against the modules' torch forward passes.
+- `rollout`: Directed-Info GAIL rollouts (`PPOLearner.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
+  Rooms, the NumPy snapshots against the modules' torch forward passes;
+- `iteration`: whole training iterations (`GAIL.iterate`: rollout, D, reward, update) with each env's preset
+  (sync envs), GAIL with a fresh policy: PPO on Circle-World and Hopper as `fast` (every piece on, PPO's
+  hand-written gradient), `compiled` (every piece on but PPO's loss through `torch.compile` instead of the hand
+  gradient), `reference+compile` (the reference path, the loss compiled) and `reference`; SAC on Hopper
+  (`--train.sac.steps-per-iteration 200`, after 1000 steps of warm-up) as `fast` against `reference` (SAC has no
+  compiled path);
+- `pieces`: the same iterations with one piece of the fast path off at a time (the rest on): `-inference` (the
+  rollout's pi, V and q through their modules), `-lean step` (torch's own clipping and Adam step), `-hand grad`
+  (PPO's loss through autograd, eager), and for SAC `-sac hand` (SAC's update through autograd) and `-d hand`
+  (D's step through autograd); each against `fast`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import statistics
 import time
@@ -216,7 +227,7 @@ def rollout_study(rounds: int) -> dict[str, Any]:
 
         def run(trainer: Any = trainer) -> None:
             for _ in range(3):
-                trainer.collect()
+                trainer.learner.collect()
 
         def reference(run: Callable[[], None] = run) -> None:
             with fast.reference():
@@ -229,16 +240,139 @@ def rollout_study(rounds: int) -> dict[str, Any]:
     return out
 
 
+def iteration_study(rounds: int) -> dict[str, Any]:
+    import dataclasses
+
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.commands.train import load_demos
+    from digail.data.demos import default_dataset_id
+    from digail.envs.registry import preset_for
+
+    def trainer(env_id: str, learner: str, *, compile_: bool, reference: bool) -> Any:
+        base = preset_for(env_id).train
+        cfg = dataclasses.replace(base, method="gail", learner=learner, backend="sync", value_warmup=0,
+                                  ppo=dataclasses.replace(base.ppo, compile=compile_),
+                                  sac=dataclasses.replace(base.sac, steps_per_iteration=200, learning_starts=1000,
+                                                          policy_warmup=0))
+        demos, _ = load_demos(default_dataset_id(env_id), env_id)
+        with fast.reference() if reference else _nothing():
+            tr = build_trainer(env_id, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
+            for _ in range(2 if learner == "ppo" else 6):  # first resets, allocations, compiles; SAC's buffer
+                tr.iterate()
+        return tr
+
+    def timed(tr: Any, reference: bool) -> Callable[[], None]:
+        def run() -> None:
+            with fast.reference() if reference else _nothing():
+                tr.iterate()
+        return run
+
+    out: dict[str, Any] = {}
+    cases = {("digail/CircleWorld-v0", "ppo"): {"fast": (False, False), "compiled": (True, False),
+                                               "reference+compile": (True, True), "reference": (False, True)},
+             ("Hopper-v5", "ppo"): {"fast": (False, False), "compiled": (True, False),
+                                    "reference+compile": (True, True), "reference": (False, True)},
+             ("Hopper-v5", "sac"): {"fast": (False, False), "reference": (False, True)}}
+    for (env_id, learner), variants in cases.items():
+        if MATCH not in f"{env_id} {learner}":
+            continue
+        trainers = {name: trainer(env_id, learner, compile_=c, reference=r) for name, (c, r) in variants.items()}
+        fns = {name: timed(trainers[name], variants[name][1]) for name in variants}
+        out[f"{env_id} {learner} (one iteration)"] = _summary(_interleaved(fns, rounds), "fast")
+        print(env_id, learner, out[f"{env_id} {learner} (one iteration)"], flush=True)
+        for tr in trainers.values():
+            tr.close()
+    return out
+
+
+MATCH = ""
+"""`--match`: the `iteration` and `pieces` studies run only the cases whose "env learner" contains it"""
+
+
+def pieces_study(rounds: int) -> dict[str, Any]:
+    import dataclasses
+    from unittest import mock
+
+    from digail.algos import inference
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.algos.fast import step
+    from digail.commands.train import load_demos
+    from digail.data.demos import default_dataset_id
+    from digail.envs.registry import preset_for
+
+    def build(env_id: str, learner: str) -> Any:
+        base = preset_for(env_id).train
+        cfg = dataclasses.replace(base, method="gail", learner=learner, backend="sync", value_warmup=0,
+                                  ppo=dataclasses.replace(base.ppo, compile=False),
+                                  sac=dataclasses.replace(base.sac, steps_per_iteration=200, learning_starts=200,
+                                                          policy_warmup=0))
+        demos, _ = load_demos(default_dataset_id(env_id), env_id)
+        return build_trainer(env_id, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
+
+    def without(piece: str, tr: Any) -> contextlib.AbstractContextManager[Any]:
+        if piece == "-inference":
+            if hasattr(tr.learner, "live"):
+                tr.learner.live = None  # SAC's NumPy policy
+            stack = contextlib.ExitStack()
+            stack.enter_context(mock.patch.object(inference, "actor_critic",
+                                                  lambda pi, v, d: inference.ModuleActorCritic(pi, v)))
+            stack.enter_context(mock.patch.object(inference, "code_net", lambda q, d: inference.ModuleCodeNet(q)))
+            return stack
+        if piece == "-lean step":
+            return mock.patch.object(step, "enabled", lambda: False)
+        if piece == "-hand grad":
+            return mock.patch("digail.algos.ppo.fast_path", lambda: False)
+        if piece == "-sac hand":
+            tr.learner.sac.hand = False
+        if piece == "-d hand":
+            tr.penalty_step.hand = False
+        return _nothing()
+
+    out: dict[str, Any] = {}
+    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
+             ("Hopper-v5", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
+             ("Hopper-v5", "sac"): ["fast", "-inference", "-lean step", "-sac hand", "-d hand"]}
+    for (env_id, learner), variants in cases.items():
+        if MATCH not in f"{env_id} {learner}":
+            continue
+        trainers = {name: build(env_id, learner) for name in variants}
+        fns = {}
+        for name, tr in trainers.items():
+            def run(tr: Any = tr, name: str = name) -> None:
+                with without(name, tr):
+                    tr.iterate()
+            run()
+            run()  # first resets, allocations; SAC's buffer reaches learning_starts
+            fns[name] = run
+        key = f"{env_id} {learner} (one iteration, one piece off)"
+        out[key] = _summary(_interleaved(fns, rounds), "fast")
+        print(key, out[key], flush=True)
+        for tr in trainers.values():
+            tr.close()
+    return out
+
+
+@contextlib.contextmanager
+def _nothing() -> Any:
+    yield
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--only", nargs="*",
-                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout"])
+                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
+                                 "pieces"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
+    parser.add_argument("--match", default="", help="iteration, pieces: only the cases whose 'env learner' "
+                        "contains this")
     args = parser.parse_args()
+    global MATCH
+    MATCH = args.match
     set_torch_threads(1)
     studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
-               "polish": polish_study, "rollout": rollout_study}
+               "polish": polish_study, "rollout": rollout_study, "iteration": iteration_study,
+               "pieces": pieces_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")

@@ -142,6 +142,7 @@ def _main(argv: Sequence[str] | None) -> int:
     cls, handler, defaults = _command(name)
     rest = _renamed_flags(name, rest, getattr(_module(name), "ALIASES", {}))
     try:
+        _check_utf8(rest)
         with _terminate_as_interrupt():
             rest = _env_modules_imported(name, rest)
             parse_and_run(cls, handler, defaults, rest, prog=f"digail {name}")
@@ -163,6 +164,18 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"digail {name}: error: {os.strerror(exc.errno or 0).lower()}{where}; {fix}.", file=sys.stderr)
         return 2
     return 0
+
+
+def _check_utf8(argv: list[str]) -> None:
+    """Refuse an argument that is not valid UTF-8 (a path with bytes from another encoding): digail writes paths
+    into config.json, reports and messages as text, which it could not do after the work is done."""
+    for tok in argv:
+        try:
+            tok.encode("utf-8")
+        except UnicodeEncodeError:
+            shown = os.fsencode(tok).decode("utf-8", "backslashreplace")
+            raise UserError(f"the argument '{shown}' is not valid UTF-8; rename the file or folder (or choose "
+                            "another path) so that its name is UTF-8 text.") from None
 
 
 def _env_modules_imported(name: str, argv: list[str]) -> list[str]:

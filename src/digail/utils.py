@@ -126,13 +126,106 @@ def file_size_limit() -> int | None:
 def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
     """Refuse to overwrite an existing output folder unless `force`, and an output that cannot be written.
 
-    `hint` is appended to the refusal (e.g. how to continue an unfinished run instead)."""
+    `hint` is appended to the refusal (e.g. how to continue an unfinished run instead). With `force` the existing
+    output must be one `--force` may replace (`check_replaceable`)."""
     path = Path(path)
-    if path.exists() and not force:
+    exists = path.exists() or path.is_symlink()
+    if exists and not force:
         what = "folder" if path.is_dir() else "file"
         raise UserError(f"output {what} {path} already exists; choose another --out or pass --force{hint}.")
+    if exists:
+        check_replaceable(path)
     check_not_locked(path)  # --force never replaces a folder another command is writing
     check_writable(path)
+
+
+MARKER = ".digail"
+"""the file digail writes into every run, sweep and dataset folder it makes: what lets `--force` replace one"""
+
+
+def write_marker(folder: Path) -> None:
+    """Mark `folder` as one digail made (`MARKER`), so a later `--force` may replace it."""
+    (Path(folder) / MARKER).write_text("made by digail: `digail ... --force` may replace this folder\n")
+
+
+def digail_made(folder: Path) -> bool:
+    """Whether `folder` is one digail made: it holds `MARKER`, or (folders from before the marker) a run's
+    config.json (a JSON object naming `env_id` and `seed`), a dataset's data/metadata.json with digail's record, or
+    a sweep's sweep.json beside its trials/ folder. An empty folder (a lock file aside) counts too: replacing it
+    loses nothing."""
+    folder = Path(folder)
+    if (folder / MARKER).is_file():
+        return True
+    try:
+        if not any(child.name != LOCK_FILE for child in folder.iterdir()):
+            return True
+    except OSError:
+        return False
+    run = _json_object(folder / "config.json")
+    if run is not None and "env_id" in run and "seed" in run:
+        return True
+    dataset = _json_object(folder / "data" / "metadata.json")
+    if dataset is not None and "digail" in dataset and (folder / "data" / "main_data.hdf5").is_file():
+        return True
+    return (folder / "trials").is_dir() and _json_object(folder / "sweep.json") is not None
+
+
+def _json_object(path: Path) -> dict[str, Any] | None:
+    try:
+        if not path.is_file() or path.stat().st_size > 16 * 2**20:
+            return None
+        data = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def check_replaceable(path: Path, flag: str = "--out") -> None:
+    """Refuse, in one sentence, an existing output that `--force` must not replace: anything but a folder digail
+    made (`digail_made`), and whatever its content the current directory, a folder above it, the home folder or a
+    filesystem root. A symbolic link is judged by what it points to."""
+    path = Path(path)
+    try:
+        real = path.resolve()
+    except (OSError, RuntimeError):  # a loop of links
+        raise UserError(f"{path} is a link that leads nowhere; remove it or choose another {flag}.") from None
+    if real == Path(real.anchor) or real == Path.home().resolve():
+        what = "a filesystem root" if real == Path(real.anchor) else "the home folder"
+        raise UserError(f"--force would delete {path}, {what}; choose another {flag}.")
+    cwd = Path.cwd().resolve()
+    if real == cwd or real in cwd.parents:
+        here = "the current directory" if real == cwd else "a folder holding the current directory"
+        raise UserError(f"--force would delete {path}, {here}; choose another {flag}.")
+    if not real.exists():
+        raise UserError(f"{path} is a link to nothing; remove it or choose another {flag}.")
+    if not real.is_dir():
+        raise UserError(f"{path} is a file, and --force replaces only a folder digail made; move the file away or "
+                        f"choose another {flag}.")
+    if not digail_made(real):
+        raise UserError(f"{path} is not a folder digail made (no {MARKER} file, run config or dataset record in "
+                        f"it), and --force replaces only those; move its files away or choose another {flag}.")
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this machine can still hand out (Linux's MemAvailable, else free pages), or None when
+    unknown: what a large allocation is checked against before it is tried, so that a size no machine has is
+    one sentence rather than a MemoryError."""
+    with contextlib.suppress(OSError, ValueError, IndexError), open("/proc/meminfo") as f:
+        for line in f:
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    return None
+
+
+def human_bytes(n: float) -> str:
+    """`n` bytes as a short text with a binary unit (12.0 GiB)."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.1f} PiB"
 
 
 def umask() -> int:
@@ -200,7 +293,16 @@ def _same_file(fd: int, path: Path) -> bool:
 def _lock_file(folder: Path, fcntl: Any) -> int:
     path = folder / LOCK_FILE
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:  # never through a link: the lock file is created in the run folder, nowhere else
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        except OSError as exc:  # a folder, a link or an unreadable file in the lock file's place
+            if path.is_dir() or path.is_symlink():
+                what = "a link" if path.is_symlink() else "a folder"
+                raise UserError(f"{path} is {what}, not digail's lock file; remove it and run the command "
+                                "again.") from None
+            reason = (exc.strerror or type(exc).__name__).lower()
+            raise UserError(f"cannot open the lock file {path} ({reason}); remove it or fix its permissions.") \
+                from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:  # held by a live process
@@ -245,6 +347,7 @@ def fresh_dir(path: Path, force: bool, hint: str = "") -> Iterator[Path]:
         for child in path.iterdir():  # --force: the old files go, the lock stays
             if child.name != LOCK_FILE:
                 remove_path(child)
+        write_marker(path)
         yield path
 
 
@@ -263,6 +366,7 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
     try:
         tmp.chmod(0o777 & ~umask())
+        write_marker(tmp)
         yield tmp
     except BaseException:
         with signals_deferred():

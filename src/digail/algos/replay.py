@@ -40,6 +40,7 @@ class ReplayBuffer:
         self.cols = {name: (end - w, end) for (name, w), end in zip(widths.items(), ends, strict=True)}
         """each part's columns [start, end) in a row"""
         self.width = ends[-1]
+        check_buffer_memory(capacity, self.width)
         self.table = np.zeros((capacity, self.width), np.float32)
         self.obs, self.acts, self.next_obs = (self.table[:, slice(*self.cols[n])]
                                               for n in ("obs", "acts", "next_obs"))
@@ -121,20 +122,46 @@ class ReplayBuffer:
                 **{name: torch.from_numpy(np.ascontiguousarray(arrays[name]).copy()) for name in FIELDS}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
+        damaged = "the checkpoint is damaged; restore it or start the training again"
         n, pos = int(state["size"]), int(state["pos"])
-        if int(state["capacity"]) != self.capacity or not 0 <= pos < max(self.capacity, 1) or n > self.capacity:
+        if int(state["capacity"]) != self.capacity:
             raise UserError(f"the checkpoint's replay buffer holds {state['capacity']} transitions, this run's "
                             f"{self.capacity}; resume with the run's own settings.")
+        # a ring fills from 0: until it is full the write position is its size, afterwards anywhere inside it
+        fits = 0 <= n <= self.capacity and (0 <= pos < self.capacity if n == self.capacity else pos == n)
+        if not fits:
+            raise UserError(f"the checkpoint's replay buffer records {n} transitions and write position {pos}, which "
+                            f"do not fit its capacity of {self.capacity}; {damaged}.")
         arrays = {name: state[name].numpy() for name in FIELDS}
         shapes = {"obs": (self.obs_dim,), "next_obs": (self.obs_dim,), "acts": (self.act_dim,)}
         for name, arr in arrays.items():
-            if arr.shape[1:] != shapes.get(name, ()) or len(arr) != n:
+            held = len(arr) if arr.ndim else 0
+            if arr.ndim < 1 or held != n:
+                raise UserError(f"the checkpoint's replay buffer records {n} transitions but holds {held} in "
+                                f"'{name}'; {damaged}.")
+            if arr.shape[1:] != shapes.get(name, ()):
                 raise UserError("the checkpoint's replay buffer does not fit this model's observations or actions; "
                                 "resume with the run's own settings.")
-        if n and max(arrays["codes"].max(), arrays["next_codes"].max()) >= self.num_codes:
+            if np.issubdtype(arr.dtype, np.floating) and not np.isfinite(arr).all():
+                raise UserError(f"the checkpoint's replay buffer holds NaN or inf values in '{name}'; {damaged}.")
+        if n and (max(arrays["codes"].max(), arrays["next_codes"].max()) >= self.num_codes
+                  or min(arrays["codes"].min(), arrays["next_codes"].min()) < 0):
             raise UserError("the checkpoint's replay buffer holds codes this model does not have; resume with the "
                             "run's own settings.")
         self.pos, self.size = 0, 0
         if n:
             self.add(**arrays)
         self.pos, self.size = pos, n
+
+
+def check_buffer_memory(capacity: int, width: int) -> None:
+    """Refuse, in one sentence, a replay buffer larger than the memory this machine can hand out: a float32 row of
+    `width` columns and two int64 codes per transition."""
+    from digail.utils import available_memory, human_bytes
+
+    need = int(capacity) * (4 * int(width) + 16)
+    free = available_memory()
+    if free is not None and need > free:
+        raise UserError(f"--train.sac.buffer-size {capacity} needs {human_bytes(need)} for its replay buffer but "
+                        f"{human_bytes(free)} of memory is available; lower it (it need not exceed the training's "
+                        "environment steps).")

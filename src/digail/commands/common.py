@@ -9,7 +9,7 @@ from typing import Any
 
 from digail.config import Preset
 from digail.errors import UserError
-from digail.utils import check_new_dir, default_run_dir
+from digail.utils import check_new_dir, default_run_dir, one_line
 
 
 def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool,
@@ -45,6 +45,9 @@ def saved_args(cls: type, saved: dict[str, Any], run_dir: Path, what: str) -> An
         return from_dict(cls, saved)
     except (TypeError, AttributeError) as exc:
         raise UserError(f"the {what} arguments in {run_dir / 'config.json'} are invalid ({type(exc).__name__}); "
+                        f"restore the file or start the {what} again.") from None
+    except UserError as exc:  # a recorded value its checks refuse: the file's fault, not the command line's
+        raise UserError(f"the {what} arguments in {run_dir / 'config.json'} are invalid ({one_line(exc)}); "
                         f"restore the file or start the {what} again.") from None
 
 

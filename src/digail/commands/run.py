@@ -159,6 +159,8 @@ def run_command(args: RunArgs) -> Path:
     make_env(args.env).close()  # an unknown id fails here, before anything is written
     preset = preset_for(args.env, args.preset)
     checked = None if resuming else _check_demonstrations(args.env, args.demos)
+    if not resuming:
+        _check_subset(args, checked)
     if resuming:
         run_dir = Path(args.out or ".")
         check_writable(run_dir, "run folder")
@@ -167,8 +169,35 @@ def run_command(args: RunArgs) -> Path:
     else:
         run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run")
         held = fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
-    with held:  # the folder is this command's until the end: a second writer is refused, --force included
-        return _run_stages(args, run_dir, resuming, preset, device, checked)
+    try:
+        with held:  # the folder is this command's until the end: a second writer is refused, --force included
+            return _run_stages(args, run_dir, resuming, preset, device, checked)
+    except _SubsetRefused:
+        # refused before any stage ran (demonstrations recorded into the folder, then found too few): the folder
+        # holds only what this command wrote, and left in place it would block the corrected command
+        if not resuming:
+            remove_path(run_dir)
+        raise
+
+
+class _SubsetRefused(UserError):
+    """`--demos-episodes` / `--demos-subsample` do not fit the demonstrations the run recorded itself."""
+
+
+def _check_subset(args: RunArgs, checked: Any) -> None:
+    """Refuse a `--demos-episodes` / `--demos-subsample` that the demonstrations cannot give, before the run folder
+    is made: the user's (`checked`) or the shipped dataset (recorded ones are checked once recorded)."""
+    from digail.data.demos import default_dataset_id
+    from digail.data.minari_io import load_dataset, shipped_dataset_ids
+    from digail.data.subset import select_demos
+
+    if args.demos_episodes is None and args.demos_subsample == 1:
+        return
+    trajs = getattr(checked, "trajs", None)
+    if trajs is None and args.demos is None and default_dataset_id(args.env) in shipped_dataset_ids():
+        trajs = load_dataset(default_dataset_id(args.env)).trajs
+    if trajs is not None:
+        select_demos(list(trajs), args.demos_episodes, args.demos_subsample, args.seed)
 
 
 def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, device: Any, checked: Any) -> Path:
@@ -202,7 +231,10 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
     check_matches_env(dataset, args.env)
     from digail.data.subset import select_demos
 
-    trajs = select_demos(list(dataset.trajs), args.demos_episodes, args.demos_subsample, args.seed)
+    try:
+        trajs = select_demos(list(dataset.trajs), args.demos_episodes, args.demos_subsample, args.seed)
+    except UserError as exc:
+        raise _SubsetRefused(str(exc)) from None
     timings["demos_s"] = time.perf_counter() - t0
     print(f"[1/5] {len(trajs)} demonstrations of {args.env} ({demos_ref})")
 
@@ -238,6 +270,8 @@ def _run_stages(args: RunArgs, run_dir: Path, resuming: bool, preset: Any, devic
         write_run_config(run_dir, config)
         trainer = build_trainer(args.env, trajs, cfg, vae_model=vae_model, seed=args.seed, run_dir=run_dir,
                                 device=device)
+        config["fast_path"] = trainer.fast_path  # what the trainer read when it was built
+        write_run_config(run_dir, config)
         trainer.model_config = config
         ckpt = run_dir / "checkpoint.pt"
         try:

@@ -126,8 +126,10 @@ def check_spec(spec: Any, jobs: list[Any]) -> None:
             _check_env(env, demos, from_grid=grid.demos is not None)
         demos = grid.demos or _default_demos(grid.envs[0])
         for key, values in grid.overrides:
-            stage = STAGE_OF_PREFIX[key.partition(".")[0]]
-            for value in values:
+            head = key.partition(".")[0]
+            # the demonstration subset is read by the VAE's pre-training and the training alike
+            stages = ("pretrain", "train") if head == "demos" else (STAGE_OF_PREFIX[head],)
+            for value, stage in ((v, s) for v in values for s in stages):
                 tries = [value] if not isinstance(value, Range) else [
                     int(v) if value.integer else v for v in (value.low, value.high)]
                 for v in tries:

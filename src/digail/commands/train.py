@@ -105,6 +105,7 @@ def train_command(args: TrainArgs) -> Path:
                                      vae=None if args.vae is None else Path(args.vae).resolve()))
     trainer = build_trainer(env_id, demos, cfg, vae_model=vae_model, seed=args.seed, run_dir=None,
                             device=device)
+    config["fast_path"] = trainer.fast_path
     ckpt = run_dir / "checkpoint.pt"
     try:
         # the folder is this command's while it trains: a second writer is refused, --force included

@@ -14,6 +14,12 @@ The layouts (`FORMATS`), each a `.npz` file, an HDF5 file or a dict of arrays:
 - `arrays`: plain arrays with episode ends: `observations` (or `obs`), `actions` (or `acts`), `episode_ends` (one
   past each episode's last step: the cumulative lengths, the last equal to the number of steps), optional
   `rewards` and `terminated` (one flag per episode).
+- `imitation-transitions`: imitation's flattened transitions saved with numpy (`obs`, `acts`, `next_obs`, `dones`;
+  `digail.data.imitation_hf`).
+- `imitation-dataset`: the HuggingFace datasets folder imitation >= 1.0 saves trajectories as
+  (`digail.data.imitation_hf`).
+- `robomimic`: a robomimic HDF5 file (`data/demo_<n>/obs/<key>`, `actions`, ...; `digail.data.robomimic`).
+- `lerobot`: a LeRobot dataset folder (`meta/info.json`, Parquet frames below `data/`; `digail.data.lerobot`).
 
 The state after an episode's last action: imitation stores it, D4RL and SB3 only with `next_observations` /
 `next_obs`, plain arrays when `observations` has one row more per episode than the steps. Where a file does not
@@ -25,6 +31,8 @@ from __future__ import annotations
 
 import os
 import re
+import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -37,17 +45,19 @@ from digail.data.trajectory import Trajectory
 from digail.errors import UserError
 from digail.utils import one_line
 
-FORMATS = ("sb3", "imitation", "d4rl", "arrays")
+FORMATS = ("sb3", "imitation", "d4rl", "arrays", "imitation-transitions", "imitation-dataset", "robomimic", "lerobot")
 """the layouts `read_demonstrations` understands (see the module docstring)"""
 
 FILE_SUFFIXES = (".npz", ".hdf5", ".h5")
 """files `read_demonstrations` opens (anything else is taken for a Minari dataset by the commands)"""
 
 _LAYOUTS = ("SB3 rollouts (obs, actions, episode_starts), imitation trajectories (obs, acts, indices, terminal), "
-            "D4RL arrays (observations, actions, terminals, timeouts) or plain arrays (observations, actions, "
-            "episode_ends)")
+            "imitation transitions (obs, acts, next_obs, dones), D4RL arrays (observations, actions, terminals, "
+            "timeouts), plain arrays (observations, actions, episode_ends) or a robomimic file (data/demo_<n> "
+            "groups)")
 
 _REQUIRED = {
+    "imitation-transitions": ("obs", "acts", "next_obs", "dones"),
     "sb3": ("obs", "actions", "episode_starts"),
     "imitation": ("obs", "acts", "indices", "terminal"),
     "d4rl": ("observations", "actions"),
@@ -73,6 +83,13 @@ class Imported:
     """the environment they were checked against (None: none; the spaces come from the data)"""
     notes: list[str] = field(default_factory=list)
     """what the reading had to give up, in sentences (e.g. last actions dropped for want of a next state)"""
+    found: str = ""
+    """what the layout's detection found, as a phrase (e.g. "a robomimic file (10 demonstrations ...)")"""
+    episode_keys: list[str] = field(default_factory=list)
+    """each episode's name in the source (robomimic's demo group, LeRobot's episode index; else its position),
+    so that a segmentation can be written back to the episode it came from"""
+    metadata: dict[str, Any] = field(default_factory=dict)
+    """what the source says about itself, kept in the dataset (robomimic's `env_args`, the observation keys read)"""
 
     @property
     def num_steps(self) -> int:
@@ -81,9 +98,15 @@ class Imported:
 
 
 def is_import_source(text: str | os.PathLike[str]) -> bool:
-    """Whether `text` names a file `read_demonstrations` opens (rather than a Minari dataset folder or id)."""
+    """Whether `text` names a file or folder `read_demonstrations` opens (rather than a Minari dataset folder or
+    id): an `.npz` / HDF5 file, an imitation datasets folder or a LeRobot dataset folder."""
+    from digail.data.imitation_hf import is_imitation_folder
+    from digail.data.lerobot import is_lerobot
+
     path = Path(text)
-    return path.suffix.lower() in FILE_SUFFIXES and not path.is_dir()
+    if path.is_dir():
+        return is_imitation_folder(path) or is_lerobot(path)
+    return path.suffix.lower() in FILE_SUFFIXES
 
 
 # ------------------------------------------------------------------------------------------------ reading
@@ -105,14 +128,26 @@ class _Arrays:
             arr = np.asarray(self.data[key])
         except KeyError:
             raise UserError(f"{self.where} has no '{key}' array; {self._hint()}.") from None
+        except UserError:
+            raise
         except ValueError as exc:  # NpzFile refuses object arrays without pickle
             raise UserError(f"{self.where} stores '{key}' as pickled Python objects ({one_line(exc)}), which digail "
                             "never loads; save it as a numeric array.") from None
         if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == np.bool_):
             raise UserError(f"{self.where} has '{key}' of dtype {arr.dtype}; it must be a numeric array.")
+        if arr.ndim == 0:
+            raise UserError(f"{self.where} has '{key}' as a single number; it must be an array with a row per step "
+                            "(or per episode).")
+        if np.iscomplexobj(arr):  # a cast to float would drop the imaginary part without a word
+            raise UserError(f"{self.where} has complex values in '{key}'; digail reads real numbers only, so save "
+                            "the real and imaginary parts as separate columns.")
         if kind == "number" and np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
             raise UserError(f"{self.where} has NaN or inf values in '{key}'; drop or repair those steps before "
                             "importing.")
+        if (kind == "number" and np.issubdtype(arr.dtype, np.floating) and arr.dtype.itemsize > 4 and arr.size
+                and np.abs(arr).max() > np.finfo(np.float32).max):  # finite here, inf once stored as float32
+            raise UserError(f"{self.where} has values in '{key}' beyond float32's range (about 3.4e38 in size), "
+                            "which is how digail stores demonstrations; rescale them before importing.")
         if kind == "flag":
             if arr.dtype != np.bool_ and not np.isin(arr, (0, 1)).all():
                 raise UserError(f"{self.where} has '{key}' values other than True/False (or 0/1); it must hold "
@@ -150,13 +185,26 @@ def _open(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[_Arrays, 
     if suffix == ".npz":
         try:
             npz = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError) as exc:
+        except ValueError as exc:
+            if "pickle" not in str(exc):
+                raise UserError(f"cannot read {where} as an .npz file ({one_line(exc)}); the file is damaged or not "
+                                "written by numpy.savez.") from exc
+            # numpy takes anything that is neither a zip nor an .npy for a pickle, and its text would suggest
+            # loading it unsafely
+            with open(path, "rb") as f:
+                pickled = f.read(1) == b"\x80"  # the opcode every pickle since protocol 2 starts with
+            if pickled:
+                raise UserError(f"{where} is a Python pickle, not an .npz file, and digail never loads pickles; save "
+                                "the arrays with numpy.savez.") from None
+            raise UserError(f"cannot read {where} as an .npz file (it is neither a zip archive nor an .npy array); "
+                            "the file is damaged or not written by numpy.savez.") from None
+        except (OSError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
             raise UserError(f"cannot read {where} as an .npz file ({one_line(exc)}); the file is damaged or not "
                             "written by numpy.savez.") from exc
         if not hasattr(npz, "files"):
             raise UserError(f"{where} holds a single array, not named arrays; save them with numpy.savez(path, "
                             "obs=..., actions=..., ...).")
-        return _Arrays(where, {k: _LazyNpz(npz, k) for k in npz.files}), npz
+        return _Arrays(where, {k: _LazyNpz(npz, k, where) for k in npz.files}), npz
     if suffix in (".hdf5", ".h5"):
         import h5py
 
@@ -172,14 +220,50 @@ def _open(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[_Arrays, 
 
 
 class _LazyNpz:
-    """An npz member read only when used (so that an unused pickled `infos` costs nothing and loads nothing)."""
+    """An npz member read only when used (so that an unused pickled `infos` costs nothing and loads nothing); its
+    header's declared size is checked against the member and the memory before it is read."""
 
-    def __init__(self, npz: Any, key: str) -> None:
-        self.npz, self.key = npz, key
+    def __init__(self, npz: Any, key: str, where: str) -> None:
+        self.npz, self.key, self.where = npz, key, where
 
     def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
-        arr = self.npz[self.key]
+        damaged = f"cannot read '{self.key}' from {self.where}"
+        try:
+            name = self.key if self.key in self.npz.zip.namelist() else f"{self.key}.npy"
+            info = self.npz.zip.getinfo(name)
+            with self.npz.zip.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                reader = {(1, 0): np.lib.format.read_array_header_1_0,
+                          (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+                header = None if reader is None else reader(f)
+                if header is not None and not header[2].hasobject:
+                    _check_declared(self.where, self.key, header[0], header[2], info.file_size - f.tell())
+            arr = self.npz[self.key]
+        except UserError:
+            raise
+        except ValueError as exc:
+            if "allow_pickle" in str(exc):
+                raise  # pickled objects: named as such by `_Arrays.get`
+            raise UserError(f"{damaged} ({one_line(exc)}); the file is damaged.") from None
+        except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as exc:
+            # NotImplementedError: an unknown compression method; RuntimeError: an encrypted member
+            raise UserError(f"{damaged} ({one_line(exc)}); the file is damaged or cut short.") from None
         return arr if dtype is None else arr.astype(dtype)
+
+
+def _check_declared(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype[Any], stored: int | None) -> None:
+    """Refuse, before reading it, an array whose header declares more bytes than the file stores for it (`stored`;
+    None when compression hides it) or than this machine's memory holds."""
+    from digail.utils import available_memory, human_bytes
+
+    declared = int(np.prod(shape, dtype=object)) * int(dtype.itemsize)
+    if stored is not None and declared > stored:
+        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)} but stores "
+                        f"only {human_bytes(max(stored, 0))} of it; the file is damaged or cut short.")
+    free = available_memory()
+    if free is not None and declared > free:
+        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)}, more than "
+                        f"the {human_bytes(free)} of memory available; import it on a larger machine or in parts.")
 
 
 class _LazyH5:
@@ -188,7 +272,15 @@ class _LazyH5:
 
     def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
         try:
-            arr = np.asarray(self.h5[self.key][()])
+            ds = self.h5[self.key]
+            if ds.dtype.kind in "biufc":
+                # a contiguous uncompressed dataset stores every byte it declares, inside the file; a chunked one
+                # may leave chunks unwritten (read as zeros), so only the memory bounds it
+                contiguous = ds.compression is None and ds.chunks is None
+                stored = min(int(ds.id.get_storage_size()), Path(self.h5.filename).stat().st_size) \
+                    if contiguous else None
+                _check_declared(self.where, self.key, ds.shape, ds.dtype, stored)
+            arr = np.asarray(ds[()])
         except (OSError, KeyError) as exc:
             raise UserError(f"cannot read '{self.key}' from {self.where} ({one_line(exc)}); the file is damaged.") \
                 from exc
@@ -198,6 +290,8 @@ class _LazyH5:
 def _class_of(arrays: _Arrays) -> str:
     if "indices" in arrays and "acts" in arrays:
         return "imitation"
+    if all(k in arrays for k in _REQUIRED["imitation-transitions"]):
+        return "imitation-transitions"
     if "episode_starts" in arrays:
         return "sb3"
     if "episode_ends" in arrays:
@@ -208,12 +302,16 @@ def _class_of(arrays: _Arrays) -> str:
                     f"digail reads: {_LAYOUTS}.")
 
 
-def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt: str = "auto") -> Imported:
-    """Read demonstrations from an `.npz` file, an HDF5 file or a dict of arrays in one of `FORMATS`.
+def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt: str = "auto",
+                        obs_keys: Sequence[str] | None = None) -> Imported:
+    """Read demonstrations from an `.npz` file, an HDF5 file, a folder or a dict of arrays in one of `FORMATS`.
 
     Args:
-        source: the file, or a dict of arrays (e.g. what D4RL's `env.get_dataset()` returns).
-        fmt: one of `FORMATS`, or "auto" to tell the layout from the array names.
+        source: the file or folder, or a dict of arrays (e.g. what D4RL's `env.get_dataset()` returns).
+        fmt: one of `FORMATS`, or "auto" to tell the layout from the file (folder contents, HDF5 groups, array
+            names).
+        obs_keys: robomimic and LeRobot only: the observation keys to flatten and join, in this order (default:
+            see `digail.data.robomimic` and `digail.data.lerobot`).
 
     Returns:
         The episodes as validated `Trajectory` objects (float32 observations; int64 actions when the file's are
@@ -225,6 +323,20 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
     """
     if fmt != "auto" and fmt not in FORMATS:
         raise UserError(f"unknown demonstration format {fmt!r}; choose auto or one of {', '.join(FORMATS)}.")
+    if not isinstance(source, Mapping):
+        from digail.data.formats import read_structured
+
+        structured = read_structured(source, fmt, obs_keys)
+        if structured is not None:
+            trajs = trajectories_from_episodes(structured["source"], structured["episodes"])
+            obs_space, act_space = spaces_from_data(trajs)
+            return Imported(trajs=trajs, fmt=structured["fmt"], observation_space=obs_space, action_space=act_space,
+                            source=structured["source"], notes=structured["notes"], found=structured["found"],
+                            episode_keys=structured["episode_keys"], metadata=structured["metadata"])
+    if obs_keys:
+        what = "the given arrays" if isinstance(source, Mapping) else source
+        raise UserError(f"--obs-keys applies to robomimic files and LeRobot datasets; {what} is read as named "
+                        "arrays, drop it.")
     arrays, handle = _open(source)
     try:
         kind = _class_of(arrays) if fmt == "auto" else fmt
@@ -232,8 +344,15 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
             if not any(k in arrays for k in key.split("|")):
                 raise UserError(f"{arrays.where} has no '{key.split('|')[0]}' array, which the {kind} layout needs; "
                                 f"{arrays._hint()}.")
-        reader = {"sb3": _read_sb3, "imitation": _read_imitation, "d4rl": _read_d4rl, "arrays": _read_arrays}[kind]
-        trajs, notes = reader(arrays)
+        if kind == "imitation-transitions":
+            from digail.data.imitation_hf import read_imitation_transitions
+
+            episodes, notes = read_imitation_transitions(arrays)
+            trajs = trajectories_from_episodes(arrays.where, episodes)
+        else:
+            reader = {"sb3": _read_sb3, "imitation": _read_imitation, "d4rl": _read_d4rl, "arrays": _read_arrays}[kind]
+            trajs, notes = reader(arrays)
+        found = f"the {kind} layout ({', '.join(arrays.keys())})"
     finally:
         if handle is not None:
             handle.close()
@@ -243,7 +362,8 @@ def read_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], fmt:
     _check_consistent(arrays.where, trajs)
     obs_space, act_space = spaces_from_data(trajs)
     return Imported(trajs=trajs, fmt=kind, observation_space=obs_space, action_space=act_space,
-                    source=None if isinstance(source, Mapping) else os.fspath(source), notes=notes)
+                    source=None if isinstance(source, Mapping) else os.fspath(source), notes=notes, found=found,
+                    episode_keys=[str(i) for i in range(len(trajs))])
 
 
 def _optional_rows(where: str, rews: np.ndarray | None, next_obs: np.ndarray | None, next_key: str,
@@ -377,6 +497,35 @@ def _read_imitation(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
     return trajs, []
 
 
+def trajectories_from_episodes(where: str, episodes: Sequence[Mapping[str, Any]]) -> list[Trajectory]:
+    """Validated episodes from the per-episode arrays the structured readers return (`digail.data.formats`).
+
+    Each entry: `where` (the episode, for messages), `obs` (T + 1 rows), `acts` (T rows; `acts_name` names them in
+    messages), optional `rews` (T), `terminated`, optional `subtasks` (T + 1 oracle labels). The checks are the
+    named-array layouts': numbers only, finite, matching lengths, one observation shape.
+    """
+    trajs = []
+    for ep in episodes:
+        name, acts_name = ep["where"], ep.get("acts_name", "acts")
+        arrays = _Arrays(name, {"obs": ep["obs"], acts_name: ep["acts"],
+                                **({"rews": ep["rews"]} if ep.get("rews") is not None else {})})
+        obs, acts, rews = arrays.get("obs"), arrays.get(acts_name), arrays.optional("rews")
+        if obs.ndim < 1 or acts.ndim < 1 or len(obs) != len(acts) + 1:
+            n_obs, n_acts = len(obs) if obs.ndim else 0, len(acts) if acts.ndim else 0
+            raise UserError(f"{name} has {n_obs} observations for {n_acts} actions; an episode needs one more "
+                            "observation (the state after its last action).")
+        if rews is not None:
+            _rows(name, "rewards", rews.reshape(-1), len(acts), "actions")
+        traj = _traj(name, obs, _actions(name, acts_name, acts), rews, bool(ep.get("terminated", False)))
+        if ep.get("subtasks") is not None:
+            traj = replace(traj, subtasks=np.asarray(ep["subtasks"], dtype=np.int64))
+        trajs.append(traj)
+    if not trajs:
+        raise UserError(f"{where} holds no episode; import a source with at least one.")
+    _check_consistent(where, trajs)
+    return trajs
+
+
 def trajectories_from_objects(items: Sequence[Any]) -> list[Trajectory]:
     """Episodes from objects with imitation's trajectory fields: `obs` (T + 1 rows), `acts` (T rows), `terminal`,
     and `rews` where present (imitation's `Trajectory` / `TrajectoryWithRew`, or anything shaped like them).
@@ -417,6 +566,10 @@ def _read_d4rl(arrays: _Arrays) -> tuple[list[Trajectory], list[str]]:
     if terminals is None and timeouts is None:
         raise UserError(f"{where} has neither 'terminals' nor 'timeouts', so its episodes cannot be told apart; add "
                         "the flags that end each episode.")
+    for name, flags in (("terminals", terminals), ("timeouts", timeouts)):
+        if flags is not None and flags.ndim != 1:
+            raise UserError(f"{where} has '{name}' of shape {flags.shape}; it must be one flag per step, a 1-D "
+                            "array as long as 'observations'.")
     terminals = np.zeros(n, bool) if terminals is None else terminals
     timeouts = np.zeros(n, bool) if timeouts is None else timeouts
     _rows(where, "terminals", terminals, n, "observations")
@@ -541,10 +694,10 @@ def default_import_id(source: str | os.PathLike[str] | None) -> str:
 
 
 def prepare_import(source: str | os.PathLike[str] | Mapping[str, Any], *, env_id: str | None = None,
-                   fmt: str = "auto") -> Imported:
+                   fmt: str = "auto", obs_keys: Sequence[str] | None = None) -> Imported:
     """`read_demonstrations`, then fitted to `env_id`'s spaces when one is given (`fit_to_env`): everything that can
     go wrong with the data, checked before anything is written."""
-    imported = read_demonstrations(source, fmt)
+    imported = read_demonstrations(source, fmt, obs_keys)
     if not env_id:
         return imported
     trajs, obs_space, act_space = fit_to_env(imported.source or "the given arrays", imported.trajs, env_id)
@@ -559,7 +712,8 @@ def write_imported(imported: Imported, out: str | os.PathLike[str], *, dataset_i
     trajs = imported.trajs
     record = {"imported_from": None if imported.source is None else str(Path(imported.source).resolve()),
               "format": imported.fmt, "notes": imported.notes, "episodes": len(trajs),
-              "steps": imported.num_steps}
+              "steps": imported.num_steps, "found": imported.found, "episode_keys": imported.episode_keys,
+              "source_metadata": imported.metadata}
     env_words = f" recorded in {imported.env_id}" if imported.env_id else ""
     description = f"{len(trajs)} demonstrations{env_words} imported by digail from the {imported.fmt} layout."
     return write_dataset(trajs, out, imported.env_id, dataset_id or default_import_id(imported.source),
@@ -570,7 +724,7 @@ def write_imported(imported: Imported, out: str | os.PathLike[str], *, dataset_i
 
 def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], out: str | os.PathLike[str] | None
                           = None, *, env_id: str | None = None, fmt: str = "auto", dataset_id: str | None = None,
-                          force: bool = False) -> tuple[Path, Imported]:
+                          force: bool = False, obs_keys: Sequence[str] | None = None) -> tuple[Path, Imported]:
     """Read demonstrations in another tool's layout and write them as a Minari dataset; returns its folder.
 
     Args:
@@ -583,6 +737,7 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
         fmt: one of `FORMATS`, or "auto".
         dataset_id: the Minari id stored in the metadata (default: `default_import_id`).
         force: replace an existing dataset folder.
+        obs_keys: robomimic and LeRobot only: the observation keys to read (see `read_demonstrations`).
 
     Returns:
         The dataset folder and what was read (`Imported`, with its notes).
@@ -603,5 +758,5 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
         raise UserError(f"invalid Minari dataset id {dataset_id!r}; use the form namespace/name-v0.") from exc
     path = Path(out) if out is not None else minari_root() / dataset_id
     check_new_dir(path, force)  # before reading a possibly large file
-    imported = prepare_import(source, env_id=env_id, fmt=fmt)
+    imported = prepare_import(source, env_id=env_id, fmt=fmt, obs_keys=obs_keys)
     return write_imported(imported, path, dataset_id=dataset_id, force=force), imported

@@ -93,6 +93,11 @@ def resolve_dataset(path_or_id: str | os.PathLike[str]) -> Path:
     if Path(text).expanduser().is_file():
         raise UserError(f"{text} is a file, not a Minari dataset folder; turn it into one with `digail import {text} "
                         "--env ENV --out FOLDER`, or pass it to `digail run ENV --demos`.")
+    folder = Path(text).expanduser()
+    if folder.is_dir() and any(folder.iterdir()):  # never propose writing into a folder that holds the user's data
+        raise UserError(f"{text} is a folder but not a Minari dataset (no data/metadata.json); if it holds "
+                        f"demonstrations of another tool (a LeRobot dataset, imitation's trajectories), turn them into "
+                        f"one with `digail import {text} --out NEW_FOLDER`, or pass it to `digail run ENV --demos`.")
     if outside:
         raise UserError(f"dataset id {text!r} leads outside the Minari root {outside[-1]}; an id names a dataset "
                         "below the root, so pass a dataset folder path instead.")

@@ -40,6 +40,11 @@ def select_demos(trajs: list[Trajectory], episodes: int | None = None, every: in
         raise UserError(f"--demos-subsample must be at least 1, got {every}.")
     if every == 1:
         return list(trajs)
+    longest = max((len(t) for t in trajs), default=0)
+    if every >= longest:
+        raise UserError(f"--demos-subsample {every} is at least as long as every demonstration (the longest has "
+                        f"{longest} transitions), so each would keep a single transition; pass at most "
+                        f"{max(longest - 1, 1)}.")
     rng = np.random.default_rng(seed)
     offsets = rng.integers(every, size=len(trajs))
     return [subsample(t, every, int(min(o, len(t) - 1))) for t, o in zip(trajs, offsets, strict=True)]

@@ -212,6 +212,7 @@ def _run_stages(job: Job, root: Path, token: str, node: str | None, where: str,
             continue
         argv = _resolve_argv(root, stage)
         run_dir = root / stage.run
+        remove_temporaries(run_dir)  # what a killed attempt of this stage left
         resumed = stage.resume is not None and (run_dir / "checkpoint.pt").exists() and (
             run_dir / "config.json").exists() and stage.name in state.get("started", [])
         actual = stage.resume if resumed and stage.resume is not None else argv
@@ -424,11 +425,26 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
         for ref in running:
             with contextlib.suppress(Exception):
                 ray.cancel(ref, force=True)
+        # a stage killed with its worker cannot remove its own temporary folder (a VAE's `.vae_s0.tmp-*`)
+        time.sleep(0.5)
+        for job, _ in running.values():
+            remove_temporaries(sweep / job.run)
         out("[sweep] interrupted: the running stages were stopped; run the same command again to resume.")
         reraise_signal(exc)
     for job in waiting:  # only when a dependency never finished (cannot happen, kept for safety)
         states[job.id] = {"status": "failed", "error": "not run: its dependencies did not finish"}
     return {jid: states.get(jid, {"status": "pending"}) for jid in by_id}
+
+
+def remove_temporaries(run_dir: Path) -> None:
+    """Remove the temporary siblings a stage writing `run_dir` atomically makes (`.NAME.tmp-*`, `.NAME.old-*`,
+    see `digail.utils.atomic_dir`): a stage killed outright (SIGKILL, Ray's cancel) leaves them behind."""
+    import glob
+    import shutil
+
+    pattern = glob.escape(str(Path(run_dir).parent / f".{Path(run_dir).name}."))
+    for path in glob.glob(pattern + "tmp-*") + glob.glob(pattern + "old-*"):
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def _one_line(exc: BaseException) -> str:

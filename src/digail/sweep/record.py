@@ -23,7 +23,11 @@ def save_plan(out: Path, spec: SweepSpec, jobs: list[Job]) -> None:
     """Record the sweep's jobs (so --summarize needs only the folder)."""
     from dataclasses import asdict
 
+    from digail.utils import MARKER, write_marker
+
     out.mkdir(parents=True, exist_ok=True)
+    if not (out / MARKER).exists():
+        write_marker(out)
     (out / PLAN_FILE).write_text(json.dumps({"name": spec.name, "spec": asdict(spec),
                                              "jobs": [job_to_dict(j) for j in jobs]}, indent=2, default=str) + "\n")
 

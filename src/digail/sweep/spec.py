@@ -21,11 +21,16 @@ Override keys name a field of the stage that takes it: `vae.*` and `train.*` are
 flag (`pretrain.codes`). `train.bc_weight` becomes `--bc-weight`, which also sets the weight of the `-l2` methods.
 `demos.episodes` and `demos.subsample` choose the demonstrations of both the VAE and the training
 (`--demos-episodes`, `--demos-subsample`).
+
+Overrides set hyper-parameters only, by an allow-list (`check_key`): the nested configs' fields and the stage settings
+of `STAGE_OWN_SETTINGS`. A stage's outputs, inputs and control flags (`out`, `force`, `resume`, `demos`, `vae`,
+`device`) belong to the sweep, which keeps every trial inside its folder.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -114,8 +119,10 @@ class Grid:
         if self.episodes is not None and (not isinstance(self.episodes, int) or isinstance(self.episodes, bool)
                                           or self.episodes < 1):
             raise UserError(f"episodes must be a whole number of at least 1, got {self.episodes!r}.")
-        for key, _ in self.overrides:
+        for key, values in self.overrides:
             check_key(key)
+            for value in values:
+                check_value(key, value)
 
 
 @dataclass(frozen=True)
@@ -167,12 +174,73 @@ class SweepSpec:
         return replace(self, **{k: v for k, v in changes.items() if v is not None})
 
 
+STAGE_OWN_SETTINGS: dict[str, tuple[str, ...]] = {
+    "pretrain": ("codes", "max_codes"),
+    "evaluate": ("episodes", "seed", "stochastic", "video"),
+    "segment": ("label_map",),
+    "demos": ("episodes", "subsample"),
+}
+"""a stage's own flags that an override may set: hyper-parameters only. Its outputs, inputs and control flags
+(`out`, `force`, `resume`, `demos`, `vae`, `device`, `preset`, `seed` of a training) belong to the sweep, which
+writes every trial inside its folder; an override that could name them could write or wipe any folder."""
+
+NESTED_SETTINGS = ("vae", "train")
+"""prefixes whose keys are fields of the stage's nested config (`VAEConfig`, `TrainConfig`): hyper-parameters by
+construction, none of them a path"""
+
+SWEEP_OWNED_FIELDS = ("train.method", "vae.codes")
+"""nested fields the command line does not take: the sweep sets the method, and K is `pretrain.codes`"""
+
+_KEY_RE = re.compile(r"[a-z][a-z0-9_]*(\.[a-z][a-z0-9_]*)+")
+
+
+def allowed_settings() -> str:
+    """The settings an override may change, as written in a refusal."""
+    own = ", ".join(f"{stage}.{name}" for stage, names in STAGE_OWN_SETTINGS.items() for name in names)
+    return f"vae.* and train.* (the fields of `digail pretrain --help` and `digail train --help`), {own}"
+
+
 def check_key(key: str) -> None:
-    """Raise a UserError unless `key` names a stage's option, e.g. train.ppo.policy_lr."""
+    """Raise a UserError unless `key` names a setting an override may change (an allow-list: see
+    `STAGE_OWN_SETTINGS` and `NESTED_SETTINGS`), e.g. train.ppo.policy_lr."""
     head, _, rest = key.partition(".")
     if head not in STAGE_PREFIXES or not rest:
         raise UserError(f"override {key!r} names no stage option; start it with one of "
                         f"{', '.join(p + '.' for p in STAGE_PREFIXES)} (e.g. train.bonus_weight=0.1).")
+    if _KEY_RE.fullmatch(key) is None or not _allowed(head, rest) or key in SWEEP_OWNED_FIELDS:
+        raise UserError(f"override {key!r} is not a setting a sweep may change (a sweep owns every stage's "
+                        f"outputs, inputs and control flags); allowed: {allowed_settings()}.")
+
+
+def _allowed(head: str, rest: str) -> bool:
+    if head not in NESTED_SETTINGS:
+        return rest in STAGE_OWN_SETTINGS.get(head, ())
+    import dataclasses
+
+    from digail.config import TrainConfig, VAEConfig
+
+    node: Any = VAEConfig if head == "vae" else TrainConfig
+    for part in rest.split("."):
+        if not (dataclasses.is_dataclass(node) and isinstance(node, type)):
+            return False
+        found = {f.name: f for f in dataclasses.fields(node)}.get(part)
+        if found is None:
+            return False
+        node = found.default_factory() if found.default_factory is not dataclasses.MISSING else found.default
+        node = type(node) if dataclasses.is_dataclass(node) else None
+    return node is None  # a leaf value, not a whole nested config
+
+
+def check_value(key: str, value: Value | Range) -> None:
+    """Refuse a value that the command line would read as a flag (`--out`, in a tuple `64 --force`): every value
+    is a value of its own setting, never another option."""
+    items = value if isinstance(value, tuple) else (value,)
+    for item in items:
+        if isinstance(item, str) and item.startswith("-") and not _looks_numeric(item):
+            raise UserError(f"override {key}={item!r}: a value may not start with '-' (it would be read as another "
+                            "option); give a number or a word.")
+        if isinstance(item, tuple | list | dict):
+            raise UserError(f"override {key}: {item!r} nests a list in a list; give numbers or words.")
 
 
 def parse_value(text: str) -> Value | Range:

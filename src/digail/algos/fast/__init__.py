@@ -19,7 +19,9 @@ tests/test_fast_path.py):
 
 `DIGAIL_REFERENCE=1` in the environment (or `reference()` in code) turns every piece off: the updates then run
 through autograd and `torch.optim`, the rollouts through the modules' forward passes, slower, with the same
-numbers to float rounding.
+numbers to float rounding. So does a torch the fast path is not tested on (`ops`, with one warning). A trainer
+reads the switch once, when it is built, records it (`GAIL.fast_path`, the run's config.json) and runs every
+iteration under that value (`pinned`).
 """
 
 from __future__ import annotations
@@ -28,20 +30,32 @@ import contextlib
 import os
 from collections.abc import Iterator
 
-_forced_reference = False
+from digail.algos.fast import ops
+
+_pinned: bool | None = None
 
 
 def enabled() -> bool:
-    """Whether the fast path runs (not `DIGAIL_REFERENCE=1`, not inside `reference()`)."""
-    return not _forced_reference and os.environ.get("DIGAIL_REFERENCE", "0") in ("", "0")
+    """Whether the fast path runs: inside `pinned(on)` (and `reference()`), `on`; elsewhere unless
+    `DIGAIL_REFERENCE=1`. Never on a torch the fast path is not tested on (`ops.problem`)."""
+    if ops.problem is not None:
+        return False
+    if _pinned is not None:
+        return _pinned
+    return os.environ.get("DIGAIL_REFERENCE", "0") in ("", "0")
 
 
 @contextlib.contextmanager
-def reference() -> Iterator[None]:
-    """Run the block on the reference path (for the equivalence tests)."""
-    global _forced_reference
-    before, _forced_reference = _forced_reference, True
+def pinned(on: bool) -> Iterator[None]:
+    """Run the block with the fast path on or off, whatever the environment says."""
+    global _pinned
+    before, _pinned = _pinned, on
     try:
         yield
     finally:
-        _forced_reference = before
+        _pinned = before
+
+
+def reference() -> contextlib.AbstractContextManager[None]:
+    """Run the block on the reference path (for the equivalence tests)."""
+    return pinned(False)

@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from digail.algos.fast.ops import relu_backward, softmax_backward
 from digail.algos.fast.scripting import scripted
 from digail.nets.mlp import mlp_apply
 from digail.nets.vae import MacroPolicy
@@ -123,7 +124,6 @@ class GumbelChain(torch.autograd.Function):
         n_mid = ctx.n_mid
         hs, mids = rest[:n_mid + 1], rest[n_mid + 1:]
         weights = [mids[2 * i] for i in range(n_mid)]
-        relu_grad = torch.ops.aten.threshold_backward
         y_steps, g_code_steps, g_hidden_steps = y_soft.unbind(0), g_codes.unbind(0), g_hidden.unbind(0)
         h_steps = [h.unbind(0) for h in hs]
         T = len(y_steps)
@@ -132,14 +132,14 @@ class GumbelChain(torch.autograd.Function):
         g_y = g_code_steps[-1]
         for t in range(T - 1, -1, -1):
             # softmax, then each ReLU layer down to the first; straight-through uses the soft sample's Jacobian
-            g_z = torch._softmax_backward_data(g_y, y_steps[t], -1, g_y.dtype)
+            g_z = softmax_backward(g_y, y_steps[t])
             g_z_steps.append(g_z)
             g_h = torch.addmm(g_hidden_steps[t], g_z, w_out)
             for i in range(n_mid, 0, -1):
-                g_a = relu_grad(g_h, h_steps[i][t], 0.0)
+                g_a = relu_backward(g_h, h_steps[i][t])
                 g_a_steps[i].append(g_a)
                 g_h = g_a @ weights[i - 1]
-            g_a = relu_grad(g_h, h_steps[0][t], 0.0)
+            g_a = relu_backward(g_h, h_steps[0][t])
             g_a_steps[0].append(g_a)
             if t > 0:  # the code fed at step t - 1 gets its own gradient plus what flowed back through q
                 g_y = torch.addmm(g_code_steps[t - 1], g_a, w_prev)

@@ -125,7 +125,7 @@ class ActorCritic:
 
 class LivePolicy:
     """pi's mean action in NumPy on views of its live weights (CPU): the optimiser updates them in place, so acting
-    after every update needs no copy and no torch dispatch. Not for CUDA (`OffPolicyLoop` then uses torch)."""
+    after every update needs no copy and no torch dispatch. Not for CUDA (the SAC learner then uses torch)."""
 
     def __init__(self, pi: SubtaskPolicy, obs_dim: int) -> None:
         lin = [m for m in pi.net if isinstance(m, nn.Linear)]

@@ -9,6 +9,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from digail.algos.fast.ops import log_softmax_backward, relu_backward
+
 
 def _linear_backward(g: Tensor, x: Tensor, w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Autograd's backward of `F.linear(x, w, b)` for 2-D x: the weight's (g^T x, its orientation for a
@@ -47,7 +49,7 @@ def step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: l
             lsm = out.log_softmax(-1)
             losses.append(-lsm.gather(-1, target.long().unsqueeze(-1)).mean())
             g_pick = torch.zeros_like(lsm).scatter_(-1, target.long().unsqueeze(-1), -1.0 / mb)
-            g = torch._log_softmax_backward_data(g_pick, lsm, -1, lsm.dtype)
+            g = log_softmax_backward(g_pick, lsm)
             g_ls = g.new_zeros(0)
         g_ws: list[Tensor] = []
         g_bs: list[Tensor] = []
@@ -56,7 +58,7 @@ def step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: l
             g_ws.append(g_w)
             g_bs.append(g_b)
             if i > 0:
-                g = torch.ops.aten.threshold_backward(g_in, xs[i], 0.0)
+                g = relu_backward(g_in, xs[i])
         g_ws.reverse()
         g_bs.reverse()
         grads += g_ws + g_bs

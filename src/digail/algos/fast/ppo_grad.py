@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from digail.algos.fast.ops import relu_backward
 from digail.algos.fast.scripting import scripted
 from digail.nets.critic import ValueNet
 from digail.nets.policy import SubtaskPolicy
@@ -37,7 +38,7 @@ def _mlp_backward(g: Tensor, xs: list[Tensor], w: list[Tensor]) -> tuple[list[Te
         g_w.append(g.t().mm(xs[i]))
         g_b.append(g.sum(0))
         if i > 0:  # ReLU's backward: the gradient passes where the layer's output is positive
-            g = torch.ops.aten.threshold_backward(g.mm(w[i]), xs[i], 0.0)
+            g = relu_backward(g.mm(w[i]), xs[i])
     g_w.reverse()
     g_b.reverse()
     return g_w, g_b

@@ -4,7 +4,7 @@ Why: one env step of SAC is one update, so a run makes a million of them, each a
 whose dispatch and autograd bookkeeping cost more than the arithmetic with 64x64 nets; and autograd's policy step
 would also compute the critics' weight gradients it then throws away. Here two scripted functions compute the
 critics' loss and gradient (target included) and the policy's loss and gradient (back through the critics to the
-action only): the same maths as `SACLearner.update`'s autograd path, to float rounding (tests/test_sac.py checks
+action only): the same maths as `SACUpdate.update`'s autograd path, to float rounding (tests/test_sac.py checks
 them against autograd in float64). `sac_update` runs a whole update in one call: both gradients, the three Adam
 steps (torch's fused Adam kernel on the optimisers' own state, as `torch.optim.Adam(fused=True).step` calls it)
 and the targets' Polyak step; `disc_update` does the same for D. Used for Gaussian policies whose executed action
@@ -16,6 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from digail.algos.fast.ops import adam_step, polyak, relu_backward
 from digail.algos.fast.ppo_grad import _mlp_backward, _mlp_forward
 
 
@@ -64,7 +65,7 @@ def critic_grads(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, noise_next
         g_b.append(g.sum(1, keepdim=True))
         if i > 0:
             g_in = _twin_out_input_grad(g, q_w[i]) if i == last else torch.bmm(g, q_w[i].transpose(1, 2))
-            g = torch.ops.aten.threshold_backward(g_in, hs[i], 0.0)
+            g = relu_backward(g_in, hs[i])
     g_w.reverse()
     g_b.reverse()
     return g_w + g_b, loss, q.mean()
@@ -93,7 +94,7 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
     last = len(q_w) - 1
     for i in range(last, 0, -1):
         g_in = _twin_out_input_grad(g, q_w[i]) if i == last else torch.bmm(g, q_w[i].transpose(1, 2))
-        g = torch.ops.aten.threshold_backward(g_in, hs[i], 0.0)
+        g = relu_backward(g_in, hs[i])
     w0 = q_w[0]
     w_act = w0[:, w0.shape[1] - A:, :]  # (2, A, H): the action's rows of the first layer
     # (B, A) as two plain matmuls: a batched one with A output columns is several times slower on the CPU
@@ -110,12 +111,9 @@ def fused_adam(params: list[Tensor], grads: list[Tensor], state: list[list[Tenso
     beta2, eps]: the same two calls, so the same bits (`digail.algos.fast.step.FusedAdamState` supplies both).
 
     `params` is a list the caller was given, never one built in the scripted code (`a + b`, `[x]`): TorchScript
-    dropped `torch._foreach_lerp_` on such lists as if it had no effect (torch 2.13), so no in-place list
+    dropped the foreach lerp (`polyak`) on such lists as if it had no effect (torch 2.13), so no in-place list
     operation here takes one."""
-    torch._foreach_add_(state[2], 1)
-    torch._fused_adam_(params, grads, state[0], state[1], [], state[2], amsgrad=False, lr=hyper[0], beta1=hyper[1],
-                       beta2=hyper[2], weight_decay=0.0, eps=hyper[3], maximize=False, grad_scale=None,
-                       found_inf=None)
+    adam_step(params, grads, state[0], state[1], state[2], hyper[0], hyper[1], hyper[2], hyper[3])
 
 
 def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor, obs_code: Tensor,
@@ -125,7 +123,7 @@ def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor
                q_adam: list[list[Tensor]], q_hyper: list[float], pi_adam: list[list[Tensor]], pi_hyper: list[float],
                alpha_adam: list[list[Tensor]], alpha_hyper: list[float], train_policy: bool,
                learn_alpha: bool) -> Tensor:
-    """One whole SAC update in `SACLearner.update`'s order: the critics' gradient and Adam step, the policy's
+    """One whole SAC update in `SACUpdate.update`'s order: the critics' gradient and Adam step, the policy's
     gradient against the updated critics and its step (`train_policy`), the temperature's step (`learn_alpha` and
     `train_policy`), the targets' Polyak step with rate `tau`.
 
@@ -151,11 +149,11 @@ def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor
                                      q_w, q_b)
     if train_policy:
         fused_adam(pi_params, pi_grads, pi_adam, pi_hyper)
-    # the temperature's loss log_alpha (H - H_target), its gradient H - H_target (see `SACLearner`)
+    # the temperature's loss log_alpha (H - H_target), its gradient H - H_target (see `SACUpdate`)
     alpha_loss = log_alpha * (entropy - target_entropy)
     if learn_alpha and train_policy:
         fused_adam(alpha_params, [(entropy - target_entropy).reshape(())], alpha_adam, alpha_hyper)
-    torch._foreach_lerp_(t_params, q_params, tau)
+    polyak(t_params, q_params, tau)
     return torch.stack([q_loss, pi_loss, alpha_loss, alpha, entropy, q_mean, torch.zeros_like(q_loss)])
 
 

@@ -7,6 +7,7 @@ from typing import Any, cast
 import torch
 
 from digail.algos.fast import enabled
+from digail.algos.fast.ops import adam_step, clip_grad_norm
 
 
 class LeanStep:
@@ -27,7 +28,7 @@ class LeanStep:
 
     def _lean_groups(self) -> bool:
         opt = self.optimizer
-        if not isinstance(opt, torch.optim.Adam) or not hasattr(torch, "_fused_adam_"):
+        if not isinstance(opt, torch.optim.Adam):
             return False
         groups = []
         for g in opt.param_groups:
@@ -49,24 +50,21 @@ class LeanStep:
             return
         grads = [p.grad for p in self.params if p.grad is not None]
         if grads and self.max_norm is not None:
-            total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads)))
-            torch._foreach_mul_(grads, (self.max_norm / (total + 1e-6)).clamp_(max=1.0))
+            clip_grad_norm(grads, self.max_norm)
         if len(grads) < len(self.params) or (self.groups is None and not self._lean_groups()):
             self.optimizer.step()  # creates the state on the first step; skips parameters without gradients
             return
         assert self.groups is not None
         for g, params, exp_avgs, exp_avg_sqs, steps in self.groups:
             beta1, beta2 = g["betas"]
-            torch._foreach_add_(steps, 1)
-            torch._fused_adam_(params, [cast(torch.Tensor, p.grad) for p in params], exp_avgs, exp_avg_sqs, [], steps,
-                               amsgrad=False, lr=g["lr"], beta1=beta1, beta2=beta2, weight_decay=0.0,
-                               eps=g["eps"], maximize=False, grad_scale=None, found_inf=None)
+            adam_step(params, [cast(torch.Tensor, p.grad) for p in params], exp_avgs, exp_avg_sqs, steps, g["lr"],
+                      beta1, beta2, g["eps"])
 
 
 class FusedAdamState:
     """The state of a plain fused `torch.optim.Adam` (one group: no AMSGrad, weight decay, maximize or capturable)
-    as the lists `digail.algos.fast.sac_grad.fused_adam` takes, for scripted updates that step the optimiser
-    themselves. The optimiser keeps its state (its `state_dict` is what torch saves and loads).
+    as the lists `digail.algos.fast.sac_grad.fused_adam` takes (for `ops.adam_step`), for scripted updates that
+    step the optimiser themselves. The optimiser keeps its state (its `state_dict` is what torch saves and loads).
 
     `lists()` is None until torch's own first `step` has created the state (or for an optimiser this does not
     cover); the lists are rebuilt when the optimiser loads a state dict (which replaces its state tensors).
@@ -93,7 +91,7 @@ class FusedAdamState:
 
     def _build(self) -> list[list[torch.Tensor]] | None:
         opt = self.optimizer
-        if not isinstance(opt, torch.optim.Adam) or not hasattr(torch, "_fused_adam_") or len(opt.param_groups) != 1:
+        if not isinstance(opt, torch.optim.Adam) or len(opt.param_groups) != 1:
             return None
         g = opt.param_groups[0]
         if (not g.get("fused") or g["amsgrad"] or g["weight_decay"] or g["maximize"] or g["capturable"]

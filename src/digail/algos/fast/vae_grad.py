@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from digail.algos.fast.ops import relu_backward
 from digail.algos.fast.scripting import scripted
 from digail.nets.vae import HierarchicalPolicy
 
@@ -128,7 +129,7 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
         g_pi_w.append(_outer(g_h, x))
         g_pi_b.append(g_h.sum(0))
         if i > 0:
-            g_h = torch.ops.aten.threshold_backward(g_h @ pi_w[i], x, 0.0)
+            g_h = relu_backward(g_h @ pi_w[i], x)
         else:
             g_codes = g_codes + (g_h @ pi_w[0][:, pi_w[0].shape[1] - K:]).view(T, B, K)
     g_pi_w.reverse()
@@ -144,7 +145,7 @@ def _loss_and_grads(obs: Tensor, acts: Tensor, mask: Tensor, gumbel: Tensor, tau
         g_q_w.append(_outer(g_h, x))
         g_q_b.append(g_h.sum(0))
         if i > 0:
-            g_h = torch.ops.aten.threshold_backward(g_h @ q_w[i], x, 0.0)
+            g_h = relu_backward(g_h @ q_w[i], x)
     g_q_w.reverse()
     g_q_b.reverse()
 

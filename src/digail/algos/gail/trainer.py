@@ -1,43 +1,41 @@
 """GAIL (Ho and Ermon, 2016) with a code-conditioned policy pi(a | s, c): the trainer Directed-Info GAIL extends.
 
-With one code and no bonus this is plain GAIL. The loop per iteration: roll out the vector env, update the
-discriminator on agent vs expert pairs, relabel rewards from it, run PPO (optionally with a BC term).
+With one code and no bonus this is plain GAIL. The trainer owns the demonstrations, the discriminator and its
+updates, the codes and the reward; its learner (`digail.algos.learners`: PPO, the paper's, or SAC) steps the envs
+and trains pi, one `iterate` per iteration.
 """
 
 from __future__ import annotations
 
-import copy
+import contextlib
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
 
-from digail.algos.aux_losses import anchor_loss, bc_loss
-from digail.algos.discriminator import discriminator_update
+from digail.algos import fast
 from digail.algos.expert_data import expert_data
+from digail.algos.gail.discriminator import PenaltyStep, discriminator_update
+from digail.algos.learners import LEARNERS, Learner
 from digail.algos.optim import adam
-from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
-from digail.algos.rollout import CodeState, RolloutState, collect_rollout
+from digail.algos.rollout import CodeState, RolloutState
 from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
 from digail.envs.actions import env_action_fn
 from digail.envs.vector import make_vec_env
 from digail.errors import TrainingError, UserError
-from digail.nets.critic import Discriminator, ValueNet, generator_reward
+from digail.nets.critic import Discriminator, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
 from digail.utils import progress_bar, seed_everything
-
-if TYPE_CHECKING:
-    from digail.algos.sac import OffPolicyLoop
 
 RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
 """(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
@@ -47,7 +45,12 @@ CHECKPOINT_VERSION = 2
 
 
 class GAIL:
-    """GAIL with PPO on a code-conditioned policy (paper section 2.1; the paper's GAIL baseline uses K = 1).
+    """GAIL on a code-conditioned policy (paper section 2.1; the paper's GAIL baseline uses K = 1), trained by the
+    learner `cfg.learner` names (`digail.algos.learners.LEARNERS`).
+
+    It is the `Host` of its learner (`digail.algos.learners.base`): the public methods below are what a learner
+    uses (the envs' resets and actions, the codes, D's updates and the reward), and `learner` is the one object it
+    drives.
 
     Args:
         env_id: Gymnasium id of the environment.
@@ -89,53 +92,63 @@ class GAIL:
         self.eye = torch.eye(self.K, device=self.device)
         obs_dim = model.obs_dim
 
+        entry = LEARNERS[cfg.learner]
+        self.fast_path = fast.enabled()
+        """whether this trainer runs the fast path (`digail.algos.fast`): read once, here, and kept for every
+        iteration (`digail train` records it in the run's config.json)"""
         # the rollouts ignore the per-step infos, so the parallel backends skip shipping them
-        num_envs = cfg.sac.num_envs if cfg.learner == "sac" else cfg.ppo.num_envs
-        self.envs = make_vec_env(env_id, num_envs, cfg.backend, workers=cfg.env_workers, infos=False)
+        self.envs = make_vec_env(env_id, entry.num_envs(cfg), cfg.backend, workers=cfg.env_workers, infos=False)
         probe = self.envs.probe
         self.discrete = isinstance(probe.action_space, gym.spaces.Discrete)
         self.n_actions = int(getattr(probe.action_space, "n", 0))
         # what the envs execute for a sampled action, which is also what D sees (identity for discrete actions)
-        self._to_env_actions: Callable[[Any], Any] = env_action_fn(probe) or (lambda acts: acts)
+        self.to_env_actions: Callable[[Any], Any] = env_action_fn(probe) or (lambda acts: acts)
+        """sampled actions (NumPy or torch, differentiable) -> what the envs execute"""
         act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
+        self._act_in_dim = act_in_dim
+        self.iteration = 0
+        self.global_step = 0
+        self.rollout_state: RolloutState | None = None  # where the next rollout continues (None: fresh episodes)
+        self._q_snap: Any = None  # weight snapshot of q, set while the codes are frozen (`frozen_codes`)
 
-        self.value = ValueNet(obs_dim, self.K, cfg.hidden).to(self.device)
-        if cfg.zero_code_weights:
-            self.value.zero_code_weights()
-        self.disc = Discriminator(obs_dim, act_in_dim, cfg.hidden).to(self.device)
-        self.optimizer = adam([{"params": list(self.model.pi.parameters()), "lr": cfg.ppo.effective_policy_lr},
-                               {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
-        self._total_iterations = cfg.iterations  # what `anneal_lr` decays over; `train(iterations=...)` sets it
+        try:
+            with fast.pinned(self.fast_path):
+                # the learner's nets draw their initial weights before D's (the order of PPO runs before learners)
+                self.learner: Learner = entry.build(self)
+                """what trains pi: its nets, optimisers and buffers (`digail.algos.learners`)"""
+        except BaseException:
+            self.envs.close()
+            raise
+        self._absorbing = entry.absorbing(cfg)
+        # with absorbing states D sees [obs, absorbing flag, action]
+        self.disc = Discriminator(obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
+        with fast.pinned(self.fast_path):
+            self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
+        """D's step with the gradient penalty on replayed pairs (the off-policy learners')"""
 
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
         """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
-        # a frozen copy of the initial policy for the anchor term (saved in checkpoints: resuming keeps the anchor)
-        self._anchor_pi = copy.deepcopy(self.model.pi).requires_grad_(False) if cfg.anchor_weight > 0 else None
-        self.iteration = 0
-        self.global_step = 0
+        expert_in = self.expert.disc_in
+        if self._absorbing:
+            expert_in = self.disc_input(expert_in[:, :obs_dim], expert_in[:, obs_dim:])
+            ends = sum(bool(d.terminated) for d in demos)  # one absorbing row per demonstration that terminated
+            expert_in = torch.cat([expert_in, self.absorbing_row().expand(ends, -1)])
+        self._expert_disc_in = expert_in
         self.recent_returns: deque[float] = deque(maxlen=50)
         self.recent_lengths: deque[float] = deque(maxlen=50)
         self.recent_closed_returns: deque[float] = deque(maxlen=50)
-        self.rollout_state: RolloutState | None = None  # where the next rollout continues (None: fresh episodes)
-        self._q_snap: Any = None  # weight snapshot of q, set for the duration of a rollout
         self._logger: ScalarLogger | None = None
         self.model_config: dict[str, Any] = {"kind": self.method, "method": self.method, "env_id": env_id,
                                              "seed": seed, "train": to_dict(cfg)}
         """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
-        self.offpolicy: OffPolicyLoop | None = None
-        """the off-policy learner's loop, buffer and critics (`cfg.learner` sac; None: PPO)"""
-        if cfg.learner == "sac":
-            from digail.algos.sac import OffPolicyLoop
-
-            self.offpolicy = OffPolicyLoop(self, demos)
 
     # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
         """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
         if self.discrete:
             return nn.functional.one_hot(acts.long(), self.n_actions).float()
-        return self._to_env_actions(acts)
+        return self.to_env_actions(acts)
 
     # ----------------------------------------------------------------------------------- macro-policy hooks
     def start_episodes(self, idx: np.ndarray) -> None:
@@ -151,7 +164,7 @@ class GAIL:
         return np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.float32)
 
     # ------------------------------------------------------------------------------------------ rollouts
-    def _reset_envs(self) -> RolloutState:
+    def reset_envs(self) -> RolloutState:
         """Fresh episodes in every env, seeded from (seed, iteration), and their first codes."""
         base = self.seed * 100_003 + self.iteration * 1_009
         obs, _ = self.envs.reset([base + i for i in range(self.envs.num_envs)])
@@ -165,35 +178,29 @@ class GAIL:
         return RolloutState(obs_n=obs_n, codes=codes, code_state=self.codes_state, ep_returns=np.zeros(n),
                             ep_lengths=np.zeros(n, dtype=np.int64))
 
-    def _env_actions(self, a: np.ndarray) -> np.ndarray:
+    def env_actions(self, a: np.ndarray) -> np.ndarray:
         """Sampled actions -> what the envs execute; non-finite continuous actions stop the run."""
         if self.discrete:
             return a
         if not np.isfinite(a).all():
             raise TrainingError(f"the policy produced non-finite actions at iteration {self.iteration + 1}; the last "
                                 "good checkpoint is kept - lower the learning rate or check the demonstrations.")
-        return self._to_env_actions(a)
+        return self.to_env_actions(a)
 
-    @torch.no_grad()
-    def collect(self) -> dict[str, torch.Tensor]:
-        """One rollout of `steps_per_env` steps in every env (`collect_rollout`) as tensors on the device."""
-        from digail.algos.inference import actor_critic, code_net
+    @contextlib.contextmanager
+    def frozen_codes(self) -> Iterator[None]:
+        """q's weights as one NumPy snapshot for the block (q is frozen, and building it per step would cost more
+        than the step)."""
+        from digail.algos.inference import code_net
 
-        obs_dim = self.model.obs_dim
-        ac = actor_critic(self.model.pi, self.value, obs_dim)
-        self._q_snap = code_net(self.model.q, obs_dim) if self.K > 1 else None
-        if self.rollout_state is None:
-            self.rollout_state = self._reset_envs()
-        T = self.cfg.ppo.steps_per_env
-        batch = collect_rollout(self.envs, ac, self.rollout_state, T, self.np_rng,
-                                normalize=self.model.normalizer.numpy_fn(),
-                                choose_codes=self.choose_codes, start_episodes=self.start_episodes,
-                                episode_done=self._episode_done, env_actions=self._env_actions)
-        self._q_snap = None
-        self.global_step += T * self.envs.num_envs
-        return {k: torch.from_numpy(v).to(self.device) for k, v in batch.items()}
+        self._q_snap = code_net(self.model.q, self.model.obs_dim) if self.K > 1 else None
+        try:
+            yield
+        finally:
+            self._q_snap = None
 
-    def _episode_done(self, i: int) -> None:
+    def episode_done(self, i: int) -> None:
+        """Tally the finished episode of env i (before its tallies are reset)."""
         assert self.rollout_state is not None
         ret = float(self.rollout_state.ep_returns[i])
         self.recent_returns.append(ret)
@@ -204,71 +211,81 @@ class GAIL:
     def _is_closed_loop(self, i: int) -> bool:
         return True
 
+    def episode_scalars(self) -> dict[str, float]:
+        """The mean env return and length of the last 50 episodes, and the return of the closed-loop ones."""
+        def mean(values: deque[float]) -> float:
+            return float(np.mean(values)) if values else float("nan")
+
+        return {"rollout/ep_return": mean(self.recent_returns), "rollout/ep_length": mean(self.recent_lengths),
+                "rollout/ep_return_closed_loop": mean(self.recent_closed_returns)}
+
     # ------------------------------------------------------------------------------------- discriminator
-    def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> dict[str, float]:
-        """`discriminator_update` on this rollout's (normalised obs, D-action) pairs against the expert's."""
-        return discriminator_update(self.disc, self.disc_optimizer, torch.cat([obs_n, act_in], -1), self.expert.disc_in,
-                                    updates=self.cfg.disc_updates, minibatch_size=self.cfg.disc_minibatch_size,
-                                    gen=self.gen, compile=self.cfg.ppo.compile)
+    @property
+    def absorbing(self) -> bool:
+        """whether D also judges an absorbing state (DAC; the learner's choice): its input carries a flag"""
+        return self._absorbing
+
+    @property
+    def expert_disc_in(self) -> torch.Tensor:
+        """D's expert inputs: every demonstration step, and with absorbing states the absorbing state once per
+        demonstration that terminated"""
+        return self._expert_disc_in
+
+    def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
+        """D's input rows for (normalised obs, action as D sees it) pairs: [obs, (absorbing flag 0,) action]."""
+        parts = [obs_n]
+        if self._absorbing:
+            parts.append(obs_n.new_zeros(len(obs_n), 1))
+        return torch.cat([*parts, act_in], -1)
+
+    def absorbing_row(self) -> torch.Tensor:
+        """D's input (1, obs_dim + 1 + A) for the absorbing state: zero observation and action, flag 1."""
+        obs_dim = self.model.obs_dim
+        row = torch.zeros(1, obs_dim + 1 + self._act_in_dim, device=self.device)
+        row[0, obs_dim] = 1.0
+        return row
+
+    def disc_logits(self, x: torch.Tensor) -> torch.Tensor:
+        """D's logits (n,) for ready input rows x (n, .) (`disc_input`)."""
+        return self.penalty_step.logits(x)
+
+    def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor, *,
+                             compile: bool = False) -> dict[str, float]:
+        """`discriminator_update` on a rollout's (normalised obs, D-action) pairs against the expert's (`compile`:
+        D's loss through `torch.compile`)."""
+        return discriminator_update(self.disc, self.disc_optimizer, self.disc_input(obs_n, act_in),
+                                    self._expert_disc_in, updates=self.cfg.disc_updates,
+                                    minibatch_size=self.cfg.disc_minibatch_size, gen=self.gen, compile=compile)
+
+    def discriminator_step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
+                           grad_penalty: float) -> torch.Tensor:
+        """One step of D on ready agent and expert rows with the gradient penalty on `mix` (`PenaltyStep`)."""
+        return self.penalty_step(x_agent, x_expert, mix, grad_penalty)
+
+    # -------------------------------------------------------------------------------------------- reward
+    def disc_reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The policy's reward from D alone (`reward_fn`) for D's `logits_expert_is_high` and their batch."""
+        return self.reward_fn(logits, batch)
+
+    def reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy's reward r = D's reward + lambda_1 * log q(c_t | s_t, c_{t-1}) (`batch["bonus"]`, the
+        transition's bonus, + lambda_1 log K with `bonus_code_entropy`), and D's part of it.
+
+        The one place the reward is written: every learner relabels its transitions with it."""
+        disc_rew = self.disc_reward(logits, batch)
+        w = self.cfg.bonus_weight
+        bonus = w * batch["bonus"]
+        if self.cfg.bonus_code_entropy and self.K > 1:
+            bonus = bonus + w * math.log(self.K)
+        return disc_rew + bonus, disc_rew
 
     # ---------------------------------------------------------------------------------------- iteration
     def iterate(self) -> dict[str, float]:
-        """One training iteration; returns its scalars."""
-        if self.offpolicy is not None:
-            return self.offpolicy.iterate()
-        t0 = time.perf_counter()
-        batch = self.collect()
-        t_rollout = time.perf_counter() - t0
-        T, N = batch["logp"].shape
-        flat_obs = batch["obs"].reshape(T * N, -1)
-        flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
-        act_in = self.act_input(flat_acts)
-        stats = self.update_discriminator(flat_obs, act_in)
-        with torch.no_grad():
-            logits = self.disc(flat_obs, act_in).reshape(T, N)
-            disc_rew = self.reward_fn(logits, batch)
-            bonus = self.cfg.bonus_weight * batch["bonus"]
-            if self.cfg.bonus_code_entropy and self.model.codes > 1:
-                bonus = bonus + self.cfg.bonus_weight * math.log(self.model.codes)
-            rews = disc_rew + bonus
-        adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
-                                   batch["final_values"], batch["last_values"], self.cfg.ppo.gamma,
-                                   self.cfg.ppo.gae_lambda)
-        if self.cfg.ppo.anneal_lr:
-            frac = max(0.0, 1.0 - self.iteration / max(self._total_iterations, 1))
-            bases = (self.cfg.ppo.effective_policy_lr, self.cfg.ppo.lr)  # the optimiser's groups, in order
-            for group, base in zip(self.optimizer.param_groups, bases, strict=True):
-                group["lr"] = base * frac
-        ppo_batch = PPOBatch(obs=flat_obs, codes=self.eye[batch["codes"].reshape(-1)], acts=flat_acts,
-                             logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
-        pi, cfg = self.model.pi, self.cfg
-        aux = {"bc": (lambda: bc_loss(pi, self.expert, self.eye, cfg.bc_batch_size, self.gen, discrete=self.discrete),
-                      cfg.bc_weight),
-               # kept (weight 0, never called) without an anchor, so that every run logs the same scalars
-               "anchor": ((anchor_loss(pi, self._anchor_pi, ppo_batch, cfg.bc_batch_size, self.gen), cfg.anchor_weight)
-                          if self._anchor_pi is not None else (lambda: torch.zeros(()), 0.0))}
-        losses = ppo_update(pi, self.value, self.optimizer, ppo_batch, cfg.ppo, self.gen, aux_losses=aux,
-                            train_policy=self.iteration >= cfg.value_warmup)
-        if not all(math.isfinite(v) for v in (*losses.values(), *stats.values())):
-            bad = [k for k, v in {**losses, **stats}.items() if not math.isfinite(v)]
-            raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {self.iteration + 1}; the last "
-                                "good checkpoint is kept - lower the learning rate or check the demonstrations.")
+        """One training iteration of the learner (on the fast path or not, as when the trainer was built); returns
+        its scalars."""
+        with fast.pinned(self.fast_path):
+            out = self.learner.iterate()
         self.iteration += 1
-        elapsed = time.perf_counter() - t0
-        out = {f"losses/{k}": v for k, v in losses.items()}
-        out.update(stats)
-        out.update({
-            "rollout/disc_reward": float(disc_rew.mean()),
-            "rollout/reward": float(rews.mean()),
-            "rollout/bonus": float(batch["bonus"].mean()),
-            "rollout/ep_return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
-            "rollout/ep_length": float(np.mean(self.recent_lengths)) if self.recent_lengths else float("nan"),
-            "rollout/ep_return_closed_loop": (float(np.mean(self.recent_closed_returns))
-                                              if self.recent_closed_returns else float("nan")),
-            "perf/sps": T * N / elapsed,
-            "perf/rollout_sps": T * N / t_rollout,
-            "perf/global_step": float(self.global_step),
-        })
         return out
 
     def train(self, iterations: int | None = None,
@@ -280,7 +297,7 @@ class GAIL:
         (a deterministic closed-loop evaluation on its own envs does not), so evaluating leaves training as is.
         """
         total = self.cfg.iterations if iterations is None else iterations
-        self._total_iterations = total
+        self.learner.total_iterations = total
         if self.run_dir is not None and self._logger is None:
             # a resumed run continues its metrics at the checkpoint: rows the stopped run logged later go
             self._logger = ScalarLogger(self.run_dir, resume_step=self.global_step)
@@ -327,17 +344,17 @@ class GAIL:
             "method": self.method,
             "iteration": self.iteration,
             "global_step": self.global_step,
+            "learner": self.cfg.learner,
             "model": self.model.state_dict(),
-            "value": self.value.state_dict(),
             "disc": self.disc.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
             "disc_optimizer": self.disc_optimizer.state_dict(),
             "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
             "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
             "recent_closed_returns": torch.tensor(list(self.recent_closed_returns), dtype=torch.float64),
-            "anchor_pi": self._anchor_pi.state_dict() if self._anchor_pi is not None else None,
-            **({"learner": "sac", "offpolicy": self.offpolicy.state_dict()} if self.offpolicy is not None else {}),
+            # the learner's keys sit beside the trainer's (PPO's "value", "optimizer", "anchor_pi"; SAC's
+            # "offpolicy"), where checkpoints have always kept them
+            **self.learner.state_dict(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -355,9 +372,7 @@ class GAIL:
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])
-        self.value.load_state_dict(state["value"])
         self.disc.load_state_dict(state["disc"])
-        self.optimizer.load_state_dict(state["optimizer"])
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
         set_rng_state(state["rng"], self.gen, self.np_rng)
         empty = torch.zeros(0, dtype=torch.float64)  # checkpoints written before these were kept
@@ -365,10 +380,7 @@ class GAIL:
             recent: deque[float] = getattr(self, name)
             recent.clear()
             recent.extend(state.get(name, empty).tolist())
-        if self._anchor_pi is not None and state.get("anchor_pi") is not None:
-            self._anchor_pi.load_state_dict(state["anchor_pi"])
-        if self.offpolicy is not None:
-            self.offpolicy.load_state_dict(state["offpolicy"])
+        self.learner.load_state_dict(state)
         self.rollout_state = None  # envs restart with fresh episodes seeded from (seed, iteration)
 
     def save_checkpoint(self, path: Path) -> None:

@@ -1,0 +1,163 @@
+"""Few-demonstration FetchPickAndPlace: the table, the learning curves and the results file from the run folders
+that `benchmarks/fetch_fewdemo.sh` writes.
+
+    python benchmarks/fetch_fewdemo.py runs/fetchfew [--out benchmarks/results/fetch_fewdemo.json]
+        [--markdown FILE] [--figure benchmarks/results/figures/fetch_fewdemo_curves.png]
+
+Per run folder (`runs/fetchfew/d<N>/<method>_s<seed>`, the VAEs as `bc_k4_s<seed>` and `bc_k1_s<seed>`): the
+demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: success,
+grasp and lift rates, the dense return that the paper's Table 2 reports, the sparse return; a run without it is
+listed as `running` with its last periodic evaluation), the learning curve (success of the 20-episode evaluation
+every 5 PPO iterations or 20k SAC steps against env steps), the env steps where that curve first reached 0.5 and 0.9 success, and the
+command that made the run. Medians over seeds per (N, method) go under `table`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shlex
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+METHODS = {
+    "bc_k4": "BC (the VAE's policy, K = 4)",
+    "bc_k1": "BC, flat (one code)",
+    "gail-l2": "GAIL + L2, fresh policy",
+    "flatbc-l2": "GAIL + L2 from the flat BC policy",
+    "digail-l2": "Directed-Info GAIL + L2",
+    "gail-l2-sac": "GAIL + L2 + SAC, fresh policy",
+    "flatbc-l2-sac": "GAIL + L2 + SAC from the flat BC policy",
+    "digail-l2-sac": "Directed-Info GAIL + L2 + SAC",
+}
+"""method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
+KEYS = ("success_rate", "grasp_rate", "lift_rate", "dense_return", "sparse_return")
+
+
+def _curve(run: Path) -> list[tuple[float, float]]:
+    """(env step, success rate) of the periodic evaluations in the run's metrics.csv."""
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return []
+    with path.open() as f:
+        return [(float(r["step"]), float(r["eval/success_rate"])) for r in csv.DictReader(f)
+                if r.get("eval/success_rate")]
+
+
+def _steps_to(curve: list[tuple[float, float]], level: float) -> float | None:
+    return next((step for step, success in curve if success >= level), None)
+
+
+def _command(run: Path) -> str:
+    """What `benchmarks/fetch_fewdemo.sh` ran for this folder (the job line that reproduces it)."""
+    demos = run.parent.name.removeprefix("d")
+    name, _, seed = run.name.rpartition("_s")
+    method = {"bc_k4": "bc", "bc_k1": "flatbc"}.get(name, name)
+    return shlex.join(["benchmarks/fetch_fewdemo.sh", demos, method, seed])
+
+
+def collect(root: Path) -> list[dict[str, Any]]:
+    records = []
+    for run in sorted(root.glob("d*/*_s*")):
+        name, _, seed = run.name.rpartition("_s")
+        if name not in METHODS or not run.is_dir() or not seed.isdigit():
+            continue
+        curve = _curve(run)
+        rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
+                               "run": str(run), "command": _command(run), "curve": curve,
+                               "env_steps": curve[-1][0] if curve else 0.0,
+                               "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9)}
+        ev = run / "eval.json"
+        if ev.is_file():
+            m = json.loads(ev.read_text())
+            rec.update(status="done", episodes=m["episodes"], **{k: m[k] for k in KEYS})
+        else:
+            rec.update(status="running", last_periodic_success=curve[-1][1] if curve else None)
+        records.append(rec)
+    return records
+
+
+def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for demos in sorted({r["demos"] for r in records}):
+        for method in METHODS:
+            done = [r for r in records if r["demos"] == demos and r["method"] == method and r["status"] == "done"]
+            if not done:
+                continue
+            row: dict[str, Any] = {"demos": demos, "method": method, "seeds": [r["seed"] for r in done],
+                                   "env_steps": max(r["env_steps"] for r in done)}
+            for k in KEYS:
+                row[f"per_seed_{k}"] = [r[k] for r in done]
+                row[f"median_{k}"] = float(np.median([r[k] for r in done]))
+            rows.append(row)
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    lines = ["| demonstrations | method | success, per seed (median) | grasp | lift | dense return (median) "
+             "| env steps | seeds |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        per = " / ".join(f"{v:.2f}" for v in r["per_seed_success_rate"])
+        steps = f"{r['env_steps'] / 1000:.0f}k" if r["env_steps"] else "0"
+        lines.append(f"| {r['demos']} | {METHODS[r['method']]} | {per} (**{r['median_success_rate']:.2f}**) "
+                     f"| {r['median_grasp_rate']:.2f} | {r['median_lift_rate']:.2f} | {r['median_dense_return']:.2f} "
+                     f"| {steps} | {' / '.join(map(str, r['seeds']))} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(records: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    settings = sorted({r["demos"] for r in records})
+    fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 3.8), squeeze=False, sharey=True)
+    colours = dict(zip(METHODS, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    for ax, demos in zip(axes[0], settings, strict=True):
+        for method, label in METHODS.items():
+            mine = [r for r in records if r["demos"] == demos and r["method"] == method]
+            for i, r in enumerate(mine):
+                if r["curve"]:
+                    steps, success = zip(*r["curve"], strict=True)
+                    ax.plot(np.array(steps) / 1000, success, color=colours[method], alpha=0.8,
+                            label=label if i == 0 else None)
+                elif r["status"] == "done":  # a policy that was not trained: its level as a line
+                    ax.axhline(r["success_rate"], color=colours[method], ls="--", alpha=0.7,
+                               label=label if i == 0 else None)
+        ax.set_title(f"FetchPickAndPlace, {demos} demonstration{'s' if demos > 1 else ''}")
+        ax.set_xlabel("env steps (thousands)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success rate (20-episode evaluations)")
+    axes[0][-1].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("root", type=Path, help="the folder benchmarks/fetch_fewdemo.sh wrote (runs/fetchfew)")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_fewdemo.json"))
+    parser.add_argument("--markdown", type=Path)
+    parser.add_argument("--figure", type=Path)
+    args = parser.parse_args()
+    records = collect(args.root)
+    rows = table(records)
+    args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4",
+                                    "dataset": "digail/fetchpickandplace/expert-v0 (the first N demonstrations)",
+                                    "methods": METHODS, "table": rows, "runs": records}, indent=1) + "\n")
+    text = markdown(rows)
+    if args.markdown:
+        args.markdown.write_text(text)
+    if args.figure:
+        figure(records, args.figure)
+    print(text, end="")
+
+
+if __name__ == "__main__":
+    main()

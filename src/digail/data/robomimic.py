@@ -1,0 +1,297 @@
+"""robomimic HDF5 files (the layout of robosuite, MimicGen, LIBERO and RoboCasa demonstrations), read and
+annotated with h5py alone.
+
+The layout: a `data` group with one group per demonstration, `data/demo_<n>`, each holding `actions` (T, A),
+`obs/<key>` (T, ...) per observation key, `next_obs/<key>` (the state after each action), `rewards`, `dones` and
+usually `states`; `data.attrs["env_args"]` is the environment's description (JSON), `mask/<filter key>` lists
+subsets of the demonstrations. MimicGen adds `datagen_info/subtask_term_signals/<name>` per demonstration: one
+flag per step, 0 until that sub-task has ended and 1 from then on.
+
+Reading: the chosen observation keys (default: every low-dimensional key, i.e. at most one axis per step and not
+uint8 images, in sorted name order) are flattened and joined in that order; image keys are skipped and said so.
+The state after the last action comes from `next_obs`; without it, or where every demonstration's last `next_obs`
+repeats its last state (robomimic's D4RL conversion writes that in place of the state it does not have), the
+last action is dropped. robomimic's `dones`
+marks every demonstration's last step, ended or not, so episodes are kept as truncated (bootstrapped). Existing
+sub-task termination signals become oracle labels: the label of a step is how many signals have turned 1 by then
+(each signal counts from its first 1 on); signals digail exported itself are not counted.
+
+Writing (`write_subtask_signals`): a copy of the file, with digail's segmentation added as termination signals in
+MimicGen's place; the input is never opened for writing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from digail.errors import UserError
+from digail.utils import check_writable, one_line, signals_deferred, umask
+
+SIGNALS_PATH = "datagen_info/subtask_term_signals"
+"""where MimicGen keeps each demonstration's sub-task termination signals (below `data/demo_<n>`)"""
+
+
+def is_robomimic(path: str | Path) -> bool:
+    """Whether `path` is an HDF5 file with robomimic's `data/demo_<n>` groups."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        return False
+    try:
+        with h5py.File(path, "r") as f:
+            data = f.get("data")
+            return isinstance(data, h5py.Group) and any(
+                isinstance(data.get(k), h5py.Group) for k in data if k.startswith("demo"))
+    except OSError:
+        return False
+
+
+def demo_keys(data: Any) -> list[str]:
+    """The demonstration groups of `data`, in robomimic's order (by the number after `demo_`)."""
+    keys = [k for k in data if k.startswith("demo")]
+
+    def number(key: str) -> tuple[int, str]:
+        digits = re.sub(r"\D", "", key)
+        return (int(digits) if digits else -1, key)
+
+    return sorted(keys, key=number)
+
+
+def _is_low_dim(dataset: Any) -> bool:
+    return dataset.ndim <= 2 and dataset.dtype != np.uint8
+
+
+def _flat(group: Any, keys: Sequence[str], where: str) -> np.ndarray:
+    parts = []
+    for key in keys:
+        if key not in group:
+            raise UserError(f"{where} has no observation '{key}' (it has {', '.join(sorted(group))}); choose keys "
+                            "every demonstration has with --obs-keys.")
+        arr = np.asarray(group[key][()])
+        parts.append(arr.reshape(len(arr), -1).astype(np.float32))
+    lengths = {len(p) for p in parts}
+    if len(lengths) != 1:
+        raise UserError(f"{where} has observation keys of different lengths ({sorted(lengths)} rows); every key "
+                        "needs one row per step.")
+    return np.concatenate(parts, axis=1)
+
+
+def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> dict[str, Any]:
+    """Demonstrations of a robomimic HDF5 file; see the module docstring.
+
+    Args:
+        path: the `.hdf5` file.
+        obs_keys: observation keys to flatten and join, in this order (default: all low-dimensional keys, sorted).
+
+    Returns:
+        A dict with `episodes` (per demonstration its arrays, as `digail.data.importers.trajectories_from_episodes`
+        takes them), `notes`, `found`, `episode_keys` (the demo group names) and `metadata` (the observation keys,
+        `env_args`), which `digail.data.importers.read_demonstrations` checks and turns into an `Imported`.
+
+    Raises:
+        UserError: no demonstrations, a missing or image key asked for, arrays that do not fit together.
+    """
+    import h5py
+
+    path = Path(path)
+    where = str(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise UserError(f"cannot read {where} as an HDF5 file ({one_line(exc)}); the file is damaged or not "
+                        "HDF5.") from exc
+    with f:
+        data = f.get("data")
+        keys = demo_keys(data) if isinstance(data, h5py.Group) else []
+        if not keys:
+            raise UserError(f"{where} has no data/demo_<n> groups; it is not a robomimic file.")
+        first = data[keys[0]]
+        if "obs" not in first or "actions" not in first:
+            raise UserError(f"{where}: data/{keys[0]} lacks {'obs' if 'obs' not in first else 'actions'}; robomimic "
+                            "demonstrations hold obs/<key> and actions (convert image-only files with robomimic's "
+                            "dataset_states_to_obs.py first).")
+        available = sorted(first["obs"])
+        low_dim = [k for k in available if _is_low_dim(first["obs"][k])]
+        images = [k for k in available if k not in low_dim]
+        if obs_keys:
+            for key in obs_keys:
+                if key not in available:
+                    raise UserError(f"{where} has no observation key '{key}'; it has {', '.join(available)}.")
+                if key in images:
+                    raise UserError(f"{where} has '{key}' as an image ({first['obs'][key].shape[1:]} per step); "
+                                    f"choose low-dimensional keys: {', '.join(low_dim) or 'none'}.")
+            chosen = list(obs_keys)
+        else:
+            chosen = low_dim
+            if not chosen:
+                raise UserError(f"{where} has only image observations ({', '.join(images)}); digail reads "
+                                "low-dimensional keys (e.g. robot0_eef_pos, object) with --obs-keys.")
+        # robomimic's D4RL conversion, having no state after an episode's last action, repeats the last state as
+        # the last next_obs in every demonstration; a robot at rest at the end of a real one does that only in some
+        placeholder = all("next_obs" in data[k] and all(
+            np.array_equal(data[k]["obs"][c][-1], data[k]["next_obs"][c][-1]) for c in chosen
+            if c in data[k]["obs"] and c in data[k]["next_obs"]) for k in keys)
+        eps, dropped, signal_names = [], 0, set()
+        labels: list[np.ndarray | None] = []
+        kept: list[str] = []
+        for key in keys:
+            demo = data[key]
+            row = f"{where}, data/{key}"
+            obs = _flat(demo["obs"], chosen, row)
+            acts = np.asarray(demo["actions"][()])
+            rews = np.asarray(demo["rewards"][()]).reshape(-1) if "rewards" in demo else None
+            n = len(acts)
+            if len(obs) != n or (rews is not None and len(rews) != n):
+                raise UserError(f"{row} has {len(obs)} observations, {n} actions"
+                                f"{'' if rews is None else f', {len(rews)} rewards'}; robomimic stores one of each "
+                                "per step.")
+            last = _flat(demo["next_obs"], chosen, f"{row}/next_obs")[-1:] if "next_obs" in demo else None
+            if last is not None and not placeholder:
+                obs = np.concatenate([obs, last])
+            else:
+                dropped += 1
+                acts, rews = acts[:-1], None if rews is None else rews[:-1]
+                if not len(acts):
+                    continue
+            kept.append(key)
+            signals = demo.get(SIGNALS_PATH)
+            oracle = _oracle_signals(signals) if isinstance(signals, h5py.Group) else []
+            if oracle:
+                signal_names.update(oracle)
+                ended = np.stack([np.maximum.accumulate(np.asarray(signals[s][()]).reshape(-1) != 0)
+                                  for s in oracle]).sum(axis=0)
+                step_labels = np.concatenate([ended, ended[-1:]])[:len(obs)]
+                labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
+            else:
+                labels.append(None)
+            eps.append({"where": row, "obs": obs, "acts": acts, "acts_name": "actions", "rews": rews,
+                        "terminated": False})
+        env_args = data.attrs.get("env_args")
+        masks = sorted(f["mask"]) if isinstance(f.get("mask"), h5py.Group) else []
+    if not eps:
+        raise UserError(f"{where} holds no demonstration with at least one step; import longer ones.")
+    notes = []
+    if images:
+        notes.append(f"image observations skipped: {', '.join(images)} (digail reads low-dimensional keys)")
+    if dropped:
+        why = ("every demonstration repeats its last state as its last next_obs (robomimic's D4RL conversion "
+               "writes that for want of the next state)" if placeholder else
+               f"{dropped} of {len(keys)} demonstrations store no next_obs")
+        notes.append(f"{why}, so the last action of each was dropped and the demonstration kept as truncated")
+    if all(lab is not None for lab in labels):
+        for ep, lab in zip(eps, labels, strict=True):
+            ep["subtasks"] = lab
+        notes.append(f"oracle sub-task labels read from {SIGNALS_PATH} ({', '.join(sorted(signal_names))}): a "
+                     "step's label is how many of these signals have turned 1")
+    elif any(lab is not None for lab in labels):
+        notes.append(f"only some demonstrations have {SIGNALS_PATH}, so no oracle labels were read")
+    metadata: dict[str, Any] = {"obs_keys": chosen}
+    if env_args is not None:
+        text = env_args.decode() if isinstance(env_args, bytes) else str(env_args)
+        try:
+            metadata["env_args"] = json.loads(text)
+        except ValueError:
+            metadata["env_args"] = text
+    env_name = metadata.get("env_args", {}).get("env_name") if isinstance(metadata.get("env_args"), dict) else None
+    of_env = f" of {env_name}" if env_name else ""
+    filters = f"; filter keys {', '.join(masks)} ignored, all demonstrations read" if masks else ""
+    found = (f"a robomimic file ({len(keys)} demonstrations data/{keys[0]} .. data/{keys[-1]}{of_env}; observation "
+             f"keys {', '.join(chosen)} flattened in this order{filters})")
+    return {"episodes": eps, "notes": notes, "found": found, "episode_keys": kept, "metadata": metadata}
+
+
+def _oracle_signals(group: Any) -> list[str]:
+    """The signals of a demonstration's group that are annotations, not digail's own export (which lists its
+    signals in the group's `digail_signals` attribute), sorted."""
+    try:
+        ours = set(json.loads(group.attrs.get("digail_signals", "[]")))
+    except (TypeError, ValueError):
+        ours = set()
+    return sorted(k for k in group if k not in ours)
+
+
+def term_signals(codes: np.ndarray, n_steps: int, n_codes: int) -> np.ndarray:
+    """(n_codes, n_steps) int64 termination signals of one demonstration's codes, MimicGen's convention: code k's
+    signal is 0 until its first segment ends and 1 from the next step on; a code that never occurs, or whose first
+    segment runs to the end of the demonstration (the last sub-task), stays 0."""
+    codes = np.asarray(codes).reshape(-1)
+    out = np.zeros((n_codes, n_steps), dtype=np.int64)
+    for k in range(n_codes):
+        where = np.flatnonzero(codes == k)
+        if not len(where):
+            continue
+        after = np.flatnonzero(codes[where[0]:] != k)
+        if len(after):
+            out[k, where[0] + after[0]:] = 1
+    return out
+
+
+def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Sequence[str],
+                          codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False) -> Path:
+    """Copy the robomimic file `source` to `out` with each demonstration's codes as MimicGen termination signals.
+
+    Args:
+        source: the robomimic file the demonstrations were read from (only read).
+        out: the annotated copy to write (atomically: a temporary sibling renamed at the end).
+        episode_keys: the demo group of each entry of `codes` (as `read_robomimic` lists them).
+        codes: per demonstration, one code per step read (a demonstration whose last action was dropped for want
+            of a next state has one code fewer; its last step takes the code before it).
+        names: one signal name per code (`datagen_info/subtask_term_signals/<name>`).
+        force: replace an existing `out`.
+
+    Raises:
+        UserError: `out` is the source or exists without `force`, a name already in the file, codes that do not
+            fit a demonstration.
+    """
+    import h5py
+
+    source, out = Path(source), Path(out)
+    if out.exists() and out.resolve() == source.resolve():
+        raise UserError(f"--out {out} is the input file; digail never modifies its input, choose another --out.")
+    if out.exists() and not force:
+        raise UserError(f"output file {out} already exists; choose another --out or pass --force.")
+    check_writable(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        shutil.copyfile(source, tmp)
+        os.chmod(tmp, 0o666 & ~umask())
+        with h5py.File(tmp, "r+") as f:
+            data = f["data"]
+            for key, demo_codes in zip(episode_keys, codes, strict=True):
+                demo = data[key]
+                n = int(demo["actions"].shape[0])
+                demo_codes = np.asarray(demo_codes).reshape(-1)
+                if len(demo_codes) == n - 1:  # the dropped last action takes the code before it
+                    demo_codes = np.concatenate([demo_codes, demo_codes[-1:]])
+                if len(demo_codes) != n:
+                    raise UserError(f"data/{key} of {source} has {n} steps but the segmentation has "
+                                    f"{len(demo_codes)}; segment the demonstrations read from this file.")
+                group = demo.require_group(SIGNALS_PATH)
+                clash = sorted(set(names) & set(group))
+                if clash:
+                    raise UserError(f"data/{key} of {source} already has {SIGNALS_PATH}/{clash[0]}; choose other "
+                                    "--names for the exported signals.")
+                for name, signal in zip(names, term_signals(demo_codes, n, len(names)), strict=True):
+                    group.create_dataset(name, data=signal)
+                earlier = [n for n in group if n not in names and n not in _oracle_signals(group)]
+                group.attrs["digail_signals"] = json.dumps(sorted([*earlier, *names]))
+        os.replace(tmp, out)
+    except BaseException:
+        with signals_deferred(), contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return out

@@ -1,0 +1,40 @@
+"""The few-demonstration Fetch table reads run folders as `benchmarks/fetch_fewdemo.sh` writes them."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from fetch_fewdemo import collect, markdown, table  # noqa: E402
+
+
+def _run(root: Path, name: str, curve: list[tuple[int, float]], success: float | None) -> None:
+    run = root / name
+    run.mkdir(parents=True)
+    lines = ["step,iteration,eval/success_rate,losses/policy"]
+    for step, s in curve:
+        lines += [f"{step},{step // 4096},{s},", f"{step + 1},{step // 4096},,0.1"]  # training rows have no eval
+    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    if success is not None:
+        (run / "eval.json").write_text(json.dumps({"episodes": 100, "success_rate": success, "grasp_rate": 1.0,
+                                                   "lift_rate": 0.5, "dense_return": -6.0, "sparse_return": -20.0}))
+
+
+def test_medians_over_finished_seeds_and_steps_to_each_level(tmp_path: Path) -> None:
+    _run(tmp_path / "d4", "digail-l2_s0", [(0, 0.1), (20480, 0.6), (40960, 0.95)], 0.9)
+    _run(tmp_path / "d4", "digail-l2_s1", [(0, 0.0), (20480, 0.2), (40960, 0.4)], 0.3)
+    _run(tmp_path / "d4", "digail-l2_s2", [(0, 0.0), (20480, 0.5)], 0.7)
+    _run(tmp_path / "d4", "gail-l2_s0", [(0, 0.0), (20480, 0.1)], None)  # still training
+    (tmp_path / "d4" / "notes_s0").mkdir()  # not a method: ignored
+    records = collect(tmp_path)
+    by = {(r["method"], r["seed"]): r for r in records}
+    assert len(records) == 4 and by[("gail-l2", 0)]["status"] == "running"
+    assert by[("digail-l2", 0)]["steps_to_0.5"] == 20480 and by[("digail-l2", 0)]["steps_to_0.9"] == 40960
+    assert by[("digail-l2", 1)]["steps_to_0.5"] is None
+    assert by[("digail-l2", 0)]["command"] == "benchmarks/fetch_fewdemo.sh 4 digail-l2 0"
+    (row,) = table(records)
+    assert row["median_success_rate"] == 0.7 and row["per_seed_success_rate"] == [0.9, 0.3, 0.7]
+    assert row["env_steps"] == 40960
+    assert "0.90 / 0.30 / 0.70 (**0.70**)" in markdown([row])
