@@ -66,6 +66,9 @@ SHIPPED: dict[str, dict[str, Any]] = {
                        description="Four Rooms: the next corridor (shipped)"),
     "fetch": dict(demos="digail/fetchpickandplace/expert-v0", codes=4,
                   description="FetchPickAndPlace phases reach / grasp / carry / place (shipped, 25 000 steps)"),
+    "landmark-route": dict(demos="digail/landmarkroute/expert-v0", codes=4,
+                           description="Landmark route: four legs, the landmark heading for (shipped, about 20 000 "
+                                       "steps)"),
 }
 
 DERIVED: dict[str, dict[str, Any]] = {

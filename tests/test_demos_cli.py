@@ -165,7 +165,8 @@ def test_four_rooms_dataset_does_not_match_circle_world(good_dataset: Path) -> N
 
 
 # ----------------------------------------------------------------------------------------- shipped data
-ORACLE_LABELS = {"digail/FourRooms-v0": {0, 1, 2, 3, 4}, "digail/CircleWorld-v0": {0, 1}}
+ORACLE_LABELS = {"digail/FourRooms-v0": {0, 1, 2, 3, 4}, "digail/CircleWorld-v0": {0, 1},
+                 "digail/LandmarkRoute-v0": {0, 1, 2, 3}}
 """Label sets the shipped datasets of envs with an oracle must cover completely."""
 
 
@@ -175,7 +176,7 @@ def test_default_datasets_are_shipped() -> None:
 
 def _shipped_params() -> list[object]:
     """One case per shipped dataset; MuJoCo-based ones (Hopper, Fetch, ...) carry the mujoco mark."""
-    light = {"digail/FourRooms-v0", "digail/CircleWorld-v0", "Pendulum-v1"}
+    light = {"digail/FourRooms-v0", "digail/CircleWorld-v0", "digail/LandmarkRoute-v0", "Pendulum-v1"}
     return [pytest.param(ds_id, marks=() if dataset_env_id(ds_id) in light else pytest.mark.mujoco)
             for ds_id in shipped_dataset_ids()]
 

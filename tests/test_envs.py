@@ -1,4 +1,4 @@
-"""Checks of the two synthetic environments: API conformance, seeding, labels, rendering, drawing scores."""
+"""Checks of the synthetic environments: API conformance, seeding, labels, rendering, drawing scores."""
 
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ from digail.envs.four_rooms import (
     room_of,
     shortest_paths_to,
 )
+from digail.envs.landmark_route import DEMO_ORDER, REACH, LandmarkRouteEnv, parse_order
 from digail.errors import UserError
 
-ENV_IDS = ["digail/FourRooms-v0", "digail/CircleWorld-v0"]
+ENV_IDS = ["digail/FourRooms-v0", "digail/CircleWorld-v0", "digail/LandmarkRoute-v0"]
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
@@ -83,6 +84,7 @@ def test_subtask_in_info_at_reset_and_every_step(env_id: str) -> None:
 def test_registered_time_limits() -> None:
     assert gym.spec("digail/FourRooms-v0").max_episode_steps == 64
     assert gym.spec("digail/CircleWorld-v0").max_episode_steps == 120
+    assert gym.spec("digail/LandmarkRoute-v0").max_episode_steps == 400
 
 
 # --- Four Rooms ----------------------------------------------------------------------------------------
@@ -236,3 +238,86 @@ def test_fit_circle_radius_edge_cases() -> None:
     assert fit_circle_radius(noisy) == pytest.approx(2.0, rel=0.01)
     assert fit_circle_radius(np.zeros((10, 2))) == 0.0
     assert math.isinf(fit_circle_radius(np.column_stack([np.arange(10.0), 2 * np.arange(10.0)])))
+
+
+# --- Landmark route ------------------------------------------------------------------------------------
+
+
+def _drive(env: LandmarkRouteEnv, stops: list[int]) -> list[dict]:
+    """Drive straight to each landmark of `stops` in turn (ignoring the env's order); the infos of every step."""
+    infos = []
+    for stop in stops:
+        while np.linalg.norm(env.landmarks[stop] - env.pos) > REACH and not env.done:
+            gap = env.landmarks[stop] - env.pos
+            infos.append(env.step((gap / np.linalg.norm(gap)).astype(np.float32))[4])
+    return infos
+
+
+def test_landmark_route_repeats_under_a_seed_and_varies_across_seeds() -> None:
+    def rollout(seed: int) -> np.ndarray:
+        env = LandmarkRouteEnv()
+        obs, _ = env.reset(seed=seed)
+        path = [obs]
+        rng = np.random.default_rng(0)
+        for _ in range(50):
+            path.append(env.step(rng.uniform(-1, 1, 2).astype(np.float32))[0])
+        return np.array(path)
+
+    np.testing.assert_array_equal(rollout(3), rollout(3))
+    assert not np.allclose(rollout(3), rollout(4))  # landmarks and start move with the seed
+    first = rollout(3)[0]
+    np.testing.assert_allclose(first[2:10].reshape(4, 2), [(1.2, 1.2), (-1.2, 1.2), (-1.2, -1.2), (1.2, -1.2)],
+                               atol=0.2)  # each landmark near its corner
+    assert np.abs(first[:2]).max() <= 0.2 and not first[10:].any()  # starts near the centre, touching nothing
+
+
+def test_landmark_route_labels_follow_the_legs_and_the_touch_sensor_marks_arrivals() -> None:
+    env = LandmarkRouteEnv()
+    _, info = env.reset(seed=0)
+    assert info["subtask"] == DEMO_ORDER[0] and info["legs_done"] == 0
+    infos = _drive(env, list(DEMO_ORDER))
+    labels = [info["subtask"] for info in infos]
+    ends = [t for t, info in enumerate(infos) if info["leg_done"]]
+    assert len(ends) == 4 and ends[-1] == len(infos) - 1
+    # the label changes exactly at the step a leg ends, to the next landmark of the route
+    assert [labels[t] for t in ends[:-1]] == list(DEMO_ORDER[1:])
+    assert all(labels[t] == labels[t - 1] for t in range(1, len(infos)) if t not in ends)
+    assert infos[-1]["is_success"] and infos[-1]["legs_done"] == 4 and env.done
+    obs = env._obs()
+    assert obs[10 + DEMO_ORDER[-1]] == 1.0 and obs[10:].sum() == 1.0  # the sensor of the landmark it stands on
+
+
+def test_landmark_route_judges_the_order() -> None:
+    """A route never demonstrated is its own task: driving the demonstrated order on it fails, driving it succeeds;
+    touching a landmark out of turn fails the episode even when every leg is done afterwards."""
+    new = (3, 2, 1, 0)
+    env = LandmarkRouteEnv(order=new)
+    env.reset(seed=5)
+    infos = _drive(env, list(DEMO_ORDER))
+    assert not env.done and not infos[-1]["is_success"] and sum(i["wrong_visit"] for i in infos) == 3
+    assert [i["legs_done"] for i in infos][-1] == 1  # only landmark 3, the last stop, was its first leg
+    env.reset(seed=5)
+    infos = _drive(env, list(new))
+    assert env.done and infos[-1]["is_success"] and not any(i["wrong_visit"] for i in infos)
+    env.reset(seed=5)
+    infos = _drive(env, [1, *new])  # a detour to landmark 1 first
+    assert env.done and not infos[-1]["is_success"] and sum(i["wrong_visit"] for i in infos) == 1
+    gym_env = gym.make("digail/LandmarkRoute-v0", order="2,0,1")
+    assert gym_env.unwrapped.order == (2, 0, 1)
+
+
+def test_landmark_route_draws_a_path_that_leaves_the_view_only_inside_it() -> None:
+    env = LandmarkRouteEnv(render_mode="rgb_array")
+    env.reset(seed=0)
+    background = int((env.render() == 255).all(-1).sum())
+    for _ in range(120):  # far off to the south-west, out of the picture
+        env.step(np.array([-0.7, -0.7], np.float32))
+    image = env.render()
+    assert image is not None and abs(int((image == 255).all(-1).sum()) - background) < 2000
+
+
+def test_landmark_route_bad_orders_raise_user_error() -> None:
+    assert parse_order("2, 0,1") == (2, 0, 1) and parse_order([3, 0]) == (3, 0)
+    for bad, words in (("", "no legs"), ("a,b", "comma-separated"), ("0,4", "outside 0-3"), ((1, 1, 2), "twice")):
+        with pytest.raises(UserError, match=words):
+            LandmarkRouteEnv(order=bad)

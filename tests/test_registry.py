@@ -65,7 +65,7 @@ def test_every_label_of_the_labelled_envs_occurs() -> None:
     """Each named label is one the env really uses: the scripted experts' demonstrations show all of them."""
     from conftest import expert_trajectories
 
-    for env_id in ("digail/FourRooms-v0", "digail/CircleWorld-v0"):
+    for env_id in ("digail/FourRooms-v0", "digail/CircleWorld-v0", "digail/LandmarkRoute-v0"):
         seen = {int(s) for t in expert_trajectories(env_id, 30) for s in t.subtasks}
         assert seen == set(range(len(ENV_SPECS[env_id].labels))), env_id
 

@@ -8,9 +8,17 @@ import pytest
 
 import digail  # noqa: F401  (registers the envs)
 from digail.envs.four_rooms import APPLE_LABEL, CORRIDORS, FREE_CELLS, ROOMS, FourRoomsEnv, move
+from digail.envs.landmark_route import DEMO_ORDER
 from digail.envs.registry import ENV_SPECS
 from digail.experts.fetch import fetch_expert
-from digail.experts.scripted import SCRIPTED_EXPERTS, circle_expert, four_rooms_expert, get_scripted_expert
+from digail.experts.scripted import (
+    SCRIPTED_EXPERTS,
+    circle_expert,
+    evaluate_route_expert,
+    four_rooms_expert,
+    get_scripted_expert,
+    route_expert,
+)
 
 # Two apples in every room: a corner cell and an inner cell.
 APPLES = [room[0] for room in ROOMS] + [room[len(room) // 2 + 2] for room in ROOMS]
@@ -95,10 +103,38 @@ def test_circle_expert_draws_the_circle_both_ways() -> None:
         assert subtasks == [0] * 60 + [1] * 61
 
 
+@pytest.mark.parametrize("order", [DEMO_ORDER, (3, 2, 1, 0), (2, 0, 1), (1, 3, 0, 2, 1)])
+def test_route_expert_drives_any_order_with_a_label_per_leg(order: tuple[int, ...]) -> None:
+    """Every leg in turn, never touching a landmark out of turn, the label naming the landmark it heads for."""
+    env = gym.make("digail/LandmarkRoute-v0", order=order, max_episode_steps=100 * len(order))
+    for seed in range(10):
+        _, info = env.reset(seed=seed)
+        labels, done = [info["subtask"]], False
+        while not done:
+            action = route_expert(env)
+            assert action.dtype == np.float32 and env.action_space.contains(action)
+            _, _, terminated, truncated, info = env.step(action)
+            labels.append(info["subtask"])
+            done = terminated or truncated
+        assert terminated and info["is_success"] and info["legs_done"] == len(order)
+        runs = [lb for i, lb in enumerate(labels) if i == 0 or lb != labels[i - 1]]
+        assert tuple(runs) == order
+        if order == DEMO_ORDER:
+            assert len(labels) - 1 >= 150  # three Fetch episodes or more
+
+
+def test_route_expert_score_over_100_episodes() -> None:
+    """The expert's score the docs quote (100 evaluation episodes from seed 10 000, the demonstrated order)."""
+    result = evaluate_route_expert(100)
+    assert result["success_rate"] == 1.0 and result["wrong_visits"] == 0
+    assert result["mean"] == pytest.approx(-286.14, abs=0.01) and result["min_length"] >= 150
+
+
 def test_get_scripted_expert_mapping() -> None:
     assert get_scripted_expert("digail/FourRooms-v0") is four_rooms_expert
     assert get_scripted_expert("digail/CircleWorld-v0") is circle_expert
     assert get_scripted_expert("digail/FetchPickAndPlace-v4") is fetch_expert
+    assert get_scripted_expert("digail/LandmarkRoute-v0") is route_expert
     assert get_scripted_expert("Hopper-v5") is None
     assert get_scripted_expert("CartPole-v1") is None  # an env without a registry entry
     # every scripted expert drives an env the registry knows

@@ -104,6 +104,18 @@ def test_pretrain_cli_with_the_defaults_segments_a_course(name: str, minari_root
     assert seg["switches_per_episode"] >= seg["true_switches_per_episode"] / 1.5
 
 
+def test_pretrain_cli_with_the_defaults_segments_the_landmark_route(tmp_path: Path) -> None:
+    """The benchmark's shipped landmark-route task on its first 10 demonstrations: `--preset default`, K = 4, every
+    leg found (the touch sensor makes each switch one feature; without it q missed 10-25 % of them)."""
+    from digail.cli import main
+
+    run = tmp_path / "run"
+    assert main(["pretrain", "--demos", "digail/landmarkroute/expert-v0", "--demos-episodes", "10", "--codes", "4",
+                 "--preset", "default", "--out", str(run)]) == 0
+    seg = json.loads((run / "segmentation.json").read_text())
+    assert seg["accuracy"] >= 0.95 and seg["switches_per_episode"] == seg["true_switches_per_episode"] == 3.0
+
+
 def test_description_length_charges_switches() -> None:
     train, held = heldout_split(10, 0.2, seed=0)
     assert len(held) == 2 and sorted([*train, *held]) == list(range(10))

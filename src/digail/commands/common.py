@@ -85,8 +85,9 @@ def print_eval_summary(result: dict[str, Any]) -> None:
     keys = ["mean_return", "std_return", "normalized_return", "success_rate", "path_length_ratio",
             "order_correct_rate", "order_reversed_rate", "radius_error"]
     spec = env_spec(str(result.get("env_id", "")))
-    if spec is not None and spec.eval_return is not None:  # which return mean_return is, then the others
-        keys += [spec.reward_name, *(m.name for m in spec.step_metrics if m.name != spec.eval_return)]
+    if spec is not None:  # which return mean_return is, then the env's other task measures
+        keys += [spec.reward_name] if spec.eval_return is not None else []
+        keys += [m.name for m in spec.step_metrics if m.name != spec.eval_return]
     parts = [f"{k}={result[k]:.3f}" for k in keys if isinstance(result.get(k), float)]
     measure = f" (mean_return is the {spec.eval_return})" if spec is not None and spec.eval_return else ""
     print(f"{result['episodes']} episodes{measure}: " + ", ".join(parts))

@@ -128,6 +128,11 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
             labels=("reach", "grasp", "carry", "place")),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
+    # four legs, one per landmark; `order=...` (make_env) sets a route the demonstrations never showed
+    EnvSpec("digail/LandmarkRoute-v0", "landmark-route", 100, "digail.envs.landmark_route:LandmarkRouteEnv", 400,
+            step_metrics=(StepMetric("leg_done", "legs_done", "sum"), StepMetric("wrong_visit", "wrong_visits", "sum")),
+            auto_backend="sync", name="Landmark route",
+            labels=("north-east", "north-west", "south-west", "south-east"), render="image"),
     # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset; the
     # label is the index of the current waypoint, as many as the course has
     EnvSpec("digail/WaypointCourse-v0", "default", 20, "digail.envs.waypoints:WaypointCourseEnv",

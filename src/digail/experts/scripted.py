@@ -13,8 +13,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from digail.config import FINAL_EVAL_SEED
 from digail.envs.circle_world import CircleWorldEnv, reference_point, reversed_reference_point
 from digail.envs.four_rooms import CORRIDORS, FourRoomsEnv, shortest_paths_to
+from digail.envs.landmark_route import DEMO_ORDER, ROUTE_ENV_ID, LandmarkRouteEnv
 from digail.experts.fetch import fetch_expert
 
 
@@ -84,10 +86,47 @@ class FourRoomsRouteExpert:
         return int(shortest_paths_to(target).action[y, x])
 
 
+def route_expert(env: gym.Env) -> np.ndarray:
+    """Unit direction from the point to the landmark of the current leg, float32 of shape (2,), for any order.
+
+    Straight legs between the landmarks never come within reach of a third one, so the expert never visits a
+    landmark out of turn; zero action once the route is done.
+    """
+    base: LandmarkRouteEnv = _unwrapped(env, LandmarkRouteEnv)
+    gap = base.target - base.pos
+    norm = float(np.linalg.norm(gap))
+    if base.done or norm < 1e-12:
+        return np.zeros(2, dtype=np.float32)
+    return (gap / norm).astype(np.float32)
+
+
+def evaluate_route_expert(episodes: int = 100, seed: int = FINAL_EVAL_SEED,
+                          order: str | Sequence[int] = DEMO_ORDER) -> dict[str, Any]:
+    """Success rate, returns and lengths of `route_expert` on the route `order` over `episodes` episodes (episode
+    i: seed + i), measured as `digail evaluate` measures an agent (env reward, `is_success` of the last step)."""
+    from digail.envs import make_env
+    from digail.envs.episodes import play_episodes
+    from digail.envs.landmark_route import parse_order
+
+    env = make_env(ROUTE_ENV_ID, order=order)
+    try:
+        eps = play_episodes(env, lambda env, obs: route_expert(env), episodes, seed, keep=True)
+    finally:
+        env.close()
+    returns = [ep.ret for ep in eps]
+    return {"env_id": ROUTE_ENV_ID, "order": list(parse_order(order)), "episodes": episodes, "seed": seed,
+            "success_rate": float(np.mean([bool(ep.final_info["is_success"]) for ep in eps])),
+            "mean": float(np.mean(returns)), "std": float(np.std(returns)),
+            "mean_length": float(np.mean([ep.length for ep in eps])),
+            "min_length": int(min(ep.length for ep in eps)), "max_length": int(max(ep.length for ep in eps)),
+            "wrong_visits": int(sum(sum(info["wrong_visit"] for info in ep.infos) for ep in eps))}
+
+
 SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
     "digail/FourRooms-v0": four_rooms_expert,
     "digail/CircleWorld-v0": circle_expert,
     "digail/FetchPickAndPlace-v4": fetch_expert,
+    "digail/LandmarkRoute-v0": route_expert,
 }
 """env id -> its scripted expert"""
 
