@@ -1,12 +1,14 @@
-"""Few-demonstration FetchPickAndPlace: the table, the learning curves and the results file from the run folders
-that `benchmarks/fetch_fewdemo.sh` writes.
+"""Few-demonstration multi-stage tasks (FetchPickAndPlace, the landmark route): the table, the learning curves and
+the results file from the run folders that `benchmarks/fetch_fewdemo.sh` / `benchmarks/route_fewdemo.sh` write.
 
-    python benchmarks/fetch_fewdemo.py runs/fetchfew [--out benchmarks/results/fetch_fewdemo.json]
+    python benchmarks/fetch_fewdemo.py runs/fetchfew [--task fetch] [--out benchmarks/results/fetch_fewdemo.json]
         [--markdown FILE] [--figure benchmarks/results/figures/fetch_fewdemo_curves.png]
+    python benchmarks/fetch_fewdemo.py runs/routefew --task route --out benchmarks/results/route_fewdemo.json ...
 
 Per run folder (`runs/fetchfew/d<N>/<method>_s<seed>`, the VAEs as `bc_k4_s<seed>` and `bc_k1_s<seed>`): the
-demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: success,
-grasp and lift rates, the dense return that the paper's Table 2 reports, the sparse return; a run without it is
+demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: Fetch's
+success, grasp and lift rates, the dense return that the paper's Table 2 reports and the sparse return; the route's
+success, legs done and landmarks visited out of turn; a run without it is
 listed as `running` with its last periodic evaluation), the learning curve (success of the 20-episode evaluation
 every 5 PPO iterations or 20k SAC steps against env steps), the env steps where that curve first reached 0.5 and
 0.9 success, and the command that made the run. Medians over seeds per (N, method) go under `table`.
@@ -32,9 +34,21 @@ METHODS = {
     "gail-l2-sac": "GAIL + L2 + SAC, fresh policy",
     "flatbc-l2-sac": "GAIL + L2 + SAC from the flat BC policy",
     "digail-l2-sac": "Directed-Info GAIL + L2 + SAC",
+    "gail": "GAIL, fresh policy",
+    "flatbc-gail": "GAIL from the flat BC policy",
+    "digail": "Directed-Info GAIL",
+    "flatbc-gail-l2": "GAIL + L2 from the flat BC policy",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
-KEYS = ("success_rate", "grasp_rate", "lift_rate", "dense_return", "sparse_return")
+TASKS = {
+    "fetch": {"script": "benchmarks/fetch_fewdemo.sh", "title": "FetchPickAndPlace", "env_id":
+              "digail/FetchPickAndPlace-v4", "dataset": "digail/fetchpickandplace/expert-v0",
+              "keys": ("success_rate", "grasp_rate", "lift_rate", "dense_return", "sparse_return")},
+    "route": {"script": "benchmarks/route_fewdemo.sh", "title": "Landmark route", "env_id": "digail/LandmarkRoute-v0",
+              "dataset": "digail/landmarkroute/expert-v0",
+              "keys": ("success_rate", "legs_done", "wrong_visits", "mean_return")},
+}
+"""per task: the job script, the figure's title, env and dataset, and the evaluation keys the table reports"""
 
 
 def _curve(run: Path) -> list[tuple[float, float]]:
@@ -51,15 +65,16 @@ def _steps_to(curve: list[tuple[float, float]], level: float) -> float | None:
     return next((step for step, success in curve if success >= level), None)
 
 
-def _command(run: Path) -> str:
-    """What `benchmarks/fetch_fewdemo.sh` ran for this folder (the job line that reproduces it)."""
+def _command(run: Path, script: str) -> str:
+    """What the task's job script ran for this folder (the job line that reproduces it)."""
     demos = run.parent.name.removeprefix("d")
     name, _, seed = run.name.rpartition("_s")
     method = {"bc_k4": "bc", "bc_k1": "flatbc"}.get(name, name)
-    return shlex.join(["benchmarks/fetch_fewdemo.sh", demos, method, seed])
+    return shlex.join([script, demos, method, seed])
 
 
-def collect(root: Path) -> list[dict[str, Any]]:
+def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
+    keys = TASKS[task]["keys"]
     records = []
     for run in sorted(root.glob("d*/*_s*")):
         name, _, seed = run.name.rpartition("_s")
@@ -67,20 +82,20 @@ def collect(root: Path) -> list[dict[str, Any]]:
             continue
         curve = _curve(run)
         rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
-                               "run": str(run), "command": _command(run), "curve": curve,
+                               "run": str(run), "command": _command(run, TASKS[task]["script"]), "curve": curve,
                                "env_steps": curve[-1][0] if curve else 0.0,
                                "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9)}
         ev = run / "eval.json"
         if ev.is_file():
             m = json.loads(ev.read_text())
-            rec.update(status="done", episodes=m["episodes"], **{k: m[k] for k in KEYS})
+            rec.update(status="done", episodes=m["episodes"], **{k: m[k] for k in keys})
         else:
             rec.update(status="running", last_periodic_success=curve[-1][1] if curve else None)
         records.append(rec)
     return records
 
 
-def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def table(records: list[dict[str, Any]], task: str = "fetch") -> list[dict[str, Any]]:
     rows = []
     for demos in sorted({r["demos"] for r in records}):
         for method in METHODS:
@@ -89,26 +104,31 @@ def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 continue
             row: dict[str, Any] = {"demos": demos, "method": method, "seeds": [r["seed"] for r in done],
                                    "env_steps": max(r["env_steps"] for r in done)}
-            for k in KEYS:
+            for k in TASKS[task]["keys"]:
                 row[f"per_seed_{k}"] = [r[k] for r in done]
                 row[f"median_{k}"] = float(np.median([r[k] for r in done]))
             rows.append(row)
     return rows
 
 
-def markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| demonstrations | method | success, per seed (median) | grasp | lift | dense return (median) "
-             "| env steps | seeds |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+def markdown(rows: list[dict[str, Any]], task: str = "fetch") -> str:
+    others = TASKS[task]["keys"][1:]
+    names = {"grasp_rate": "grasp", "lift_rate": "lift", "dense_return": "dense return",
+             "sparse_return": "sparse return", "legs_done": "legs done", "wrong_visits": "out-of-turn visits",
+             "mean_return": "return"}
+    lines = ["| demonstrations | method | success, per seed (median) | "
+             + " | ".join(f"{names[k]} (median)" for k in others) + " | env steps | seeds |",
+             "| " + " | ".join(["---"] * (len(others) + 5)) + " |"]
     for r in rows:
         per = " / ".join(f"{v:.2f}" for v in r["per_seed_success_rate"])
         steps = f"{r['env_steps'] / 1000:.0f}k" if r["env_steps"] else "0"
+        cells = " | ".join(f"{r[f'median_{k}']:.2f}" for k in others)
         lines.append(f"| {r['demos']} | {METHODS[r['method']]} | {per} (**{r['median_success_rate']:.2f}**) "
-                     f"| {r['median_grasp_rate']:.2f} | {r['median_lift_rate']:.2f} | {r['median_dense_return']:.2f} "
-                     f"| {steps} | {' / '.join(map(str, r['seeds']))} |")
+                     f"| {cells} | {steps} | {' / '.join(map(str, r['seeds']))} |")
     return "\n".join(lines) + "\n"
 
 
-def figure(records: list[dict[str, Any]], path: Path) -> None:
+def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,7 +148,7 @@ def figure(records: list[dict[str, Any]], path: Path) -> None:
                 elif r["status"] == "done":  # a policy that was not trained: its level as a line
                     ax.axhline(r["success_rate"], color=colours[method], ls="--", alpha=0.7,
                                label=label if i == 0 else None)
-        ax.set_title(f"FetchPickAndPlace, {demos} demonstration{'s' if demos > 1 else ''}")
+        ax.set_title(f"{TASKS[task]['title']}, {demos} demonstration{'s' if demos > 1 else ''}")
         ax.set_xlabel("env steps (thousands)")
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success rate (20-episode evaluations)")
@@ -141,21 +161,23 @@ def figure(records: list[dict[str, Any]], path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("root", type=Path, help="the folder benchmarks/fetch_fewdemo.sh wrote (runs/fetchfew)")
+    parser.add_argument("root", type=Path, help="the folder the job script wrote (runs/fetchfew, runs/routefew)")
+    parser.add_argument("--task", choices=sorted(TASKS), default="fetch")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_fewdemo.json"))
     parser.add_argument("--markdown", type=Path)
     parser.add_argument("--figure", type=Path)
     args = parser.parse_args()
-    records = collect(args.root)
-    rows = table(records)
-    args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4",
-                                    "dataset": "digail/fetchpickandplace/expert-v0 (the first N demonstrations)",
+    task = TASKS[args.task]
+    records = collect(args.root, args.task)
+    rows = table(records, args.task)
+    dataset = f"{task['dataset']} (the first N demonstrations)"
+    args.out.write_text(json.dumps({"env_id": task["env_id"], "dataset": dataset,
                                     "methods": METHODS, "table": rows, "runs": records}, indent=1) + "\n")
-    text = markdown(rows)
+    text = markdown(rows, args.task)
     if args.markdown:
         args.markdown.write_text(text)
     if args.figure:
-        figure(records, args.figure)
+        figure(records, args.figure, args.task)
     print(text, end="")
 
 
