@@ -408,6 +408,10 @@ class TrainConfig:
     """discriminator Adam learning rate"""
     disc_minibatch_size: int = 256
     """samples per discriminator gradient step (half agent, half expert)"""
+    disc_grad_penalty: float = 0.0
+    """PPO learner: weight of the gradient penalty (|grad D| - 1)^2 on points between agent and expert samples
+    (DAC's; the SAC learner has its own, `sac.grad_penalty`). With a few demonstrations D otherwise tells them
+    apart perfectly within a few iterations and its reward stops saying what to improve; 0 disables it"""
     reward: Literal["positive", "negative", "logit"] = "positive"
     """generator reward from D: positive = -log(1 - D), negative = log D, logit = log D - log(1 - D)"""
     value_warmup: int = 10
@@ -448,7 +452,7 @@ class TrainConfig:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
                                               bc_batch_size=1, disc_updates=0, disc_minibatch_size=1,
                                               value_warmup=0, env_workers=0),
-                       ("disc_lr", "bc_weight", "anchor_weight"), ("replay_fraction",))
+                       ("disc_lr", "bc_weight", "anchor_weight", "disc_grad_penalty"), ("replay_fraction",))
         _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
         _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
                  self.min_init_log_std)

@@ -27,11 +27,23 @@ def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
     return loss, parts.detach()
 
 
+def gradient_penalty(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor,
+                     gen: torch.Generator) -> torch.Tensor:
+    """DAC's penalty (|grad_x D(x)| - 1)^2, averaged over points drawn uniformly on the segments between paired
+    agent and expert rows: it keeps D's logits from turning into a step between the two sets, which a handful of
+    demonstrations otherwise lets D learn by heart (every agent step then earns the same near-zero reward)."""
+    alpha = torch.rand(len(x_agent), 1, generator=gen).to(x_agent)
+    mix = (alpha * x_agent + (1 - alpha) * x_expert).requires_grad_(True)
+    (grad,) = torch.autograd.grad(disc.net(mix).sum(), mix, create_graph=True)
+    return (grad.norm(dim=-1) - 1).pow(2).mean()
+
+
 def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, x_agent: torch.Tensor,
                          x_expert: torch.Tensor, *, updates: int, minibatch_size: int, gen: torch.Generator,
-                         compile: bool = False) -> dict[str, float]:
+                         compile: bool = False, grad_penalty: float = 0.0) -> dict[str, float]:
     """`updates` passes of Adam steps on D: each minibatch is half a shuffled slice of the agent's [obs, action]
-    rows `x_agent` (label 0), half rows drawn at random from the expert's `x_expert` (label 1).
+    rows `x_agent` (label 0), half rows drawn at random from the expert's `x_expert` (label 1); with
+    `grad_penalty` > 0 the loss gains that weight times `gradient_penalty` on the minibatch.
 
     Returns the mean loss and accuracies as `disc/*` scalars.
     """
@@ -44,7 +56,10 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
         perm = torch.randperm(n, generator=gen)
         for start in range(0, n - half + 1, half):
             e_idx = torch.randint(len(x_expert), (half,), generator=gen)
-            loss, parts = loss_fn(disc, x_agent[perm[start:start + half]], x_expert[e_idx])
+            x_a, x_e = x_agent[perm[start:start + half]], x_expert[e_idx]
+            loss, parts = loss_fn(disc, x_a, x_e)
+            if grad_penalty > 0:
+                loss = loss + grad_penalty * gradient_penalty(disc, x_a, x_e, gen)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             step()

@@ -255,7 +255,8 @@ class GAIL:
         D's loss through `torch.compile`)."""
         return discriminator_update(self.disc, self.disc_optimizer, self.disc_input(obs_n, act_in),
                                     self._expert_disc_in, updates=self.cfg.disc_updates,
-                                    minibatch_size=self.cfg.disc_minibatch_size, gen=self.gen, compile=compile)
+                                    minibatch_size=self.cfg.disc_minibatch_size, gen=self.gen, compile=compile,
+                                    grad_penalty=self.cfg.disc_grad_penalty)
 
     def discriminator_step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
                            grad_penalty: float) -> torch.Tensor:
