@@ -15,6 +15,9 @@ there), with the same episodes for every policy.
   (`circle_reversed_expert`). Rows: the closed-loop order with q alone (`--fallback none`), with the default
   fallback (the counter-clockwise code, which no demonstration leaves, runs its demonstrated length), the
   demonstrated order closed loop, the open-loop schedule with the true durations (60:60), and the flat policy.
+- route: the landmark route in a new order (`--order`, default 3,2,1,0; demonstrated 0,2,1,3); success is the
+  env's `is_success` for that order. Rows: the closed-loop order with q alone and with the fallback, the run's own
+  macro-policy, and the flat policy. Reference: `route_expert` on the new order.
 - rooms: Four Rooms, a route never demonstrated: start in room r, apple in the next room clockwise (r + 1), the
   long way round through corridors r - 1, r - 2, r - 3 (mod 4) and then the apple. The shortest-path expert
   passes at most two corridors, so no demonstration takes this route. 25 episodes per start room. The code of a
@@ -43,9 +46,10 @@ from digail.envs.actions import env_action_fn
 from digail.envs.circle_world import reversed_reference_point
 from digail.envs.episodes import Episode, play_batch, play_episodes
 from digail.envs.four_rooms import APPLE_LABEL, ROOMS, corridor_entries
+from digail.envs.landmark_route import ROUTE_ENV_ID
 from digail.eval.composition import CodeSchedule, demonstrated_lengths, order_summary, parse_order, play_order
 from digail.eval.returns import summarize
-from digail.experts.scripted import FourRoomsRouteExpert, circle_reversed_expert
+from digail.experts.scripted import FourRoomsRouteExpert, circle_reversed_expert, route_expert
 from digail.utils import write_json
 
 CIRCLE = "digail/CircleWorld-v0"
@@ -65,6 +69,8 @@ TRAINING = {
               "digail pretrain --demos digail/fourrooms/expert-v0 --codes 1 --seed S --out runs/fr_flat_sS"],
 }
 """how the run folders measured here were made (from the repository root, `PYTHONPATH=src`)"""
+TRAINING["route"] = ["digail pretrain --demos digail/landmarkroute/expert-v0 --seed S --out runs/lr_vae_sS",
+                     "digail pretrain --demos digail/landmarkroute/expert-v0 --codes 1 --seed 0 --out runs/lr_flat_s0"]
 
 
 # ------------------------------------------------------------------------------------------ shared
@@ -273,9 +279,53 @@ def rooms(args: argparse.Namespace) -> dict[str, Any]:
                                   for r in rows}}
 
 
+# ------------------------------------------------------------------------------------------ landmark route
+def _route_env_scores(eps: list[Episode]) -> dict[str, Any]:
+    out = summarize(eps, ROUTE_ENV_ID)
+    return {k: out[k] for k in ("episodes", "success_rate", "legs_done", "wrong_visits") if k in out}
+
+
+def landmark_route(args: argparse.Namespace) -> dict[str, Any]:
+    """The landmarks in the order `args.order` (default 3,2,1,0, never demonstrated; demonstrated: 0,2,1,3): a
+    landmark's code is the one the run's segmentation matched to its oracle label. Success is the env's own
+    `is_success` for that order (every leg in turn, no landmark touched out of turn)."""
+    new = [int(x) for x in args.order.split(",")]
+    envs = [make_env(ROUTE_ENV_ID, order=new) for _ in range(8)]
+    demo_envs = [make_env(ROUTE_ENV_ID) for _ in range(8)]
+    expert = _route_env_scores(play_episodes(envs[0], lambda env, obs: route_expert(env), args.episodes, SEED,
+                                             keep=True))
+    rows: list[dict[str, Any]] = []
+    for run in args.runs:
+        seg = json.loads((run / "segmentation.json").read_text())
+        by_label = {int(lb): int(c) for c, lb in seg["mapping"].items()}
+        order = [by_label[lb] for lb in new]
+        for name, model in _models(run):
+            codes, _ = _demo_codes(run, model)
+            lengths = demonstrated_lengths(codes)
+            row: dict[str, Any] = {"run": str(run), "model": name, "codes": order, "demonstrated_lengths": lengths}
+            for variant, lens in (("order_q_only", {}), ("order", lengths)):
+                eps, sw = play_order(model, envs, order, args.episodes, SEED, hold=args.hold,
+                                     lengths={c: n for c, n in lens.items() if c in order[:-1]}, keep_obs=0)
+                row[variant] = {**_route_env_scores(eps),
+                                "order_completed_rate": order_summary(sw)["order_completed_rate"]}
+            row["own_macro_policy"] = _route_env_scores(_play(model, envs, args.episodes, SEED))
+            # the same policy on the demonstrated route, its own q choosing: how well the sub-task policies drive
+            row["demonstrated_route"] = _route_env_scores(_play(model, demo_envs, args.episodes, SEED))
+            rows.append(row)
+    flat = [{"run": str(run), "codes": 1, "closed_loop": _route_env_scores(
+        _play(load_model(run / "model.pt")[0], envs, args.episodes, SEED))} for run in args.flat]
+    for env in envs + demo_envs:
+        env.close()
+    return {"task": f"Landmark route in the order {args.order} (demonstrated: 0,2,1,3)", "episodes": args.episodes,
+            "seed": SEED, "hold": args.hold, "expert": expert, "runs": rows, "flat": flat,
+            "success_vs_expert": {f"{r['run']}:{r['model']}": r["order"]["success_rate"] / max(
+                expert["success_rate"], 1e-9) for r in rows}}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("task", choices=("circle", "rooms"))
+    ap.add_argument("task", choices=("circle", "rooms", "route"))
+    ap.add_argument("--order", default="3,2,1,0", help="route: the landmarks' new order")
     ap.add_argument("--runs", type=Path, nargs="*", default=[], help="run folders of the hierarchical policy")
     ap.add_argument("--flat", type=Path, nargs="*", default=[], help="run folders of one-code (flat) policies")
     ap.add_argument("--episodes", type=int, default=100)
@@ -283,7 +333,7 @@ def main() -> None:
     ap.add_argument("--figure", type=Path, default=None, help="rooms: paths from room 0, one panel per policy")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/compose_orders.json"))
     args = ap.parse_args()
-    result = circle(args) if args.task == "circle" else rooms(args)
+    result = {"circle": circle, "rooms": rooms, "route": landmark_route}[args.task](args)
     result["command"] = "python " + " ".join(sys.argv)
     result["training_commands"] = TRAINING[args.task]
     data = json.loads(args.out.read_text()) if args.out.is_file() else {}
