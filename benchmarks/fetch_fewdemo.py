@@ -38,6 +38,8 @@ METHODS = {
     "flatbc-gail": "GAIL from the flat BC policy",
     "digail": "Directed-Info GAIL",
     "flatbc-gail-l2": "GAIL + L2 from the flat BC policy",
+    "flatbc-gail-l2-gp": "GAIL + L2 from the flat BC policy, D's gradient penalty 10",
+    "digail-l2-gp": "Directed-Info GAIL + L2, D's gradient penalty 10",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
 TASKS = {
@@ -134,11 +136,14 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    settings = sorted({r["demos"] for r in records})
+    # panels for the settings with a trained run (BC alone is a level, drawn as a dashed line in each panel)
+    settings = sorted({r["demos"] for r in records if r["curve"]}) or sorted({r["demos"] for r in records})
     fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 3.8), squeeze=False, sharey=True)
-    colours = dict(zip(METHODS, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    present = [m for m in METHODS if any(r["method"] == m for r in records)]
+    colours = {m: f"C{i % 10}" for i, m in enumerate(present)}
     for ax, demos in zip(axes[0], settings, strict=True):
-        for method, label in METHODS.items():
+        for method in present:
+            label = METHODS[method]
             mine = [r for r in records if r["demos"] == demos and r["method"] == method]
             for i, r in enumerate(mine):
                 if r["curve"]:
@@ -151,8 +156,8 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
         ax.set_title(f"{TASKS[task]['title']}, {demos} demonstration{'s' if demos > 1 else ''}")
         ax.set_xlabel("env steps (thousands)")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
     axes[0][0].set_ylabel("success rate (20-episode evaluations)")
-    axes[0][-1].legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -166,6 +171,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_fewdemo.json"))
     parser.add_argument("--markdown", type=Path)
     parser.add_argument("--figure", type=Path)
+    parser.add_argument("--page", type=Path, help="a Markdown page whose `<!-- TASK_fewdemo:start -->` and "
+                        "`<!-- TASK_fewdemo:end -->` markers take the table (docs/results.md)")
     args = parser.parse_args()
     task = TASKS[args.task]
     records = collect(args.root, args.task)
@@ -178,6 +185,11 @@ def main() -> None:
         args.markdown.write_text(text)
     if args.figure:
         figure(records, args.figure, args.task)
+    if args.page:
+        from digail.sweep.publish import replace_between_markers
+
+        replace_between_markers(args.page, (f"<!-- {args.task}_fewdemo:start -->", f"<!-- {args.task}_fewdemo:end -->"),
+                                text.rstrip("\n"))
     print(text, end="")
 
 

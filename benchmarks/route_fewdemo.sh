@@ -9,6 +9,7 @@
 #   flatbc-gail  GAIL from flatbc's policy (one code, so no bonus; same network, data, learner and steps)
 #   gail     GAIL from a fresh policy
 #   digail-l2, flatbc-gail-l2, gail-l2   the same with the BC / L2 term (weight 1.0)
+#   digail-l2-gp, flatbc-gail-l2-gp      the L2 ones with a gradient penalty of weight 10 on D
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint.
 # Every training: PPO (the preset's: 8 envs, batch 512), ITERATIONS (default 2000, i.e. 1,024,000 env steps), a
 # 20-episode evaluation every 100 iterations (the learning curve), then 100 episodes.
@@ -30,14 +31,15 @@ vae() {  # vae K -> the VAE run folder, pre-trained (and evaluated) once
 }
 
 train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), then evaluates it on 100 episodes
-  local name=$1 run="$ROOT/$1_s$S" bc=0; shift
-  case $name in *-l2) bc=1.0 ;; esac
+  local name=$1 run="$ROOT/$1_s$S" bc=0 gp=0; shift
+  case $name in *-l2|*-l2-gp) bc=1.0 ;; esac
+  case $name in *-gp) gp=10 ;; esac
   [ -f "$run/eval.json" ] && return 0
   if [ -f "$run/config.json" ]; then
     digail train --resume "$run"
   else
-    digail train --demos $D --demos-episodes "$N" --bc-weight "$bc" --seed "$S" --train.iterations "$ITERS" \
-        --train.eval-every 100 --train.eval-episodes 20 --train.checkpoint-every 100 --out "$run" "$@"
+    digail train --demos $D --demos-episodes "$N" --bc-weight "$bc" --train.disc-grad-penalty "$gp" --seed "$S" \
+        --train.iterations "$ITERS" --train.eval-every 100 --train.eval-episodes 20 --train.checkpoint-every 100 --out "$run" "$@"
   fi
   digail evaluate "$run" --episodes 100
 }
@@ -45,8 +47,8 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
 case $METHOD in
   bc) vae 4 ;;
   flatbc) vae 1 ;;
-  digail|digail-l2) train "$METHOD" --vae "$(vae 4)" ;;
-  flatbc-gail|flatbc-gail-l2) train "$METHOD" --vae "$(vae 1)" ;;
+  digail|digail-l2|digail-l2-gp) train "$METHOD" --vae "$(vae 4)" ;;
+  flatbc-gail|flatbc-gail-l2|flatbc-gail-l2-gp) train "$METHOD" --vae "$(vae 1)" ;;
   gail|gail-l2) train "$METHOD" --method gail ;;
   *) echo "unknown method $METHOD" >&2; exit 2 ;;
 esac
