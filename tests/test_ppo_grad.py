@@ -12,7 +12,8 @@ from torch import nn
 
 from digail.algos.aux_losses import anchor_loss, bc_loss
 from digail.algos.expert_data import ExpertData
-from digail.algos.fast.ppo_grad import PPOGrad, _minibatch_grads, plain_mlp_layers
+from digail.algos.fast.mlp import plain_layers
+from digail.algos.fast.ppo_grad import PPOGrad, _minibatch_grads
 from digail.algos.fast.scripting import scripted
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, minibatch_loss, ppo_update
@@ -148,7 +149,7 @@ def test_other_nets_and_aux_terms_keep_the_autograd_path(monkeypatch: pytest.Mon
 
     pi, v = _nets()
     pi.net = nn.Sequential(*pi.net[:-1], nn.Tanh(), pi.net[-1])  # type: ignore[index]
-    assert plain_mlp_layers(pi.net) is None
+    assert plain_layers(pi.net) is None
     batch = _batch(pi, 128, gen)
     ppo_update(pi, v, adam(list(pi.parameters()) + list(v.parameters()), 1e-3), batch, cfg, gen)
 

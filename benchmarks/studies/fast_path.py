@@ -15,6 +15,7 @@ interleaved in one process, medians of per-round ratios.
   scripted sampling loop) and `--vae.bptt` (the hand-written backward pass), against q's module step by step;
 - `polish`: 1000 polish steps (`fit_to_codes`, minibatch 256) on the shipped Circle-World and Four Rooms
   demonstrations, the scripted loss-and-gradient step against autograd through the modules;
+- `lean_pretrain`: ELBO pre-training and the polish step on Circle-World with the lean optimiser step off;
 - `rollout`: Directed-Info GAIL rollouts (`PPOLearner.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
   Rooms, the NumPy snapshots against the modules' torch forward passes;
 - `iteration`: whole training iterations (`GAIL.iterate`: rollout, D, reward, update) with each env's preset
@@ -25,7 +26,8 @@ interleaved in one process, medians of per-round ratios.
   compiled path);
 - `pieces`: the same iterations with one piece of the fast path off at a time (the rest on): `-inference` (the
   rollout's pi, V and q through their modules), `-lean step` (torch's own clipping and Adam step), `-hand grad`
-  (PPO's loss through autograd, eager), and for SAC `-sac hand` (SAC's update through autograd) and `-d hand`
+  (PPO's loss through autograd, eager), `compiled` (PPO's loss through `torch.compile`, what the MuJoCo presets
+  run), and for SAC `-sac hand` (SAC's update through autograd) and `-d hand`
   (D's step through autograd); each against `fast`.
 """
 
@@ -140,6 +142,44 @@ def vae_study(rounds: int) -> dict[str, Any]:
         fns = {"fast": lambda trajs=trajs, cfg=cfg: pretrain(trajs, cfg, seed=0, progress=False),
                "reference": reference}
         out[f"{dataset} ({epochs} epochs)"] = _summary(_interleaved(fns, rounds), "fast")
+    return out
+
+
+def lean_pretrain_study(rounds: int) -> dict[str, Any]:
+    """Pre-training with the lean optimiser step off (torch's own clipping and Adam step), the rest of the fast
+    path on: ELBO pre-training and the polish step on the shipped Circle-World demonstrations."""
+    from unittest import mock
+
+    import numpy as np
+
+    from digail.algos.fast import step
+    from digail.algos.polish import fit_to_codes
+    from digail.data.validation import check_demos
+    from digail.nets.vae import HierarchicalPolicy
+
+    trajs = load_dataset("digail/circleworld/expert-v0").trajs
+    cfg = VAEConfig(codes=2, epochs=10, batch_size=16, init="none", tau_decay=3e-3)
+    obs_dim, spec = check_demos(trajs, None)
+    segs = _demo_codes(trajs, 2)
+
+    def polish() -> None:
+        torch.manual_seed(0)
+        model = HierarchicalPolicy(obs_dim, 2, spec)
+        model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
+        fit_to_codes(model, trajs, segs, 500, 3e-3, q_noise=0.1, seed=0, progress=False)
+
+    def off(fn: Callable[[], Any]) -> Callable[[], None]:
+        def run() -> None:
+            with mock.patch.object(step, "enabled", lambda: False):
+                fn()
+        return run
+
+    out = {}
+    for name, fn in {"vae (circle-world, 10 epochs)": lambda: pretrain(trajs, cfg, seed=0, progress=False),
+                     "polish (circle-world, 500 steps)": polish}.items():
+        fn()  # TorchScript compiles once
+        out[name] = _summary(_interleaved({"fast": fn, "-lean step": off(fn)}, rounds), "fast")
+        print(name, out[name], flush=True)
     return out
 
 
@@ -287,6 +327,9 @@ def iteration_study(rounds: int) -> dict[str, Any]:
 
 MATCH = ""
 """`--match`: the `iteration` and `pieces` studies run only the cases whose "env learner" contains it"""
+PIECES: list[str] = []
+"""`--pieces`: the `pieces` study runs only these variants (and `fast`), named without their minus; all when
+empty"""
 
 
 def pieces_study(rounds: int) -> dict[str, Any]:
@@ -300,10 +343,10 @@ def pieces_study(rounds: int) -> dict[str, Any]:
     from digail.data.demos import default_dataset_id
     from digail.envs.registry import preset_for
 
-    def build(env_id: str, learner: str) -> Any:
+    def build(env_id: str, learner: str, compile_: bool = False) -> Any:
         base = preset_for(env_id).train
         cfg = dataclasses.replace(base, method="gail", learner=learner, backend="sync", value_warmup=0,
-                                  ppo=dataclasses.replace(base.ppo, compile=False),
+                                  ppo=dataclasses.replace(base.ppo, compile=compile_),
                                   sac=dataclasses.replace(base.sac, steps_per_iteration=200, learning_starts=200,
                                                           policy_warmup=0))
         demos, _ = load_demos(default_dataset_id(env_id), env_id)
@@ -329,13 +372,14 @@ def pieces_study(rounds: int) -> dict[str, Any]:
         return _nothing()
 
     out: dict[str, Any] = {}
-    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
-             ("Hopper-v5", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
+    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-lean step", "-hand grad", "compiled"],
+             ("Hopper-v5", "ppo"): ["fast", "-inference", "-lean step", "-hand grad", "compiled"],
              ("Hopper-v5", "sac"): ["fast", "-inference", "-lean step", "-sac hand", "-d hand"]}
     for (env_id, learner), variants in cases.items():
         if MATCH not in f"{env_id} {learner}":
             continue
-        trainers = {name: build(env_id, learner) for name in variants}
+        variants = [v for v in variants if v == "fast" or not PIECES or v.lstrip("-") in PIECES]
+        trainers = {name: build(env_id, learner, compile_=name == "compiled") for name in variants}
         fns = {}
         for name, tr in trainers.items():
             def run(tr: Any = tr, name: str = name) -> None:
@@ -364,15 +408,17 @@ def main() -> None:
                         default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
                                  "pieces"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
+    parser.add_argument("--pieces", nargs="*", default=[], help="pieces: only these variants besides fast "
+                        "(inference, 'lean step', 'hand grad', compiled, 'sac hand', 'd hand')")
     parser.add_argument("--match", default="", help="iteration, pieces: only the cases whose 'env learner' "
                         "contains this")
     args = parser.parse_args()
-    global MATCH
-    MATCH = args.match
+    global MATCH, PIECES
+    MATCH, PIECES = args.match, args.pieces
     set_torch_threads(1)
     studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
-               "polish": polish_study, "rollout": rollout_study, "iteration": iteration_study,
-               "pieces": pieces_study}
+               "polish": polish_study, "lean_pretrain": lean_pretrain_study, "rollout": rollout_study,
+               "iteration": iteration_study, "pieces": pieces_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")

@@ -98,9 +98,9 @@ class SACUpdate:
         self.alpha_optimizer = adam([self.log_alpha], lr=cfg.alpha_lr)
         self._q_params: list[torch.Tensor] = list(self.critic.parameters())
         self._target_params: list[torch.Tensor] = list(self.critic_target.parameters())
-        from digail.algos.fast.ppo_grad import plain_mlp_layers
+        from digail.algos.fast.mlp import plain_layers
 
-        pi_lin = plain_mlp_layers(pi.net)
+        pi_lin = plain_layers(pi.net)
         from digail.algos import fast
 
         self.hand = fast.enabled() and bounds is not None and bc is None and pi_lin is not None and all(

@@ -16,8 +16,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from digail.algos.fast import mlp
 from digail.algos.fast.ops import adam_step, polyak, relu_backward
-from digail.algos.fast.ppo_grad import _mlp_backward, _mlp_forward
 
 
 def _twin_forward(x: Tensor, w: list[Tensor], b: list[Tensor]) -> tuple[Tensor, list[Tensor]]:
@@ -47,7 +47,7 @@ def critic_grads(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, noise_next
     noise_next) of pi at its inputs `x_next_pi` (s', c'), and `next_obs_code` = [s', c'] (B, .) for the critics.
     Returns (weight gradients then bias gradients, loss, mean Q).
     """
-    mean_next, _ = _mlp_forward(x_next_pi, pi_w, pi_b)
+    mean_next, _ = mlp.forward(x_next_pi, pi_w, pi_b)
     a_next = torch.minimum(torch.maximum(mean_next + std * noise_next, low), high)
     q_next, _ = _twin_forward(torch.cat([next_obs_code, a_next], -1), t_w, t_b)
     v_next = torch.where(terminated, v_abs, q_next.min(0)[0] + alpha * entropy)
@@ -83,7 +83,7 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
     A = noise.shape[1]
     ls = log_std.clamp(-5.0, 2.0)
     std = ls.exp()
-    mean, pi_xs = _mlp_forward(x_pi, pi_w, pi_b)
+    mean, pi_xs = mlp.forward(x_pi, pi_w, pi_b)
     raw = mean + std * noise
     acts = torch.minimum(torch.maximum(raw, low), high)
     q, hs = _twin_forward(torch.cat([obs_code, acts], -1), q_w, q_b)
@@ -102,7 +102,7 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
     g_raw = g_act * ((raw >= low) & (raw <= high)).to(raw.dtype)  # the clamp passes its gradient inside the bounds
     in_range = ((log_std >= -5.0) & (log_std <= 2.0)).to(log_std.dtype)
     g_log_std = ((g_raw * noise).sum(0) * std - alpha) * in_range
-    g_pi_w, g_pi_b = _mlp_backward(g_raw, pi_xs, pi_w)
+    g_pi_w, g_pi_b, _ = mlp.backward(g_raw, pi_xs, pi_w, False)
     return g_pi_w + g_pi_b + [g_log_std], loss
 
 
@@ -168,13 +168,13 @@ def disc_grads(x_agent: Tensor, x_expert: Tensor, mix: Tensor, w: list[Tensor], 
     """
     n_a = x_agent.shape[0]
     n_e = x_expert.shape[0]
-    out, xs = _mlp_forward(torch.cat([x_agent, x_expert]), w, b)
+    out, xs = mlp.forward(torch.cat([x_agent, x_expert]), w, b)
     logits = out.squeeze(-1)
     l_a, l_e = logits[:n_a], logits[n_a:]
     sp = torch.nn.functional.softplus
     loss = sp(l_a).mean() + sp(l_e.neg()).mean()
     g_out = torch.cat([torch.sigmoid(l_a) * (1.0 / n_a), torch.sigmoid(l_e.neg()) * (-1.0 / n_e)]).unsqueeze(-1)
-    g_w, g_b = _mlp_backward(g_out, xs, w)
+    g_w, g_b, _ = mlp.backward(g_out, xs, w, False)
     penalty = loss.new_zeros(())
     n_m = mix.shape[0]
     if n_m > 0 and gp_weight > 0:
@@ -218,5 +218,5 @@ def disc_update(x_agent: Tensor, x_expert: Tensor, mix: Tensor, params: list[Ten
 
 def mlp_out(x: Tensor, w: list[Tensor], b: list[Tensor]) -> Tensor:
     """A ReLU MLP's output for inputs x (for D's logits when relabelling a batch)."""
-    out, _ = _mlp_forward(x, w, b)
+    out, _ = mlp.forward(x, w, b)
     return out

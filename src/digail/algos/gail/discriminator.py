@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from digail.algos import fast
-from digail.algos.fast.ppo_grad import plain_mlp_layers
+from digail.algos.fast.mlp import plain_layers
 from digail.algos.fast.step import FusedAdamState, LeanStep
 from digail.algos.ppo import maybe_compiled
 from digail.nets.critic import Discriminator
@@ -65,7 +65,7 @@ class PenaltyStep:
 
     def __init__(self, disc: Discriminator, optimizer: torch.optim.Optimizer) -> None:
         self.disc, self.optimizer = disc, optimizer
-        d_lin = plain_mlp_layers(disc.net)
+        d_lin = plain_layers(disc.net)
         self.hand = fast.enabled() and d_lin is not None
         """whether D's step runs the hand-written gradient of `digail.algos.fast.sac_grad.disc_grads`"""
         self._d_w = [m.weight for m in d_lin or []]
