@@ -3,11 +3,8 @@ interleaved in one process, medians of per-round ratios.
 
     python benchmarks/studies/fast_path.py [--rounds 5] [--out runs/bench/fast_path.json]
 
-- `step`: `LeanStep` (clipping and fused Adam as direct foreach calls) against `clip_grad_norm_(foreach=True)` and
-  `torch.optim.Adam(fused=True).step()`, 3000 steps of random gradients on 2x64 policy and value nets; also
-  whether the weights end identical;
 - `ppo_update`: 10 epochs on random batches of Circle-World's size (512 rows, minibatch 128) and Hopper's (4096,
-  512): the fast path, the fast step with autograd (`hand_grad=False`), and the reference;
+  512): the fast path against the reference;
 - `vae`: ELBO pre-training (`--vae.init none`, batch 16) on the shipped Circle-World (20 epochs) and Four Rooms
   (4 epochs) demonstrations, `FusedVAEStep` against autograd;
 - `gumbel_chain`: the Gumbel-softmax chain's forward and backward pass on a Circle-World batch (16 demonstrations
@@ -15,7 +12,6 @@ interleaved in one process, medians of per-round ratios.
   scripted sampling loop) and `--vae.bptt` (the hand-written backward pass), against q's module step by step;
 - `polish`: 1000 polish steps (`fit_to_codes`, minibatch 256) on the shipped Circle-World and Four Rooms
   demonstrations, the scripted loss-and-gradient step against autograd through the modules;
-- `lean_pretrain`: ELBO pre-training and the polish step on Circle-World with the lean optimiser step off;
 - `rollout`: Directed-Info GAIL rollouts (`PPOLearner.collect`, 16 envs x 128 steps, sync) on Circle-World and Four
   Rooms, the NumPy snapshots against the modules' torch forward passes;
 - `iteration`: whole training iterations (`GAIL.iterate`: rollout, D, reward, update) with each env's preset
@@ -46,7 +42,6 @@ import torch
 
 from digail.algos import fast
 from digail.algos.batch import PPOBatch
-from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
 from digail.algos.ppo import ppo_update
 from digail.algos.vae_pretrain import pretrain
@@ -76,30 +71,6 @@ def _summary(times: dict[str, list[float]], base: str) -> dict[str, Any]:
     return out
 
 
-def step_study(rounds: int) -> dict[str, Any]:
-    def run(kind: str) -> torch.Tensor:
-        torch.manual_seed(0)
-        nets = [torch.nn.Sequential(torch.nn.Linear(14, 64), torch.nn.Tanh(), torch.nn.Linear(64, 64), torch.nn.Tanh(),
-                                    torch.nn.Linear(64, out)) for out in (3, 1)]
-        params = [p for n in nets for p in n.parameters()]
-        opt = adam(params, 3e-4)
-        lean = LeanStep(opt, 0.5)
-        for i in range(3000):
-            g = torch.Generator().manual_seed(i)
-            for p in params:
-                p.grad = torch.randn(p.shape, generator=g)
-            if kind == "fast":
-                lean()
-            else:
-                torch.nn.utils.clip_grad_norm_(params, 0.5, foreach=True)
-                opt.step()
-        return torch.cat([p.detach().flatten() for p in params])
-
-    same = torch.equal(run("fast"), run("reference"))
-    return {**_summary(_interleaved({"fast": lambda: run("fast"), "reference": lambda: run("reference")}, rounds),
-                       "fast"), "identical_weights": same}
-
-
 def ppo_study(rounds: int) -> dict[str, Any]:
     def update(obs: int, codes: int, act: int, n: int, mb: int, mode: str) -> None:
         torch.manual_seed(0)
@@ -112,18 +83,15 @@ def ppo_study(rounds: int) -> dict[str, Any]:
             batch = PPOBatch(o, c, a, d.log_prob(a), torch.randn(n, generator=g), torch.randn(n, generator=g))
         opt = adam([*pi.parameters(), *v.parameters()], 3e-4)
         cfg = PPOConfig(batch_size=n, minibatch_size=mb, epochs=10)
-        if mode == "reference":
-            with fast.reference():
-                ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0))
-        else:
-            ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0), hand_grad=mode == "fast")
+        with fast.pinned(mode == "fast"):
+            ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0))
 
     out = {}
     for name, size in {"circle-world (512 rows, minibatch 128)": (2, 2, 2, 512, 128),
                        "hopper (4096 rows, minibatch 512)": (11, 4, 3, 4096, 512)}.items():
         update(*size, "fast")  # TorchScript compiles once
         fns = {mode: (lambda mode=mode, size=size: update(*size, mode))
-               for mode in ("fast", "step_with_autograd", "reference")}
+               for mode in ("fast", "reference")}
         out[name] = _summary(_interleaved(fns, rounds), "fast")
     return out
 
@@ -142,44 +110,6 @@ def vae_study(rounds: int) -> dict[str, Any]:
         fns = {"fast": lambda trajs=trajs, cfg=cfg: pretrain(trajs, cfg, seed=0, progress=False),
                "reference": reference}
         out[f"{dataset} ({epochs} epochs)"] = _summary(_interleaved(fns, rounds), "fast")
-    return out
-
-
-def lean_pretrain_study(rounds: int) -> dict[str, Any]:
-    """Pre-training with the lean optimiser step off (torch's own clipping and Adam step), the rest of the fast
-    path on: ELBO pre-training and the polish step on the shipped Circle-World demonstrations."""
-    from unittest import mock
-
-    import numpy as np
-
-    from digail.algos.fast import step
-    from digail.algos.polish import fit_to_codes
-    from digail.data.validation import check_demos
-    from digail.nets.vae import HierarchicalPolicy
-
-    trajs = load_dataset("digail/circleworld/expert-v0").trajs
-    cfg = VAEConfig(codes=2, epochs=10, batch_size=16, init="none", tau_decay=3e-3)
-    obs_dim, spec = check_demos(trajs, None)
-    segs = _demo_codes(trajs, 2)
-
-    def polish() -> None:
-        torch.manual_seed(0)
-        model = HierarchicalPolicy(obs_dim, 2, spec)
-        model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
-        fit_to_codes(model, trajs, segs, 500, 3e-3, q_noise=0.1, seed=0, progress=False)
-
-    def off(fn: Callable[[], Any]) -> Callable[[], None]:
-        def run() -> None:
-            with mock.patch.object(step, "enabled", lambda: False):
-                fn()
-        return run
-
-    out = {}
-    for name, fn in {"vae (circle-world, 10 epochs)": lambda: pretrain(trajs, cfg, seed=0, progress=False),
-                     "polish (circle-world, 500 steps)": polish}.items():
-        fn()  # TorchScript compiles once
-        out[name] = _summary(_interleaved({"fast": fn, "-lean step": off(fn)}, rounds), "fast")
-        print(name, out[name], flush=True)
     return out
 
 
@@ -338,7 +268,6 @@ def pieces_study(rounds: int) -> dict[str, Any]:
 
     from digail.algos import inference
     from digail.algos.directed_info_gail import build_trainer
-    from digail.algos.fast import step
     from digail.commands.train import load_demos
     from digail.data.demos import default_dataset_id
     from digail.envs.registry import preset_for
@@ -354,17 +283,13 @@ def pieces_study(rounds: int) -> dict[str, Any]:
 
     def without(piece: str, tr: Any) -> contextlib.AbstractContextManager[Any]:
         if piece == "-inference":
-            if hasattr(tr.learner, "live"):
-                tr.learner.live = None  # SAC's NumPy policy
             stack = contextlib.ExitStack()
             stack.enter_context(mock.patch.object(inference, "actor_critic",
                                                   lambda pi, v, d: inference.ModuleActorCritic(pi, v)))
             stack.enter_context(mock.patch.object(inference, "code_net", lambda q, d: inference.ModuleCodeNet(q)))
             return stack
-        if piece == "-lean step":
-            return mock.patch.object(step, "enabled", lambda: False)
         if piece == "-hand grad":
-            return mock.patch("digail.algos.ppo.fast_path", lambda: False)
+            return mock.patch("digail.algos.ppo.HAND_GRAD_MAX_ROWS", 0)
         if piece == "-sac hand":
             tr.learner.sac.hand = False
         if piece == "-d hand":
@@ -372,9 +297,9 @@ def pieces_study(rounds: int) -> dict[str, Any]:
         return _nothing()
 
     out: dict[str, Any] = {}
-    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-lean step", "-hand grad", "compiled"],
-             ("Hopper-v5", "ppo"): ["fast", "-inference", "-lean step", "-hand grad", "compiled"],
-             ("Hopper-v5", "sac"): ["fast", "-inference", "-lean step", "-sac hand", "-d hand"]}
+    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-hand grad", "compiled"],
+             ("Hopper-v5", "ppo"): ["fast", "-inference", "-hand grad", "compiled"],
+             ("Hopper-v5", "sac"): ["fast", "-sac hand", "-d hand"]}
     for (env_id, learner), variants in cases.items():
         if MATCH not in f"{env_id} {learner}":
             continue
@@ -405,19 +330,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--only", nargs="*",
-                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
+                        default=["ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
                                  "pieces"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
     parser.add_argument("--pieces", nargs="*", default=[], help="pieces: only these variants besides fast "
-                        "(inference, 'lean step', 'hand grad', compiled, 'sac hand', 'd hand')")
+                        "(inference, 'hand grad', compiled, 'sac hand', 'd hand')")
     parser.add_argument("--match", default="", help="iteration, pieces: only the cases whose 'env learner' "
                         "contains this")
     args = parser.parse_args()
     global MATCH, PIECES
     MATCH, PIECES = args.match, args.pieces
     set_torch_threads(1)
-    studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
-               "polish": polish_study, "lean_pretrain": lean_pretrain_study, "rollout": rollout_study,
+    studies = {"ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
+               "polish": polish_study, "rollout": rollout_study,
                "iteration": iteration_study, "pieces": pieces_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,6 @@ from torch import nn
 
 from digail.algos import fast
 from digail.algos.fast.mlp import plain_layers
-from digail.algos.fast.step import FusedAdamState, LeanStep
 from digail.algos.ppo import maybe_compiled
 from digail.nets.critic import Discriminator
 
@@ -38,7 +37,6 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
     n = len(x_agent)
     half = max(1, minibatch_size // 2)
     loss_fn = maybe_compiled(disc_loss, compile)
-    step = LeanStep(optimizer, None)
     stats = []
     for _ in range(updates):
         perm = torch.randperm(n, generator=gen)
@@ -47,7 +45,7 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
             loss, parts = loss_fn(disc, x_agent[perm[start:start + half]], x_expert[e_idx])
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            step()
+            optimizer.step()
             stats.append(parts)
     loss_mean, acc_agent, acc_expert = torch.stack(stats).mean(0).tolist() if stats else [0.0] * 3
     return {"disc/loss": loss_mean, "disc/acc_agent": acc_agent, "disc/acc_expert": acc_expert,
@@ -71,29 +69,21 @@ class PenaltyStep:
         self._d_w = [m.weight for m in d_lin or []]
         self._d_b = [m.bias for m in d_lin or []]
         self._d_params = [*self._d_w, *self._d_b]
-        self._d_adam = FusedAdamState(optimizer, self._d_params)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """D's logits (n,) for its inputs x (n, .)."""
         if self.hand:
-            from digail.algos.fast.sac_grad import mlp_out
+            from digail.algos.fast.mlp import output
             from digail.algos.fast.scripting import scripted
 
-            return scripted(mlp_out)(x, self._d_w, self._d_b).squeeze(-1)
+            return scripted(output)(x, self._d_w, self._d_b).squeeze(-1)
         return self.disc.net(x).squeeze(-1)
 
     def __call__(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
                  grad_penalty: float) -> torch.Tensor:
         """The step on agent rows `x_agent` (label 0), expert rows `x_expert` (label 1) and the penalty's points
         `mix` (empty without a penalty); returns the detached [loss, agent accuracy, expert accuracy, penalty]."""
-        adam = self._d_adam.lists() if self.hand else None
-        if adam is not None:
-            from digail.algos.fast.sac_grad import disc_update
-            from digail.algos.fast.scripting import scripted
-
-            with torch.no_grad():
-                return scripted(disc_update)(x_agent, x_expert, mix, self._d_params, grad_penalty, *adam)
-        if self.hand:  # until D's optimiser holds its state (its own first step creates it)
+        if self.hand:
             from digail.algos.fast.sac_grad import disc_grads
             from digail.algos.fast.scripting import scripted
 

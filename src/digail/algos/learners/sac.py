@@ -68,11 +68,6 @@ class SACLearner:
         self._disc_debt = 0
         self.updates = 0
         """SAC updates so far"""
-        from digail.algos import fast
-        from digail.algos.fast.inference import LivePolicy
-
-        # pi's mean action read from its live weights in NumPy on the fast path; its module on the reference
-        self.live = LivePolicy(pi, obs_dim) if h.device.type == "cpu" and fast.enabled() else None
         self._v_abs: torch.Tensor | None = None
         """V_abs for the current D (None: to be computed); D's step and a checkpoint's load reset it"""
         self._sac_stats: list[torch.Tensor] = []
@@ -83,8 +78,6 @@ class SACLearner:
 
     # ---------------------------------------------------------------------------------------------- acting
     def _mean_actions(self, obs_n: np.ndarray, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.live is not None:
-            return self.live(obs_n, codes), self.live.std()
         pi, h = self.host.model.pi, self.host
         with torch.no_grad():
             obs = torch.from_numpy(obs_n).to(h.device)
