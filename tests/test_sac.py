@@ -110,17 +110,48 @@ def test_update_matches_a_hand_computation(hand):
 
 
 def test_hand_gradients_equal_autograd():
-    """Three updates of each path from the same start give the same weights (float64)."""
+    """Three updates of each path from the same start give the same weights (float64); the hand path's first
+    update creates the optimisers' state in pieces, the next two run as one scripted call."""
     runs = []
     for hand in (False, True):
         learner, b, noise_next, noise_pi = _tiny(hand, seed=3)
         assert learner.hand == hand
         for _ in range(3):
             learner.update(b, noise_next, noise_pi)
+        assert learner.fused_updates == (2 if hand else 0)
         runs.append([p.detach().clone() for p in (*learner.critic.parameters(), *learner.pi.parameters(),
                                                   learner.log_alpha)])
     for p_auto, p_hand in zip(*runs, strict=True):
         torch.testing.assert_close(p_hand, p_auto, rtol=1e-10, atol=1e-12)
+
+
+def _all_weights(learner: SACUpdate) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in (*learner.critic.parameters(), *learner.critic_target.parameters(),
+                                         *learner.pi.parameters(), learner.log_alpha)]
+
+
+@pytest.mark.parametrize("train_policy", [True, False])
+def test_one_scripted_update_gives_the_bits_of_the_pieces(train_policy):
+    """`sac_update` (gradients, the three fused Adam steps and the Polyak step in one call) against the same
+    gradients with torch's own optimiser steps: identical weights, optimiser state and stats after four updates."""
+    runs = []
+    for fused in (False, True):
+        learner, b, noise_next, noise_pi = _tiny(True, seed=5)
+        stats = []
+        for i in range(4):
+            with torch.no_grad():
+                if fused:
+                    stats.append(learner.update(b, noise_next, noise_pi, train_policy=train_policy or i == 0))
+                else:
+                    stats.append(learner._update_hand_steps(b, noise_next, noise_pi, train_policy or i == 0))
+        assert learner.fused_updates == (3 if fused else 0)
+        opt_state = [t.clone() for o in (learner.q_optimizer, learner.pi_optimizer, learner.alpha_optimizer)
+                     for st in o.state.values() for t in st.values()]
+        runs.append((_all_weights(learner), opt_state, stats))
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(runs[0][2], runs[1][2], strict=True):
+        assert torch.equal(a, b)
 
 
 def test_fast_functions_compile_to_torchscript():
@@ -129,7 +160,8 @@ def test_fast_functions_compile_to_torchscript():
     from digail.algos.fast import mlp, sac_grad
     from digail.algos.fast.scripting import scripted
 
-    for fn in (sac_grad.critic_grads, sac_grad.policy_grads, sac_grad.disc_grads, mlp.output):
+    for fn in (sac_grad.critic_grads, sac_grad.policy_grads, sac_grad.sac_update, sac_grad.disc_grads,
+               sac_grad.disc_update, mlp.output):
         assert isinstance(scripted(fn), torch.jit.ScriptFunction), fn.__name__
 
 
@@ -400,6 +432,27 @@ def test_discriminator_hand_gradient_equals_autograd():
     torch.testing.assert_close(hand_parts, torch.cat([parts, penalty.detach()[None]]))
     for a, h in zip(expected, grads, strict=True):
         torch.testing.assert_close(h, a, rtol=1e-10, atol=1e-12)
+
+
+def test_discriminator_scripted_step_gives_the_bits_of_the_pieces():
+    """D's step as one scripted call (`disc_update`: gradient and fused Adam) against the same gradient with torch's
+    own Adam step: identical weights and optimiser state after three steps."""
+    runs = []
+    for fused in (False, True):
+        tr = _trainer(disc_every=1, learning_starts=10_000)
+        loop, step = tr.learner, tr.penalty_step
+        assert step.hand
+        tr.iterate()  # fills the buffer; no update yet
+        if not fused:
+            step._d_adam.lists = lambda: None  # type: ignore[method-assign]  # every step in pieces
+        for _ in range(3):
+            loop.update_discriminator()
+        assert (step._d_adam.lists() is not None) == fused  # after the first step: the scripted call's condition
+        state = [t.clone() for st in tr.disc_optimizer.state.values() for t in st.values()]
+        runs.append(([p.detach().clone() for p in tr.disc.parameters()], state))
+        tr.close()
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
+        assert torch.equal(a, b)
 
 
 def test_absorbing_states_reach_d_and_the_target():

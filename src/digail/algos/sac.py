@@ -114,6 +114,14 @@ class SACUpdate:
             n = len(self.critic.weights)
             self._q_w, self._q_b = self._q_params[:n], self._q_params[n:]
             self._t_w, self._t_b = self._target_params[:n], self._target_params[n:]
+            from digail.algos.fast.step import FusedAdamState
+
+            self._q_adam = FusedAdamState(self.q_optimizer, self._q_params)
+            self._pi_adam = FusedAdamState(self.pi_optimizer, self._pi_targets)
+            self._alpha_params = [self.log_alpha]
+            self._alpha_adam = FusedAdamState(self.alpha_optimizer, self._alpha_params)
+        self.fused_updates = 0
+        """updates run as one scripted call (`digail.algos.fast.sac_grad.sac_update`)"""
 
     def entropy(self) -> torch.Tensor:
         """H(pi(. | s, c)), the same for every state (state-independent log-std)."""
@@ -182,8 +190,32 @@ class SACUpdate:
     @torch.no_grad()
     def _update_hand(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
                      train_policy: bool) -> torch.Tensor:
-        """`update` with the gradients of `digail.algos.fast.sac_grad`: the same steps in the same order, with the
-        optimisers' own steps."""
+        """`update` with the gradients of `digail.algos.fast.sac_grad`: the same steps in the same order, as one
+        scripted call (`sac_update`) once the optimisers hold their state (torch's own first steps create it)."""
+        from digail.algos.fast.sac_grad import sac_update
+        from digail.algos.fast.scripting import scripted
+
+        unused: tuple[list[list[torch.Tensor]], list[float]] = ([], [])
+        q_adam = self._q_adam.lists()
+        pi_adam = self._pi_adam.lists() if train_policy else unused
+        alpha_adam = self._alpha_adam.lists() if train_policy and self.cfg.learn_alpha else unused
+        if q_adam is None or pi_adam is None or alpha_adam is None:
+            return self._update_hand_steps(b, noise_next, noise_pi, train_policy)
+        pi = self.pi
+        obs_code = torch.cat([b.obs, b.code_1h], -1)
+        next_obs_code = torch.cat([b.next_obs, b.next_code_1h], -1)
+        plain = pi.decoder_obs is None  # pi's inputs are [s, c] as the critics'
+        self.fused_updates += 1
+        return scripted(sac_update)(
+            torch.cat([obs_code, b.acts], -1), next_obs_code if plain else pi.inputs(b.next_obs, b.next_code_1h),
+            next_obs_code, obs_code if plain else pi.inputs(b.obs, b.code_1h), obs_code, noise_next, noise_pi,
+            b.terminated, b.rews, b.absorbing_value, self.cfg.gamma, self.cfg.tau, self.target_entropy, self._low,
+            self._high, self._pi_targets, self._q_params, self._target_params, self._alpha_params, *q_adam, *pi_adam,
+            *alpha_adam, train_policy, self.cfg.learn_alpha)
+
+    def _update_hand_steps(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
+                           train_policy: bool) -> torch.Tensor:
+        """`_update_hand` in pieces, with the optimisers' own steps (which create their state)."""
         from digail.algos.fast.sac_grad import critic_grads, policy_grads
         from digail.algos.fast.scripting import scripted
 

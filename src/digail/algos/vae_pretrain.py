@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from digail.algos.fast import enabled as fast_path
+from digail.algos import fast
 from digail.algos.fast.vae_grad import VAEGrad
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.model_selection import (
@@ -272,7 +272,7 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     params = [p for p in model.parameters() if p.requires_grad]
     opt = adam(params, cfg.lr)
     # soft samples without bptt (every preset): the loss and its gradient in one scripted pass (`VAEGrad`)
-    fused = None if cfg.hard or cfg.bptt or not fast_path() else FusedVAEStep(model, cfg)
+    fused = None if cfg.hard or cfg.bptt or not fast.enabled() else FusedVAEStep(model, cfg)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())

@@ -5,9 +5,10 @@ whose dispatch and autograd bookkeeping cost more than the arithmetic with 64x64
 would also compute the critics' weight gradients it then throws away. Here two scripted functions compute the
 critics' loss and gradient (target included) and the policy's loss and gradient (back through the critics to the
 action only): the same maths as `SACUpdate.update`'s autograd path, to float rounding (tests/test_sac.py checks
-them against autograd in float64); `disc_grads` does the same for D's step with its gradient penalty. The
-optimisers' own steps follow. Used for Gaussian policies whose executed action is a clip to the bounds and without
-the BC term; the rest keeps the autograd path.
+them against autograd in float64). `sac_update` runs a whole update in one call: both gradients, the three Adam
+steps (torch's fused Adam kernel on the optimisers' own state, as `torch.optim.Adam(fused=True).step` calls it)
+and the targets' Polyak step; `disc_update` does the same for D. Used for Gaussian policies whose executed action
+is a clip to the bounds and without the BC term; the rest keeps the autograd path.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import torch
 from torch import Tensor
 
 from digail.algos.fast import mlp
-from digail.algos.fast.ops import relu_backward
+from digail.algos.fast.ops import adam_step, polyak, relu_backward
 
 
 def _twin_forward(x: Tensor, w: list[Tensor], b: list[Tensor]) -> tuple[Tensor, list[Tensor]]:
@@ -105,6 +106,57 @@ def policy_grads(x_pi: Tensor, obs_code: Tensor, noise: Tensor, alpha: Tensor, e
     return g_pi_w + g_pi_b + [g_log_std], loss
 
 
+def fused_adam(params: list[Tensor], grads: list[Tensor], state: list[list[Tensor]], hyper: list[float]) -> None:
+    """`torch.optim.Adam(fused=True).step` on its state [exp_avgs, exp_avg_sqs, steps] with hyper = [lr, beta1,
+    beta2, eps]: the same two calls, so the same bits (`digail.algos.fast.step.FusedAdamState` supplies both).
+
+    `params` is a list the caller was given, never one built in the scripted code (`a + b`, `[x]`): TorchScript
+    dropped the foreach lerp (`polyak`) on such lists as if it had no effect (torch 2.13), so no in-place list
+    operation here takes one."""
+    adam_step(params, grads, state[0], state[1], state[2], hyper[0], hyper[1], hyper[2], hyper[3])
+
+
+def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor, obs_code: Tensor,
+               noise_next: Tensor, noise_pi: Tensor, terminated: Tensor, rews: Tensor, v_abs: Tensor,
+               gamma: float, tau: float, target_entropy: float, low: Tensor, high: Tensor, pi_params: list[Tensor],
+               q_params: list[Tensor], t_params: list[Tensor], alpha_params: list[Tensor],
+               q_adam: list[list[Tensor]], q_hyper: list[float], pi_adam: list[list[Tensor]], pi_hyper: list[float],
+               alpha_adam: list[list[Tensor]], alpha_hyper: list[float], train_policy: bool,
+               learn_alpha: bool) -> Tensor:
+    """One whole SAC update in `SACUpdate.update`'s order: the critics' gradient and Adam step, the policy's
+    gradient against the updated critics and its step (`train_policy`), the temperature's step (`learn_alpha` and
+    `train_policy`), the targets' Polyak step with rate `tau`.
+
+    Inputs as for `critic_grads` and `policy_grads`, with the parameters as lists: `pi_params` pi's weights, biases
+    and log-std, `q_params` / `t_params` the critics' and the targets' weights then biases, `alpha_params`
+    [log alpha]; `*_adam` / `*_hyper` the optimisers' state and settings (see `fused_adam`; unused ones may be
+    empty). Returns [critic loss, policy loss, alpha loss, alpha, entropy, mean Q, 0 (no BC term)]."""
+    log_2pi = 1.8378770664093453  # log(2 pi): TorchScript reads no module-level floats
+    act_dim = noise_pi.shape[1]
+    n_pi = (len(pi_params) - 1) // 2
+    pi_w, pi_b, log_std = pi_params[:n_pi], pi_params[n_pi:2 * n_pi], pi_params[2 * n_pi]
+    n_q = len(q_params) // 2
+    q_w, q_b = q_params[:n_q], q_params[n_q:]
+    log_alpha = alpha_params[0]
+    alpha = log_alpha.exp()
+    ls = log_std.clamp(-5.0, 2.0)
+    entropy = ls.sum() + 0.5 * act_dim * (1.0 + log_2pi)
+    q_grads, q_loss, q_mean = critic_grads(x, x_next_pi, next_obs_code, noise_next, terminated, rews, v_abs, alpha,
+                                           entropy, gamma, low, high, pi_w, pi_b, ls.exp(), q_w, q_b,
+                                           t_params[:n_q], t_params[n_q:])
+    fused_adam(q_params, q_grads, q_adam, q_hyper)
+    pi_grads, pi_loss = policy_grads(x_pi, obs_code, noise_pi, alpha, entropy, low, high, pi_w, pi_b, log_std,
+                                     q_w, q_b)
+    if train_policy:
+        fused_adam(pi_params, pi_grads, pi_adam, pi_hyper)
+    # the temperature's loss log_alpha (H - H_target), its gradient H - H_target (see `SACUpdate`)
+    alpha_loss = log_alpha * (entropy - target_entropy)
+    if learn_alpha and train_policy:
+        fused_adam(alpha_params, [(entropy - target_entropy).reshape(())], alpha_adam, alpha_hyper)
+    polyak(t_params, q_params, tau)
+    return torch.stack([q_loss, pi_loss, alpha_loss, alpha, entropy, q_mean, torch.zeros_like(q_loss)])
+
+
 def disc_grads(x_agent: Tensor, x_expert: Tensor, mix: Tensor, w: list[Tensor], b: list[Tensor],
                gp_weight: float) -> tuple[list[Tensor], Tensor]:
     """Gradients of D's loss: binary cross-entropy (agent rows `x_agent` labelled 0, expert rows 1) plus `gp_weight`
@@ -152,3 +204,13 @@ def disc_grads(x_agent: Tensor, x_expert: Tensor, mix: Tensor, w: list[Tensor], 
     parts = torch.stack([loss, (l_a < 0).to(loss.dtype).mean(),
                          (l_e > 0).to(loss.dtype).mean(), penalty])
     return g_w + g_b, parts
+
+
+def disc_update(x_agent: Tensor, x_expert: Tensor, mix: Tensor, params: list[Tensor], gp_weight: float,
+                adam: list[list[Tensor]], hyper: list[float]) -> Tensor:
+    """`disc_grads` and D's Adam step (see `fused_adam`) in one call, `params` D's weights then biases; returns the
+    parts."""
+    n = len(params) // 2
+    grads, parts = disc_grads(x_agent, x_expert, mix, params[:n], params[n:], gp_weight)
+    fused_adam(params, grads, adam, hyper)
+    return parts

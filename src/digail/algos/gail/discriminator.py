@@ -11,6 +11,7 @@ from torch import nn
 
 from digail.algos import fast
 from digail.algos.fast.mlp import plain_layers
+from digail.algos.fast.step import FusedAdamState
 from digail.algos.ppo import maybe_compiled
 from digail.nets.critic import Discriminator
 
@@ -69,6 +70,7 @@ class PenaltyStep:
         self._d_w = [m.weight for m in d_lin or []]
         self._d_b = [m.bias for m in d_lin or []]
         self._d_params = [*self._d_w, *self._d_b]
+        self._d_adam = FusedAdamState(optimizer, self._d_params)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """D's logits (n,) for its inputs x (n, .)."""
@@ -83,7 +85,14 @@ class PenaltyStep:
                  grad_penalty: float) -> torch.Tensor:
         """The step on agent rows `x_agent` (label 0), expert rows `x_expert` (label 1) and the penalty's points
         `mix` (empty without a penalty); returns the detached [loss, agent accuracy, expert accuracy, penalty]."""
-        if self.hand:
+        adam = self._d_adam.lists() if self.hand else None
+        if adam is not None:
+            from digail.algos.fast.sac_grad import disc_update
+            from digail.algos.fast.scripting import scripted
+
+            with torch.no_grad():
+                return scripted(disc_update)(x_agent, x_expert, mix, self._d_params, grad_penalty, *adam)
+        if self.hand:  # until D's optimiser holds its state (its own first step creates it)
             from digail.algos.fast.sac_grad import disc_grads
             from digail.algos.fast.scripting import scripted
 
