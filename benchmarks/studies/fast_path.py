@@ -21,10 +21,9 @@ interleaved in one process, medians of per-round ratios.
   (`--train.sac.steps-per-iteration 200`, after 1000 steps of warm-up) as `fast` against `reference` (SAC has no
   compiled path);
 - `pieces`: the same iterations with one piece of the fast path off at a time (the rest on): `-inference` (the
-  rollout's pi, V and q through their modules), `-lean step` (torch's own clipping and Adam step), `-hand grad`
-  (PPO's loss through autograd, eager), `compiled` (PPO's loss through `torch.compile`, what the MuJoCo presets
-  run), and for SAC `-sac hand` (SAC's update through autograd) and `-d hand`
-  (D's step through autograd); each against `fast`.
+  rollout's pi, V and q through their modules), `-hand grad` (PPO's loss through autograd, eager), `compiled`
+  (PPO's loss through `torch.compile`, what the MuJoCo presets run), and for SAC `-sac hand` (SAC's update through
+  autograd) and `-d hand` (D's step through autograd); each against `fast`.
 """
 
 from __future__ import annotations
