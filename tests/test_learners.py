@@ -104,7 +104,7 @@ def test_an_untested_torch_turns_the_fast_path_off_with_one_warning():
     import sys
 
     code = ("import warnings, torch\nwarnings.simplefilter('always')\ntorch.__version__ = '2.99.0'\n"
-            "from digail.algos import fast\nfrom digail.algos.fast import step, ops\nprint(fast.enabled())")
+            "from digail.algos import fast\nfrom digail.algos.fast import mlp, ops\nprint(fast.enabled())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
     assert out.stderr.count("fast path is off") == 1 and "2.99.0 is outside" in out.stderr, out.stderr

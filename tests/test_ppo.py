@@ -68,39 +68,6 @@ def _continuous_batch(policy: SubtaskPolicy, n: int = 256) -> PPOBatch:
     return PPOBatch(obs, codes, acts, logp, torch.randn(n, generator=g), torch.randn(n, generator=g))
 
 
-def test_lean_step_equals_clip_grad_norm_and_torch_adam():
-    """The direct foreach clip + fused Adam kernel is the same maths as torch's clip_grad_norm_ + Adam.step,
-    including the first step (state creation), a second parameter group and a parameter left without a grad."""
-    from torch import nn
-
-    from digail.algos.fast.step import LeanStep
-    from digail.algos.optim import adam
-
-    nets = [_nets(), _nets()]
-    opts = [adam([{"params": list(p.parameters()), "lr": 1e-3}, {"params": list(v.parameters())}], lr=3e-3)
-            for p, v in nets]
-    lean = LeanStep(opts[1], 0.5)
-    g = torch.Generator().manual_seed(2)
-    x = torch.randn(64, 8, generator=g)
-    for step in range(6):
-        for k, ((pi, v), opt) in enumerate(zip(nets, opts, strict=True)):
-            opt.zero_grad(set_to_none=True)
-            loss = (pi.net(x) ** 2).sum() * 3 + v.net(x).pow(2).mean()
-            if step != 3:  # step 3: log_std gets no gradient (Adam must skip it)
-                loss = loss + pi.log_std.sum()
-            loss.backward()
-            if k == 0:
-                nn.utils.clip_grad_norm_([*pi.parameters(), *v.parameters()], 0.5)
-                opt.step()
-            else:
-                lean()
-        for a, b in zip([*nets[0][0].parameters(), *nets[0][1].parameters()],
-                        [*nets[1][0].parameters(), *nets[1][1].parameters()], strict=True):
-            assert torch.allclose(a, b, rtol=0, atol=1e-7), step
-    assert lean.groups is not None  # the lean path ran (not only the fallback)
-    assert opts[0].state_dict()["state"].keys() == opts[1].state_dict()["state"].keys()
-
-
 def test_compiled_update_matches_eager_and_falls_back(monkeypatch):
     """`PPOConfig.compile` gives the eager update's numbers (up to float rounding); where compiling fails the
     update warns once and carries on eagerly."""

@@ -10,9 +10,11 @@ import pytest
 import torch
 from torch import nn
 
+from digail.algos import fast
 from digail.algos.aux_losses import anchor_loss, bc_loss
 from digail.algos.expert_data import ExpertData
-from digail.algos.fast.ppo_grad import PPOGrad, _minibatch_grads, plain_mlp_layers
+from digail.algos.fast.mlp import plain_layers
+from digail.algos.fast.ppo_grad import PPOGrad, _minibatch_grads
 from digail.algos.fast.scripting import scripted
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, minibatch_loss, ppo_update
@@ -102,7 +104,8 @@ def _run(hand_grad: bool, with_anchor: bool, decoder_obs: tuple[int, int] | None
            "anchor": (anchor_loss(pi, anchor, batch, 48, gen), 10.0 if with_anchor else 0.0)}
     cfg = PPOConfig(epochs=3, minibatch_size=64, ent_coef=0.01)
     before = len(spy)
-    stats = ppo_update(pi, v, opt, batch, cfg, gen, aux_losses=aux, hand_grad=hand_grad)
+    with fast.pinned(hand_grad):
+        stats = ppo_update(pi, v, opt, batch, cfg, gen, aux_losses=aux)
     assert (len(spy) > before) == hand_grad  # the path asked for ran
     return stats, torch.cat([p.detach().flatten() for p in [*pi.parameters(), *v.parameters()]])
 
@@ -127,6 +130,24 @@ def test_ppo_update_on_the_hand_written_gradient_ends_where_autograd_does(
     assert (auto_stats["anchor"] > 0) == with_anchor
 
 
+def test_minibatches_above_the_bound_keep_the_autograd_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The hand-written gradient runs up to `HAND_GRAD_MAX_ROWS` rows per minibatch and not above (where it does
+    not pay); the fast path is on in both runs."""
+    from digail.algos.ppo import HAND_GRAD_MAX_ROWS
+
+    spy: list[int] = []
+    call = PPOGrad.__call__
+    monkeypatch.setattr(PPOGrad, "__call__", lambda self, *a: (spy.append(1), call(self, *a))[1])
+    for mb, used in ((HAND_GRAD_MAX_ROWS, True), (HAND_GRAD_MAX_ROWS * 2, False)):
+        pi, v = _nets(None)
+        opt = adam([*pi.parameters(), *v.parameters()], 1e-3)
+        batch = _batch(pi, HAND_GRAD_MAX_ROWS * 2, torch.Generator().manual_seed(1), spread=0.1)
+        spy.clear()
+        with fast.pinned(True):
+            ppo_update(pi, v, opt, batch, PPOConfig(epochs=1, minibatch_size=mb), torch.Generator().manual_seed(0))
+        assert bool(spy) == used, mb
+
+
 def test_other_nets_and_aux_terms_keep_the_autograd_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """A categorical policy, a net that is not a plain `mlp`, or the BC term: `PPOGrad` does not run."""
 
@@ -148,7 +169,7 @@ def test_other_nets_and_aux_terms_keep_the_autograd_path(monkeypatch: pytest.Mon
 
     pi, v = _nets()
     pi.net = nn.Sequential(*pi.net[:-1], nn.Tanh(), pi.net[-1])  # type: ignore[index]
-    assert plain_mlp_layers(pi.net) is None
+    assert plain_layers(pi.net) is None
     batch = _batch(pi, 128, gen)
     ppo_update(pi, v, adam(list(pi.parameters()) + list(v.parameters()), 1e-3), batch, cfg, gen)
 

@@ -3,11 +3,8 @@ interleaved in one process, medians of per-round ratios.
 
     python benchmarks/studies/fast_path.py [--rounds 5] [--out runs/bench/fast_path.json]
 
-- `step`: `LeanStep` (clipping and fused Adam as direct foreach calls) against `clip_grad_norm_(foreach=True)` and
-  `torch.optim.Adam(fused=True).step()`, 3000 steps of random gradients on 2x64 policy and value nets; also
-  whether the weights end identical;
 - `ppo_update`: 10 epochs on random batches of Circle-World's size (512 rows, minibatch 128) and Hopper's (4096,
-  512): the fast path, the fast step with autograd (`hand_grad=False`), and the reference;
+  512): the fast path against the reference;
 - `vae`: ELBO pre-training (`--vae.init none`, batch 16) on the shipped Circle-World (20 epochs) and Four Rooms
   (4 epochs) demonstrations, `FusedVAEStep` against autograd;
 - `gumbel_chain`: the Gumbel-softmax chain's forward and backward pass on a Circle-World batch (16 demonstrations
@@ -24,9 +21,9 @@ interleaved in one process, medians of per-round ratios.
   (`--train.sac.steps-per-iteration 200`, after 1000 steps of warm-up) as `fast` against `reference` (SAC has no
   compiled path);
 - `pieces`: the same iterations with one piece of the fast path off at a time (the rest on): `-inference` (the
-  rollout's pi, V and q through their modules), `-lean step` (torch's own clipping and Adam step), `-hand grad`
-  (PPO's loss through autograd, eager), and for SAC `-sac hand` (SAC's update through autograd) and `-d hand`
-  (D's step through autograd); each against `fast`.
+  rollout's pi, V and q through their modules), `-hand grad` (PPO's loss through autograd, eager), `compiled`
+  (PPO's loss through `torch.compile`, what the MuJoCo presets run); each against `fast`. (SAC has no fast
+  piece left.)
 """
 
 from __future__ import annotations
@@ -44,7 +41,6 @@ import torch
 
 from digail.algos import fast
 from digail.algos.batch import PPOBatch
-from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
 from digail.algos.ppo import ppo_update
 from digail.algos.vae_pretrain import pretrain
@@ -74,30 +70,6 @@ def _summary(times: dict[str, list[float]], base: str) -> dict[str, Any]:
     return out
 
 
-def step_study(rounds: int) -> dict[str, Any]:
-    def run(kind: str) -> torch.Tensor:
-        torch.manual_seed(0)
-        nets = [torch.nn.Sequential(torch.nn.Linear(14, 64), torch.nn.Tanh(), torch.nn.Linear(64, 64), torch.nn.Tanh(),
-                                    torch.nn.Linear(64, out)) for out in (3, 1)]
-        params = [p for n in nets for p in n.parameters()]
-        opt = adam(params, 3e-4)
-        lean = LeanStep(opt, 0.5)
-        for i in range(3000):
-            g = torch.Generator().manual_seed(i)
-            for p in params:
-                p.grad = torch.randn(p.shape, generator=g)
-            if kind == "fast":
-                lean()
-            else:
-                torch.nn.utils.clip_grad_norm_(params, 0.5, foreach=True)
-                opt.step()
-        return torch.cat([p.detach().flatten() for p in params])
-
-    same = torch.equal(run("fast"), run("reference"))
-    return {**_summary(_interleaved({"fast": lambda: run("fast"), "reference": lambda: run("reference")}, rounds),
-                       "fast"), "identical_weights": same}
-
-
 def ppo_study(rounds: int) -> dict[str, Any]:
     def update(obs: int, codes: int, act: int, n: int, mb: int, mode: str) -> None:
         torch.manual_seed(0)
@@ -110,18 +82,15 @@ def ppo_study(rounds: int) -> dict[str, Any]:
             batch = PPOBatch(o, c, a, d.log_prob(a), torch.randn(n, generator=g), torch.randn(n, generator=g))
         opt = adam([*pi.parameters(), *v.parameters()], 3e-4)
         cfg = PPOConfig(batch_size=n, minibatch_size=mb, epochs=10)
-        if mode == "reference":
-            with fast.reference():
-                ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0))
-        else:
-            ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0), hand_grad=mode == "fast")
+        with fast.pinned(mode == "fast"):
+            ppo_update(pi, v, opt, batch, cfg, torch.Generator().manual_seed(0))
 
     out = {}
     for name, size in {"circle-world (512 rows, minibatch 128)": (2, 2, 2, 512, 128),
                        "hopper (4096 rows, minibatch 512)": (11, 4, 3, 4096, 512)}.items():
         update(*size, "fast")  # TorchScript compiles once
         fns = {mode: (lambda mode=mode, size=size: update(*size, mode))
-               for mode in ("fast", "step_with_autograd", "reference")}
+               for mode in ("fast", "reference")}
         out[name] = _summary(_interleaved(fns, rounds), "fast")
     return out
 
@@ -287,6 +256,9 @@ def iteration_study(rounds: int) -> dict[str, Any]:
 
 MATCH = ""
 """`--match`: the `iteration` and `pieces` studies run only the cases whose "env learner" contains it"""
+PIECES: list[str] = []
+"""`--pieces`: the `pieces` study runs only these variants (and `fast`), named without their minus; all when
+empty"""
 
 
 def pieces_study(rounds: int) -> dict[str, Any]:
@@ -295,15 +267,14 @@ def pieces_study(rounds: int) -> dict[str, Any]:
 
     from digail.algos import inference
     from digail.algos.directed_info_gail import build_trainer
-    from digail.algos.fast import step
     from digail.commands.train import load_demos
     from digail.data.demos import default_dataset_id
     from digail.envs.registry import preset_for
 
-    def build(env_id: str, learner: str) -> Any:
+    def build(env_id: str, learner: str, compile_: bool = False) -> Any:
         base = preset_for(env_id).train
         cfg = dataclasses.replace(base, method="gail", learner=learner, backend="sync", value_warmup=0,
-                                  ppo=dataclasses.replace(base.ppo, compile=False),
+                                  ppo=dataclasses.replace(base.ppo, compile=compile_),
                                   sac=dataclasses.replace(base.sac, steps_per_iteration=200, learning_starts=200,
                                                           policy_warmup=0))
         demos, _ = load_demos(default_dataset_id(env_id), env_id)
@@ -311,31 +282,23 @@ def pieces_study(rounds: int) -> dict[str, Any]:
 
     def without(piece: str, tr: Any) -> contextlib.AbstractContextManager[Any]:
         if piece == "-inference":
-            if hasattr(tr.learner, "live"):
-                tr.learner.live = None  # SAC's NumPy policy
             stack = contextlib.ExitStack()
             stack.enter_context(mock.patch.object(inference, "actor_critic",
                                                   lambda pi, v, d: inference.ModuleActorCritic(pi, v)))
             stack.enter_context(mock.patch.object(inference, "code_net", lambda q, d: inference.ModuleCodeNet(q)))
             return stack
-        if piece == "-lean step":
-            return mock.patch.object(step, "enabled", lambda: False)
         if piece == "-hand grad":
-            return mock.patch("digail.algos.ppo.fast_path", lambda: False)
-        if piece == "-sac hand":
-            tr.learner.sac.hand = False
-        if piece == "-d hand":
-            tr.penalty_step.hand = False
+            return mock.patch("digail.algos.ppo.HAND_GRAD_MAX_ROWS", 0)
         return _nothing()
 
     out: dict[str, Any] = {}
-    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
-             ("Hopper-v5", "ppo"): ["fast", "-inference", "-lean step", "-hand grad"],
-             ("Hopper-v5", "sac"): ["fast", "-inference", "-lean step", "-sac hand", "-d hand"]}
+    cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-hand grad", "compiled"],
+             ("Hopper-v5", "ppo"): ["fast", "-inference", "-hand grad", "compiled"]}
     for (env_id, learner), variants in cases.items():
         if MATCH not in f"{env_id} {learner}":
             continue
-        trainers = {name: build(env_id, learner) for name in variants}
+        variants = [v for v in variants if v == "fast" or not PIECES or v.lstrip("-") in PIECES]
+        trainers = {name: build(env_id, learner, compile_=name == "compiled") for name in variants}
         fns = {}
         for name, tr in trainers.items():
             def run(tr: Any = tr, name: str = name) -> None:
@@ -361,18 +324,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--only", nargs="*",
-                        default=["step", "ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
+                        default=["ppo_update", "vae", "gumbel_chain", "polish", "rollout", "iteration",
                                  "pieces"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
+    parser.add_argument("--pieces", nargs="*", default=[], help="pieces: only these variants besides fast "
+                        "(inference, 'hand grad', compiled)")
     parser.add_argument("--match", default="", help="iteration, pieces: only the cases whose 'env learner' "
                         "contains this")
     args = parser.parse_args()
-    global MATCH
-    MATCH = args.match
+    global MATCH, PIECES
+    MATCH, PIECES = args.match, args.pieces
     set_torch_threads(1)
-    studies = {"step": step_study, "ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
-               "polish": polish_study, "rollout": rollout_study, "iteration": iteration_study,
-               "pieces": pieces_study}
+    studies = {"ppo_update": ppo_study, "vae": vae_study, "gumbel_chain": chain_study,
+               "polish": polish_study, "rollout": rollout_study,
+               "iteration": iteration_study, "pieces": pieces_study}
     results = {name: studies[name](args.rounds) for name in args.only}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(results, indent=2) + "\n")

@@ -14,7 +14,6 @@ from torch import Tensor
 
 from digail.algos import fast
 from digail.algos.fast.scripting import scripted
-from digail.algos.fast.step import LeanStep
 from digail.algos.optim import adam
 from digail.config import VAEConfig
 from digail.data.trajectory import Trajectory
@@ -71,8 +70,7 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
     group = opt.param_groups[0]
     lrs = cosine_lrs(lr, steps)
     # the fast path: the loss and its gradient as one scripted function (`fast.polish_grad.step_grads`: autograd's
-    # own backward kernels, so the same numbers) and Adam as direct fused calls (`LeanStep`, which also follows
-    # the switch)
+    # own backward kernels, so the same numbers)
     hand = fast.enabled()
     if hand:
         from digail.algos.fast.polish_grad import step_grads as hand_grads
@@ -84,7 +82,6 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
         log_std = model.q.net[0].weight if discrete else model.pi.log_std  # unused when discrete
         targets = [*pi_w, *pi_b, *([] if discrete else [log_std]), *q_w, *q_b]
         step_grads = scripted(hand_grads)
-    adam_step = LeanStep(opt, None)
     gen = torch.Generator(device=dev).manual_seed(seed + 7919)
     bar = progress_bar(steps, progress, desc=desc, unit="step")
     for step in range(steps):
@@ -105,7 +102,7 @@ def fit_to_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], codes_p
             for p in params:
                 p.grad = None
             loss.backward()
-        adam_step()
+        opt.step()
         if bar is not None and step % 200 == 0:
             bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
             bar.update(min(200, steps - step))

@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from digail.algos import fast
 from digail.algos.batch import PPOBatch
-from digail.algos.fast import enabled as fast_path
 from digail.algos.fast.ppo_grad import PPOGrad
-from digail.algos.fast.step import LeanStep
+from digail.algos.optim import clipped_step
 from digail.config import PPOConfig
 from digail.nets.critic import ValueNet
 from digail.nets.policy import SubtaskPolicy
@@ -107,10 +107,16 @@ def reset_compiled() -> None:
     _compile_failed = False
 
 
+HAND_GRAD_MAX_ROWS = 256
+"""the largest minibatch PPO's hand-written gradient runs on: at 128 rows (Circle-World) a step is dispatch-bound
+and the gradient makes a whole iteration 1.7x faster than the compiled or eager loss; at 512 rows (Hopper) the
+arithmetic dominates and it gains under 1.1x, less than it costs to keep a second gradient beside autograd's"""
+
+
 def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Optimizer, batch: PPOBatch,
                cfg: PPOConfig, generator: torch.Generator,
                aux_losses: dict[str, tuple[Callable[[], torch.Tensor], float]] | None = None,
-               train_policy: bool = True, hand_grad: bool | None = None) -> dict[str, float]:
+               train_policy: bool = True) -> dict[str, float]:
     """Clipped-surrogate PPO epochs over `batch`; returns mean losses and diagnostics.
 
     Pure apart from the parameters and optimiser it is handed: no hidden state, no env access. `aux_losses` maps
@@ -120,11 +126,12 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
 
     A minibatch step is a few dozen small torch ops, so their count is the cost: the net inputs are built once
     per update, each epoch gathers its permutation once (minibatches are then contiguous views) and normalises
-    all its minibatches' advantages in one op, the diagnostics stay tensors until the epoch ends, and clipping
-    and Adam run as direct foreach calls (`LeanStep`). `cfg.compile` also compiles the loss and its backward.
-    Where it applies (a Gaussian policy and plain `mlp` nets, no aux term but the anchor, `cfg.compile` off,
-    `hand_grad` on, by default where `digail.algos.fast` is on) the loss and its gradient come from one scripted
-    function instead (`ppo_grad.PPOGrad`), with the same numbers to float rounding.
+    all its minibatches' advantages in one op, and the diagnostics stay tensors until the epoch ends.
+    `cfg.compile` compiles the loss and its backward.
+    On the fast path (`digail.algos.fast`), where it applies (a Gaussian policy and plain `mlp` nets, no aux term
+    but the anchor, `cfg.compile` off, minibatches of at most `HAND_GRAD_MAX_ROWS` rows) the loss and its
+    gradient come from one scripted function instead (`ppo_grad.PPOGrad`), with the same numbers to float
+    rounding.
     """
     n = len(batch)
     mb = min(cfg.minibatch_size, n)
@@ -133,13 +140,11 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
         x_pi = policy.inputs(batch.obs, batch.codes)
         x_v = x_pi if policy.decoder_obs is None else torch.cat([batch.obs, batch.codes], -1)
     loss_fn, v_loss_fn = maybe_compiled(minibatch_loss, cfg.compile), maybe_compiled(value_loss, cfg.compile)
-    step = LeanStep(optimizer, cfg.max_grad_norm)
     aux = {k: fw for k, fw in (aux_losses or {}).items() if fw[1] > 0} if train_policy else {}
     sums = dict.fromkeys(("policy", "value", "entropy", "approx_kl", "clip_frac", *(aux_losses or {})), 0.0)
     updates = 0
-    if hand_grad is None:
-        hand_grad = fast_path()
-    grad_fn = PPOGrad(policy, value) if hand_grad and train_policy and not cfg.compile else None
+    hand = fast.enabled() and train_policy and not cfg.compile and mb <= HAND_GRAD_MAX_ROWS
+    grad_fn = PPOGrad(policy, value) if hand else None
     # the hand-written gradient computes an aux term itself only where the term says how (`hand_grad_terms`, the
     # anchor's): its frozen targets once per update, its rows drawn per minibatch as the term would draw them
     anchor_name, (anchor_fn, anchor_coef) = next(iter(aux.items()), ("", (None, 0.0)))
@@ -176,7 +181,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
                                            cfg.ent_coef, anchor_coef)
                 log_ratios.append(log_ratio)
                 losses.append(parts)  # [policy, value, entropy, anchor]
-                step()
+                clipped_step(optimizer, cfg.max_grad_norm)
                 continue
             if train_policy:
                 loss, parts, log_ratio = loss_fn(policy, value, e_pi[rows], e_v[rows], e_acts[rows],
@@ -193,7 +198,7 @@ def ppo_update(policy: SubtaskPolicy, value: ValueNet, optimizer: torch.optim.Op
                 losses.append(loss.detach())
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            step()
+            clipped_step(optimizer, cfg.max_grad_norm)
         # the epoch's diagnostics in a few ops: minibatches have equal sizes, so means of means are overall means
         kl = 0.0
         if train_policy:

@@ -38,8 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from digail.algos.fast import enabled as fast_path
-from digail.algos.fast.step import LeanStep
+from digail.algos import fast
 from digail.algos.fast.vae_grad import VAEGrad
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.model_selection import (
@@ -49,7 +48,7 @@ from digail.algos.model_selection import (
     heldout_split,
     smallest_within_one_se,
 )
-from digail.algos.optim import adam
+from digail.algos.optim import adam, clipped_step
 from digail.algos.polish import fit_to_codes, polish
 from digail.algos.segment_init import hard_em_segmentation, heldout_codes_curve, piece_em_segmentation
 from digail.config import VAEConfig
@@ -272,11 +271,8 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
     data = pad_demos(trajs, model, dev)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = adam(params, cfg.lr)
-    # clipping and Adam as direct fused calls: `nn.utils.clip_grad_norm_` and `Adam.step`'s numbers without their
-    # per-step Python work (`LeanStep`)
-    adam_step = LeanStep(opt, cfg.max_grad_norm)
     # soft samples without bptt (every preset): the loss and its gradient in one scripted pass (`VAEGrad`)
-    fused = None if cfg.hard or cfg.bptt or not fast_path() else FusedVAEStep(model, cfg)
+    fused = None if cfg.hard or cfg.bptt or not fast.enabled() else FusedVAEStep(model, cfg)
 
     history: dict[str, list[float]] = {"epoch": [], **{k: [] for k in LOSS_KEYS}, "vae/tau": [], "time/s": []}
     n, total_steps = len(trajs), float(data.mask.sum().item())
@@ -295,7 +291,7 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
                 loss.backward()
             else:
                 parts = fused.step(batch, tau, cfg.warmup(epoch, epochs), gen)
-            adam_step()
+            clipped_step(opt, cfg.max_grad_norm)
             weight = float(batch.mask.sum().item()) / total_steps
             for k in LOSS_KEYS:
                 sums[k] += parts[k] * weight

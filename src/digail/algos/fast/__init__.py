@@ -1,27 +1,26 @@
 """The fast path, and the one switch between it and the reference path.
 
 The reference path is every network and loss written once through the modules, differentiated by autograd, with
-torch's own optimiser step; the fast path is what pays at the small nets digail trains, each piece measured
-(`benchmarks/studies/fast_path.py`) and tied to the reference by an equivalence test (the contract,
-tests/test_fast_path.py):
+torch's own optimiser step; the fast path is what pays at the small nets digail trains. Each piece stays only
+where it makes a whole training iteration (or pre-training epoch) at least 1.3x faster than the reference path
+with `torch.compile` where that applies (`benchmarks/studies/fast_path.py`), and is tied to the reference by an
+equivalence test (tests/test_fast_path.py):
 
-- `inference`: NumPy forward passes of pi, V and q for the rollouts (reference: `digail.algos.inference`'s
+- `inference`: NumPy forward passes of pi, V and q for PPO's rollouts (reference: `digail.algos.inference`'s
   `ModuleActorCritic` and `ModuleCodeNet`; tests/test_fast.py);
-- `step.LeanStep`: gradient clipping and fused Adam as direct foreach calls (tests/test_ppo.py, bit for bit);
-- `ppo_grad`, `vae_grad`, `polish_grad`, `scripting`: the PPO minibatch's, the VAE's and the polish step's loss with
-  a hand-written gradient in one TorchScript function (tests/test_ppo_grad.py, tests/test_vae.py: to float
-  rounding; the polish's bit for bit);
-- `gumbel_chain`: the VAE's sequential Gumbel-softmax chain with a scripted sampling loop and a hand-written
-  backward pass (reference: `digail.algos.gumbel._reference_chain`; tests/test_vae.py);
-- `sac_grad` with `step.FusedAdamState`: a whole SAC update (both gradients, the fused Adam steps on the
-  optimisers' own state, the Polyak step) and D's step as one TorchScript call each (tests/test_sac.py: to float
-  rounding against autograd, bit for bit against the same gradients with torch's own optimiser steps).
+- `ppo_grad`: PPO's minibatch loss and gradient in one TorchScript function, for minibatches of up to
+  `digail.algos.ppo.HAND_GRAD_MAX_ROWS` rows (tests/test_ppo_grad.py: to float rounding);
+- `vae_grad`, `gumbel_chain`, `polish_grad`: the VAE's loss and gradient, its sequential Gumbel-softmax chain
+  (reference: `digail.algos.gumbel._reference_chain`) and the polish step's loss and gradient (tests/test_vae.py;
+  the polish's bit for bit).
 
-`DIGAIL_REFERENCE=1` in the environment (or `reference()` in code) turns every piece off: the updates then run
-through autograd and `torch.optim`, the rollouts through the modules' forward passes, slower, with the same
-numbers to float rounding. So does a torch the fast path is not tested on (`ops`, with one warning). A trainer
-reads the switch once, when it is built, records it (`GAIL.fast_path`, the run's config.json) and runs every
-iteration under that value (`pinned`).
+They share one ReLU MLP forward and backward pass (`mlp`) and call torch's private ops only through `ops`; the
+optimiser steps are torch's own everywhere. SAC has no fast piece: its scripted update and D's scripted step
+made a Hopper iteration at most 1.3x faster and went. `DIGAIL_REFERENCE=1` in the environment (or `reference()`
+in code) turns every piece off: the updates then run through autograd, the rollouts through the modules' forward
+passes, slower, with the same numbers to float rounding. So does a torch the fast path is not tested on (`ops`,
+with one warning). A trainer reads the switch once, when it is built, records it (`GAIL.fast_path`, the run's
+config.json) and runs every iteration under that value (`pinned`).
 """
 
 from __future__ import annotations

@@ -121,30 +121,3 @@ class ActorCritic:
 
     def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
         return self.net(obs_n, codes)
-
-
-class LivePolicy:
-    """pi's mean action in NumPy on views of its live weights (CPU): the optimiser updates them in place, so acting
-    after every update needs no copy and no torch dispatch. Not for CUDA (the SAC learner then uses torch)."""
-
-    def __init__(self, pi: SubtaskPolicy, obs_dim: int) -> None:
-        lin = [m for m in pi.net if isinstance(m, nn.Linear)]
-        seen = obs_dim if pi.decoder_obs is None else pi.decoder_obs[1] - pi.decoder_obs[0]
-        self.slice = pi.decoder_obs
-        w0 = lin[0].weight.detach().numpy()
-        self.w_obs = w0[:, :seen].T  # views: (seen, H)
-        self.w_code = w0[:, seen:].T  # (K, H)
-        self.b0 = lin[0].bias.detach().numpy()
-        self.rest = [(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin[1:]]
-        self.log_std = pi.log_std.detach().numpy()
-
-    def std(self) -> np.ndarray:
-        return np.exp(np.clip(self.log_std, *LOG_STD_BOUNDS))
-
-    def __call__(self, obs_n: np.ndarray, codes: np.ndarray) -> np.ndarray:
-        if self.slice is not None:
-            obs_n = obs_n[:, self.slice[0]:self.slice[1]]
-        h = obs_n @ self.w_obs
-        h += self.w_code[codes]
-        h += self.b0
-        return _relu_tail(h, self.rest)

@@ -6,16 +6,10 @@ is the cost. It runs autograd's own backward kernels on the same numbers, so it 
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
-from digail.algos.fast.ops import log_softmax_backward, relu_backward
-
-
-def _linear_backward(g: Tensor, x: Tensor, w: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Autograd's backward of `F.linear(x, w, b)` for 2-D x: the weight's (g^T x, its orientation for a
-    transposed weight), the bias's and the input's gradients."""
-    return g.t().mm(x), g.sum(0), g.mm(w)
+from digail.algos.fast import mlp
+from digail.algos.fast.ops import log_softmax_backward
 
 
 def step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: list[Tensor], pi_b: list[Tensor],
@@ -28,10 +22,7 @@ def step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: l
     grads: list[Tensor] = []
     for net in range(2):
         ws, bs = (pi_w, pi_b) if net == 0 else (q_w, q_b)
-        xs = [pi_x if net == 0 else q_x]
-        for i in range(len(ws) - 1):
-            xs.append(torch.relu(F.linear(xs[-1], ws[i], bs[i])))
-        out = F.linear(xs[-1], ws[-1], bs[-1])
+        out, xs = mlp.forward(pi_x if net == 0 else q_x, ws, bs)
         if net == 0 and not discrete:
             ls = log_std.clamp(-5.0, 2.0)
             e = torch.exp(-ls)
@@ -51,16 +42,7 @@ def step_grads(pi_x: Tensor, acts: Tensor, q_x: Tensor, q_codes: Tensor, pi_w: l
             g_pick = torch.zeros_like(lsm).scatter_(-1, target.long().unsqueeze(-1), -1.0 / mb)
             g = log_softmax_backward(g_pick, lsm)
             g_ls = g.new_zeros(0)
-        g_ws: list[Tensor] = []
-        g_bs: list[Tensor] = []
-        for i in range(len(ws) - 1, -1, -1):
-            g_w, g_b, g_in = _linear_backward(g, xs[i], ws[i])
-            g_ws.append(g_w)
-            g_bs.append(g_b)
-            if i > 0:
-                g = relu_backward(g_in, xs[i])
-        g_ws.reverse()
-        g_bs.reverse()
+        g_ws, g_bs, _ = mlp.backward(g, xs, ws, False)
         grads += g_ws + g_bs
         if net == 0 and not discrete:
             grads.append(g_ls)

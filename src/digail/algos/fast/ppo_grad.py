@@ -11,37 +11,12 @@ gradients in float64). Discrete actions, the BC term and `PPOConfig.compile` kee
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
-from digail.algos.fast.ops import relu_backward
+from digail.algos.fast import mlp
 from digail.algos.fast.scripting import scripted
 from digail.nets.critic import ValueNet
 from digail.nets.policy import SubtaskPolicy
-
-
-def _mlp_forward(x: Tensor, w: list[Tensor], b: list[Tensor]) -> tuple[Tensor, list[Tensor]]:
-    """`mlp`'s forward pass; returns the output and every layer's input (the backward pass needs them)."""
-    xs = [x]
-    for i in range(len(w) - 1):
-        xs.append(F.linear(xs[-1], w[i], b[i]).relu_())
-    return F.linear(xs[-1], w[-1], b[-1]), xs
-
-
-def _mlp_backward(g: Tensor, xs: list[Tensor], w: list[Tensor]) -> tuple[list[Tensor], list[Tensor]]:
-    """The weights' and biases' gradients for the output gradient `g` of `_mlp_forward` (inputs `xs`)."""
-    g_w: list[Tensor] = []
-    g_b: list[Tensor] = []
-    for i in range(len(w) - 1, -1, -1):
-        # g^T x directly: for these row counts faster than `vae_grad._outer`'s (x^T g)^T, and contiguous already
-        # (the fused Adam kernel reads the gradient's memory)
-        g_w.append(g.t().mm(xs[i]))
-        g_b.append(g.sum(0))
-        if i > 0:  # ReLU's backward: the gradient passes where the layer's output is positive
-            g = relu_backward(g.mm(w[i]), xs[i])
-    g_w.reverse()
-    g_b.reverse()
-    return g_w, g_b
 
 
 def _minibatch_grads(x_pi: Tensor, x_v: Tensor, acts: Tensor, logp_old: Tensor, adv: Tensor, returns: Tensor,
@@ -60,7 +35,7 @@ def _minibatch_grads(x_pi: Tensor, x_v: Tensor, acts: Tensor, logp_old: Tensor, 
     n_anchor = x_anchor.shape[0]
     # pi runs once over the minibatch's rows and the anchor's together
     x_all = torch.cat([x_pi, x_anchor]) if n_anchor > 0 else x_pi
-    out_all, pi_xs = _mlp_forward(x_all, pi_w, pi_b)
+    out_all, pi_xs = mlp.forward(x_all, pi_w, pi_b)
     out = out_all[:B]
 
     # --- the clipped surrogate on the Gaussian's log-likelihood (`SubtaskPolicy.head_log_prob_entropy`); tensors
@@ -93,27 +68,16 @@ def _minibatch_grads(x_pi: Tensor, x_v: Tensor, acts: Tensor, logp_old: Tensor, 
         diff = out_all[B:] - target
         anchor = (diff * diff).sum(-1).mean()
         g_out = torch.cat([g_out, diff * (2.0 * anchor_coef / n_anchor)])
-    g_pi_w, g_pi_b = _mlp_backward(g_out, pi_xs, pi_w)
+    g_pi_w, g_pi_b, _ = mlp.backward(g_out, pi_xs, pi_w, False)
 
     # --- the value loss 0.5 (V - R)^2, averaged
-    v_out, v_xs = _mlp_forward(x_v, v_w, v_b)
+    v_out, v_xs = mlp.forward(x_v, v_w, v_b)
     err = v_out.squeeze(-1) - returns
     v_loss = (err * err).mean() * 0.5
-    g_v_w, g_v_b = _mlp_backward((err * (vf_coef / B)).unsqueeze(-1), v_xs, v_w)
+    g_v_w, g_v_b, _ = mlp.backward((err * (vf_coef / B)).unsqueeze(-1), v_xs, v_w, False)
 
     grads = g_pi_w + g_pi_b + [g_log_std] + g_v_w + g_v_b
     return grads, torch.stack([pg_loss, v_loss, entropy, anchor]), log_ratio
-
-
-def plain_mlp_layers(seq: nn.Module) -> list[nn.Linear] | None:
-    """The linear layers of a `mlp` (Linear, ReLU, ..., Linear; a lone Linear too), or None for anything else."""
-    mods = list(seq) if isinstance(seq, nn.Sequential) else [seq]
-    linears = mods[0::2]
-    if not all(type(m) is nn.Linear and m.bias is not None for m in linears) or len(mods) % 2 == 0:
-        return None
-    if not all(type(m) is nn.ReLU for m in mods[1::2]):
-        return None
-    return linears  # type: ignore[return-value]
 
 
 class PPOGrad:
@@ -123,7 +87,7 @@ class PPOGrad:
     """
 
     def __init__(self, policy: SubtaskPolicy, value: ValueNet) -> None:
-        pi_lin, v_lin = plain_mlp_layers(policy.net), plain_mlp_layers(value.net)
+        pi_lin, v_lin = mlp.plain_layers(policy.net), mlp.plain_layers(value.net)
         self.applies = pi_lin is not None and v_lin is not None and not policy.action.discrete
         pi_lin, v_lin = pi_lin or [], v_lin or []
         self.pi_w, self.pi_b = [m.weight for m in pi_lin], [m.bias for m in pi_lin]

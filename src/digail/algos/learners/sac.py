@@ -53,10 +53,7 @@ class SACLearner:
         bc = None
         if h.cfg.bc_weight > 0:
             bc = (lambda: bc_loss(pi, h.expert, h.eye, h.cfg.bc_batch_size, h.gen, discrete=False), h.cfg.bc_weight)
-        space: Any = h.envs.probe.action_space
-        clip = getattr(h.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
-        bounds = (space.low, space.high) if clip else None
-        self.sac = SACUpdate(pi, obs_dim, h.K, self.cfg, h.to_env_actions, h.device, bc=bc, bounds=bounds,
+        self.sac = SACUpdate(pi, obs_dim, h.K, self.cfg, h.to_env_actions, h.device, bc=bc,
                              zero_code_weights=h.cfg.zero_code_weights)
         """the update: critics, targets, temperature and their optimisers"""
         self.buffer = ReplayBuffer(self.cfg.buffer_size, obs_dim, act_dim, h.K, h.device)
@@ -68,11 +65,6 @@ class SACLearner:
         self._disc_debt = 0
         self.updates = 0
         """SAC updates so far"""
-        from digail.algos import fast
-        from digail.algos.fast.inference import LivePolicy
-
-        # pi's mean action read from its live weights in NumPy on the fast path; its module on the reference
-        self.live = LivePolicy(pi, obs_dim) if h.device.type == "cpu" and fast.enabled() else None
         self._v_abs: torch.Tensor | None = None
         """V_abs for the current D (None: to be computed); D's step and a checkpoint's load reset it"""
         self._sac_stats: list[torch.Tensor] = []
@@ -83,8 +75,6 @@ class SACLearner:
 
     # ---------------------------------------------------------------------------------------------- acting
     def _mean_actions(self, obs_n: np.ndarray, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.live is not None:
-            return self.live(obs_n, codes), self.live.std()
         pi, h = self.host.model.pi, self.host
         with torch.no_grad():
             obs = torch.from_numpy(obs_n).to(h.device)
