@@ -16,6 +16,7 @@ grows somewhat with load: caches and the core's other hardware thread are shared
   step of SB3's, plus D's logits on the batch (its relabelling, which this reward ignores: one forward pass of D);
 - ours_gail_sps_H: the same with GAIL's discriminator updated every step (gradient penalty on) and its reward
   relabelled on every batch: what `digail train --train.learner sac` runs;
+- ours_autograd_sps_H: digail's SAC with autograd instead of its hand-written gradients (`digail.algos.fast.sac_grad`);
 - update_flops_H: the floating-point operations of the matrix products of one SAC update (`update_matmuls`), and
   matmul_bound_cpu_sps_H the updates per CPU second if an update were those products alone (`matmul_bound`);
 - speedup_H = ours_sps_H / sb3_sps_H, speedup_gail_H = ours_gail_sps_H / sb3_sps_H, and `cpu_` the same by CPU
@@ -75,7 +76,7 @@ def sb3_runner(env_id: str, spec: str, seed: int = 0) -> Any:
     return _timed(lambda steps: model.learn(total_timesteps=steps, reset_num_timesteps=False))
 
 
-def ours_runner(env_id: str, spec: str, *, gail: bool, seed: int = 0) -> Any:
+def ours_runner(env_id: str, spec: str, *, gail: bool, hand: bool = True, seed: int = 0) -> Any:
     """A function timing `steps` SAC steps of digail's learner (GAIL's D on or off) after its warm-up."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.commands.train import load_demos
@@ -91,6 +92,7 @@ def ours_runner(env_id: str, spec: str, *, gail: bool, seed: int = 0) -> Any:
     trainer = build_trainer(env_id, demos, cfg, vae_model=None, seed=seed, run_dir=None, progress=False,
                             reward_fn=reward_fn)
     loop = trainer.learner
+    loop.sac.hand = hand and loop.sac.hand
     trainer.iterate()
     trainer.iterate()
 
@@ -156,7 +158,8 @@ def main() -> None:
     result["sb3"] = stable_baselines3.__version__
     for h in args.sizes:
         runners = {f"sb3_sps_{h}": sb3_runner(args.env, h), f"ours_sps_{h}": ours_runner(args.env, h, gail=False),
-                   f"ours_gail_sps_{h}": ours_runner(args.env, h, gail=True)}
+                   f"ours_gail_sps_{h}": ours_runner(args.env, h, gail=True),
+                   f"ours_autograd_sps_{h}": ours_runner(args.env, h, gail=False, hand=False)}
         samples: dict[str, list[tuple[float, float]]] = {k: [] for k in runners}
         for r in range(args.rounds):
             for key, run in runners.items():
@@ -173,6 +176,8 @@ def main() -> None:
             sb3 = result[f"sb3_{kind}sps_{h}"]
             result[f"{kind}speedup_{h}"] = result[f"ours_{kind}sps_{h}"] / sb3
             result[f"{kind}speedup_gail_{h}"] = result[f"ours_gail_{kind}sps_{h}"] / sb3
+            result[f"{kind}hand_over_autograd_{h}"] = (result[f"ours_{kind}sps_{h}"]
+                                                       / result[f"ours_autograd_{kind}sps_{h}"])
         shapes = update_matmuls(args.env, h)
         result[f"update_flops_{h}"] = 2 * sum(m * k * n for m, k, n in shapes)
         result[f"matmul_bound_cpu_sps_{h}"] = matmul_bound(shapes)
