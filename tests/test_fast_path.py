@@ -202,13 +202,3 @@ def test_training_rollout_on_the_reference_path_builds_no_snapshot(monkeypatch: 
     assert torch.equal(fast_b["codes"], ref_b["codes"])
     for key in ("obs", "acts", "logp", "values", "bonus"):
         torch.testing.assert_close(fast_b[key], ref_b[key], rtol=1e-4, atol=1e-4, msg=key)
-
-
-def test_scripted_pieces_compile_to_torchscript() -> None:
-    """Each scripted piece really is TorchScript: where scripting fails, `scripted` falls back to the Python
-    function (the same numbers, several times slower), which no other test would notice."""
-    from digail.algos.fast import gumbel_chain, polish_grad, ppo_grad, vae_grad
-    from digail.algos.fast.scripting import scripted
-
-    for fn in (ppo_grad._minibatch_grads, vae_grad._loss_and_grads, polish_grad.step_grads, gumbel_chain._chain_loop):
-        assert isinstance(scripted(fn), torch.jit.ScriptFunction), fn.__name__

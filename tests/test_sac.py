@@ -1,5 +1,5 @@
-"""The off-policy learner (`--train.learner sac`): its update against a hand computation, the reward relabelling
-and the bonus, learning on Pendulum, resume, bad input."""
+"""The off-policy learner (`--train.learner sac`): its update against a hand computation, the hand-written
+gradients against autograd, the reward relabelling and the bonus, learning on Pendulum, resume, bad input."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def _np_mlp(x: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]]) -> np.nd
     return x @ w.T + b
 
 
-def _tiny(seed: int = 0) -> tuple[SACUpdate, SACBatch, torch.Tensor, torch.Tensor]:
+def _tiny(hand: bool, seed: int = 0) -> tuple[SACUpdate, SACBatch, torch.Tensor, torch.Tensor]:
     """A float64 learner with 2-d observations, K = 2 codes, 1-d actions in [-1, 1], 3-unit nets, and a 3-row
     batch whose last row ends by termination (absorbing value 2.5)."""
     dtype = torch.float64
@@ -39,7 +39,8 @@ def _tiny(seed: int = 0) -> tuple[SACUpdate, SACBatch, torch.Tensor, torch.Tenso
         with torch.no_grad():
             pi.log_std.fill_(-0.7)
         cfg = SACConfig(hidden=(3,), gamma=0.9, tau=0.1, init_alpha=0.2, lr=1e-2, alpha_lr=1e-2)
-        learner = SACUpdate(pi, 2, 2, cfg, lambda a: a.clamp(-1.0, 1.0), torch.device("cpu"))
+        learner = SACUpdate(pi, 2, 2, cfg, lambda a: a.clamp(-1.0, 1.0), torch.device("cpu"),
+                             bounds=(np.array([-1.0]), np.array([1.0])) if hand else None)
     finally:
         torch.set_default_dtype(previous)
     with torch.no_grad():  # targets unlike the critics, so the test tells them apart
@@ -62,8 +63,9 @@ def _critic_layers(params: list[torch.Tensor], net: int) -> list[tuple[np.ndarra
     return [(params[i][net].detach().numpy().T, params[n + i][net, 0].detach().numpy()) for i in range(n)]
 
 
-def test_update_matches_a_hand_computation():
-    learner, b, noise_next, noise_pi = _tiny()
+@pytest.mark.parametrize("hand", [False, True])
+def test_update_matches_a_hand_computation(hand):
+    learner, b, noise_next, noise_pi = _tiny(hand)
     pi = learner.pi
     pi_layers = [(m.weight.detach().numpy().copy(), m.bias.detach().numpy().copy())
                  for m in pi.net if isinstance(m, torch.nn.Linear)]
@@ -107,8 +109,63 @@ def test_update_matches_a_hand_computation():
         torch.testing.assert_close(t_after.detach(), t_before + 0.1 * (q_after - t_before))
 
 
+def test_hand_gradients_equal_autograd():
+    """Three updates of each path from the same start give the same weights (float64); the hand path's first
+    update creates the optimisers' state in pieces, the next two run as one scripted call."""
+    runs = []
+    for hand in (False, True):
+        learner, b, noise_next, noise_pi = _tiny(hand, seed=3)
+        assert learner.hand == hand
+        for _ in range(3):
+            learner.update(b, noise_next, noise_pi)
+        assert learner.fused_updates == (2 if hand else 0)
+        runs.append([p.detach().clone() for p in (*learner.critic.parameters(), *learner.pi.parameters(),
+                                                  learner.log_alpha)])
+    for p_auto, p_hand in zip(*runs, strict=True):
+        torch.testing.assert_close(p_hand, p_auto, rtol=1e-10, atol=1e-12)
+
+
+def _all_weights(learner: SACUpdate) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in (*learner.critic.parameters(), *learner.critic_target.parameters(),
+                                         *learner.pi.parameters(), learner.log_alpha)]
+
+
+@pytest.mark.parametrize("train_policy", [True, False])
+def test_one_scripted_update_gives_the_bits_of_the_pieces(train_policy):
+    """`sac_update` (gradients, the three fused Adam steps and the Polyak step in one call) against the same
+    gradients with torch's own optimiser steps: identical weights, optimiser state and stats after four updates."""
+    runs = []
+    for fused in (False, True):
+        learner, b, noise_next, noise_pi = _tiny(True, seed=5)
+        stats = []
+        for i in range(4):
+            with torch.no_grad():
+                if fused:
+                    stats.append(learner.update(b, noise_next, noise_pi, train_policy=train_policy or i == 0))
+                else:
+                    stats.append(learner._update_hand_steps(b, noise_next, noise_pi, train_policy or i == 0))
+        assert learner.fused_updates == (3 if fused else 0)
+        opt_state = [t.clone() for o in (learner.q_optimizer, learner.pi_optimizer, learner.alpha_optimizer)
+                     for st in o.state.values() for t in st.values()]
+        runs.append((_all_weights(learner), opt_state, stats))
+    for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(runs[0][2], runs[1][2], strict=True):
+        assert torch.equal(a, b)
+
+
+def test_fast_functions_compile_to_torchscript():
+    """Each scripted piece really is TorchScript: where scripting fails, `scripted` falls back to the Python
+    function (the same numbers, several times slower), which no other test would notice."""
+    from digail.algos.fast import sac_grad
+    from digail.algos.fast.scripting import scripted
+
+    for fn in (sac_grad.critic_grads, sac_grad.policy_grads, sac_grad.sac_update):
+        assert isinstance(scripted(fn), torch.jit.ScriptFunction), fn.__name__
+
+
 def test_policy_warmup_holds_the_policy_still():
-    learner, b, noise_next, noise_pi = _tiny()
+    learner, b, noise_next, noise_pi = _tiny(True)
     before = [p.detach().clone() for p in learner.pi.parameters()]
     alpha = learner.log_alpha.item()
     learner.update(b, noise_next, noise_pi, train_policy=False)

@@ -30,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 
 from digail.algos.optim import adam
@@ -72,13 +73,15 @@ class SACUpdate:
         to_env: sampled actions -> executed actions (torch; the clip to the bounds), differentiable.
         device: where the critics live.
         bc: optional () -> BC loss on expert pairs and its weight, added to the policy's loss (the +L2 methods).
+        bounds: the (low, high) action bounds when `to_env` is the clip to them: the update then runs the
+            hand-written gradients of `digail.algos.fast.sac_grad` (without a BC term), else autograd.
         zero_code_weights: start the critics with zero weights on the code inputs (`TrainConfig.zero_code_weights`).
     """
 
     def __init__(self, pi: SubtaskPolicy, obs_dim: int, codes: int, cfg: SACConfig,
                  to_env: Callable[[torch.Tensor], torch.Tensor], device: torch.device,
                  bc: tuple[Callable[[], torch.Tensor], float] | None = None,
-                 zero_code_weights: bool = False) -> None:
+                 bounds: tuple[np.ndarray, np.ndarray] | None = None, zero_code_weights: bool = False) -> None:
         if pi.action.discrete:
             raise UserError("--train.learner sac needs continuous actions; use --train.learner ppo for this env.")
         self.pi, self.cfg, self.to_env, self.bc = pi, cfg, to_env, bc
@@ -95,6 +98,30 @@ class SACUpdate:
         self.alpha_optimizer = adam([self.log_alpha], lr=cfg.alpha_lr)
         self._q_params: list[torch.Tensor] = list(self.critic.parameters())
         self._target_params: list[torch.Tensor] = list(self.critic_target.parameters())
+        from digail.algos.fast.mlp import plain_layers
+
+        pi_lin = plain_layers(pi.net)
+        from digail.algos import fast
+
+        self.hand = fast.enabled() and bounds is not None and bc is None and pi_lin is not None and all(
+            p.requires_grad for p in pi.parameters())
+        """whether `update` runs the hand-written gradients"""
+        if self.hand:
+            assert bounds is not None and pi_lin is not None
+            self._low, self._high = (torch.as_tensor(np.asarray(v, np.float32), device=device) for v in bounds)
+            self._pi_w, self._pi_b = [m.weight for m in pi_lin], [m.bias for m in pi_lin]
+            self._pi_targets = [*self._pi_w, *self._pi_b, pi.log_std]
+            n = len(self.critic.weights)
+            self._q_w, self._q_b = self._q_params[:n], self._q_params[n:]
+            self._t_w, self._t_b = self._target_params[:n], self._target_params[n:]
+            from digail.algos.fast.step import FusedAdamState
+
+            self._q_adam = FusedAdamState(self.q_optimizer, self._q_params)
+            self._pi_adam = FusedAdamState(self.pi_optimizer, self._pi_targets)
+            self._alpha_params = [self.log_alpha]
+            self._alpha_adam = FusedAdamState(self.alpha_optimizer, self._alpha_params)
+        self.fused_updates = 0
+        """updates run as one scripted call (`digail.algos.fast.sac_grad.sac_update`)"""
 
     def entropy(self) -> torch.Tensor:
         """H(pi(. | s, c)), the same for every state (state-independent log-std)."""
@@ -113,6 +140,8 @@ class SACUpdate:
         alpha as they are (the losses are still computed and returned). Returns the detached
         [critic loss, policy loss, alpha loss, alpha, entropy, mean Q, BC loss] (no host sync)."""
         gamma = self.cfg.gamma
+        if self.hand:
+            return self._update_hand(b, noise_next, noise_pi, train_policy)
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
             entropy = self.entropy()
@@ -157,6 +186,60 @@ class SACUpdate:
             for target, source in zip(self._target_params, self._q_params, strict=True):
                 target.lerp_(source, self.cfg.tau)
         return alpha_loss
+
+    @torch.no_grad()
+    def _update_hand(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
+                     train_policy: bool) -> torch.Tensor:
+        """`update` with the gradients of `digail.algos.fast.sac_grad`: the same steps in the same order, as one
+        scripted call (`sac_update`) once the optimisers hold their state (torch's own first steps create it)."""
+        from digail.algos.fast.sac_grad import sac_update
+        from digail.algos.fast.scripting import scripted
+
+        unused: tuple[list[list[torch.Tensor]], list[float]] = ([], [])
+        q_adam = self._q_adam.lists()
+        pi_adam = self._pi_adam.lists() if train_policy else unused
+        alpha_adam = self._alpha_adam.lists() if train_policy and self.cfg.learn_alpha else unused
+        if q_adam is None or pi_adam is None or alpha_adam is None:
+            return self._update_hand_steps(b, noise_next, noise_pi, train_policy)
+        pi = self.pi
+        obs_code = torch.cat([b.obs, b.code_1h], -1)
+        next_obs_code = torch.cat([b.next_obs, b.next_code_1h], -1)
+        plain = pi.decoder_obs is None  # pi's inputs are [s, c] as the critics'
+        self.fused_updates += 1
+        return scripted(sac_update)(
+            torch.cat([obs_code, b.acts], -1), next_obs_code if plain else pi.inputs(b.next_obs, b.next_code_1h),
+            next_obs_code, obs_code if plain else pi.inputs(b.obs, b.code_1h), obs_code, noise_next, noise_pi,
+            b.terminated, b.rews, b.absorbing_value, self.cfg.gamma, self.cfg.tau, self.target_entropy, self._low,
+            self._high, self._pi_targets, self._q_params, self._target_params, self._alpha_params, *q_adam, *pi_adam,
+            *alpha_adam, train_policy, self.cfg.learn_alpha)
+
+    def _update_hand_steps(self, b: SACBatch, noise_next: torch.Tensor, noise_pi: torch.Tensor,
+                           train_policy: bool) -> torch.Tensor:
+        """`_update_hand` in pieces, with the optimisers' own steps (which create their state)."""
+        from digail.algos.fast.sac_grad import critic_grads, policy_grads
+        from digail.algos.fast.scripting import scripted
+
+        pi = self.pi
+        alpha = self.log_alpha.detach().exp()
+        entropy = self.entropy()
+        std = pi.log_std.clamp(-5.0, 2.0).exp()
+        next_obs_code = torch.cat([b.next_obs, b.next_code_1h], -1)
+        grads, q_loss, q_mean = scripted(critic_grads)(
+            torch.cat([b.obs, b.code_1h, b.acts], -1), pi.inputs(b.next_obs, b.next_code_1h), next_obs_code,
+            noise_next, b.terminated, b.rews, b.absorbing_value, alpha, entropy, self.cfg.gamma, self._low,
+            self._high, self._pi_w, self._pi_b, std, self._q_w, self._q_b, self._t_w, self._t_b)
+        for p, g in zip(self._q_params, grads, strict=True):
+            p.grad = g
+        self.q_optimizer.step()
+        pi_grads, pi_loss = scripted(policy_grads)(
+            pi.inputs(b.obs, b.code_1h), torch.cat([b.obs, b.code_1h], -1), noise_pi, alpha, entropy, self._low,
+            self._high, self._pi_w, self._pi_b, pi.log_std, self._q_w, self._q_b)
+        if train_policy:
+            for p, g in zip(self._pi_targets, pi_grads, strict=True):
+                p.grad = g
+            self.pi_optimizer.step()
+        alpha_loss = self._alpha_and_targets(entropy, train_policy)
+        return torch.stack([q_loss, pi_loss, alpha_loss, alpha, entropy, q_mean, torch.zeros_like(q_loss)])
 
     STAT_NAMES = ("losses/critic", "losses/policy", "losses/alpha", "sac/alpha", "sac/entropy", "sac/q", "losses/bc")
 

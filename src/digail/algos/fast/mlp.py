@@ -2,7 +2,7 @@
 
 `digail.nets.mlp.mlp` (Linear, ReLU, ..., Linear) as bare operations on its weight and bias lists: `forward` keeps
 every layer's input, `backward` turns the output's gradient into the weights' and biases' gradients. Plain enough
-for TorchScript, so the scripted gradients (`ppo_grad`, `vae_grad`, `polish_grad`) call them directly;
+for TorchScript, so the scripted gradients (`ppo_grad`, `sac_grad`, `vae_grad`, `polish_grad`) call them directly;
 the kernels are autograd's own, in its order, so a gradient built from them matches autograd's to float rounding.
 """
 
@@ -27,7 +27,7 @@ def backward(g: Tensor, xs: list[Tensor], w: list[Tensor], thin: bool) -> tuple[
     gradient at the first layer's output (for a caller that takes it back into part of the input).
 
     `thin`: each weight gradient as (x^T g)^T instead of g^T x, several times faster with MKL for the thousands of
-    rows of a VAE batch (measured); g^T x is faster at a PPO minibatch's row counts. Both are contiguous (the
+    rows of a VAE batch (measured); g^T x is faster at a PPO or SAC minibatch's row counts. Both are contiguous (the
     fused Adam kernel reads the gradient's memory)."""
     g_w: list[Tensor] = []
     g_b: list[Tensor] = []

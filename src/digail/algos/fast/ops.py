@@ -1,7 +1,7 @@
 """Every private torch op the fast path calls, in one module, checked once against the torch it was tested with.
 
-The hand-written gradients call ops that torch does not promise to keep: the ReLU, softmax and log-softmax
-backward kernels. `TESTED` is the range of torch
+The hand-written gradients and optimiser steps call ops that torch does not promise to keep: the ReLU, softmax and
+log-softmax backward kernels, the fused Adam kernel and the foreach list ops. `TESTED` is the range of torch
 versions that pyproject.toml pins and the tests run on. On import this module checks the running torch against it
 and looks every op up; where either fails, `problem` says why, the fast path turns itself off
 (`digail.algos.fast.enabled`), one warning says so, and training runs the reference path: autograd and
@@ -31,7 +31,8 @@ def _problem() -> str | None:
     if not TESTED[0] <= (major, minor) < TESTED[1]:
         return (f"torch {torch.__version__} is outside the versions it is tested on "
                 f"({'.'.join(map(str, TESTED[0]))} up to {'.'.join(map(str, TESTED[1]))})")
-    missing = [name for name in ("_softmax_backward_data", "_log_softmax_backward_data") if not hasattr(torch, name)]
+    missing = [name for name in ("_fused_adam_", "_foreach_add_", "_foreach_lerp_",
+                                 "_softmax_backward_data", "_log_softmax_backward_data") if not hasattr(torch, name)]
     if not hasattr(torch.ops.aten, "threshold_backward"):
         missing.append("ops.aten.threshold_backward")
     if missing:
@@ -59,3 +60,17 @@ def softmax_backward(g: Tensor, y: Tensor) -> Tensor:
 def log_softmax_backward(g: Tensor, out: Tensor) -> Tensor:
     """The gradient through a log-softmax over the last dimension whose output was `out`."""
     return torch._log_softmax_backward_data(g, out, -1, out.dtype)
+
+
+def adam_step(params: list[Tensor], grads: list[Tensor], exp_avgs: list[Tensor], exp_avg_sqs: list[Tensor],
+              steps: list[Tensor], lr: float, beta1: float, beta2: float, eps: float) -> None:
+    """`torch.optim.Adam(fused=True).step` on its own state (no AMSGrad, weight decay or maximize): the same two
+    kernel calls, so the same bits. The one Adam of the fast path."""
+    torch._foreach_add_(steps, 1)
+    torch._fused_adam_(params, grads, exp_avgs, exp_avg_sqs, [], steps, amsgrad=False, lr=lr, beta1=beta1,
+                       beta2=beta2, weight_decay=0.0, eps=eps, maximize=False, grad_scale=None, found_inf=None)
+
+
+def polyak(targets: list[Tensor], sources: list[Tensor], tau: float) -> None:
+    """targets <- targets + tau (sources - targets), in place."""
+    torch._foreach_lerp_(targets, sources, tau)

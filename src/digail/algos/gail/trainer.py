@@ -123,7 +123,8 @@ class GAIL:
         # with absorbing states D sees [obs, absorbing flag, action]
         self.disc = Discriminator(obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
-        self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
+        with fast.pinned(self.fast_path):
+            self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
         """D's step with the gradient penalty on replayed pairs (the off-policy learners')"""
 
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)

@@ -53,7 +53,10 @@ class SACLearner:
         bc = None
         if h.cfg.bc_weight > 0:
             bc = (lambda: bc_loss(pi, h.expert, h.eye, h.cfg.bc_batch_size, h.gen, discrete=False), h.cfg.bc_weight)
-        self.sac = SACUpdate(pi, obs_dim, h.K, self.cfg, h.to_env_actions, h.device, bc=bc,
+        space: Any = h.envs.probe.action_space
+        clip = getattr(h.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
+        bounds = (space.low, space.high) if clip else None
+        self.sac = SACUpdate(pi, obs_dim, h.K, self.cfg, h.to_env_actions, h.device, bc=bc, bounds=bounds,
                              zero_code_weights=h.cfg.zero_code_weights)
         """the update: critics, targets, temperature and their optimisers"""
         self.buffer = ReplayBuffer(self.cfg.buffer_size, obs_dim, act_dim, h.K, h.device)
