@@ -23,7 +23,7 @@ interleaved in one process, medians of per-round ratios.
 - `pieces`: the same iterations with one piece of the fast path off at a time (the rest on): `-inference` (the
   rollout's pi, V and q through their modules), `-hand grad` (PPO's loss through autograd, eager), `compiled`
   (PPO's loss through `torch.compile`, what the MuJoCo presets run), and for SAC `-sac hand` (SAC's update through
-  autograd); each against `fast`.
+  autograd) and `-d hand` (D's step through autograd); each against `fast`.
 """
 
 from __future__ import annotations
@@ -291,12 +291,14 @@ def pieces_study(rounds: int) -> dict[str, Any]:
             return mock.patch("digail.algos.ppo.HAND_GRAD_MAX_ROWS", 0)
         if piece == "-sac hand":
             tr.learner.sac.hand = False
+        if piece == "-d hand":
+            tr.penalty_step.hand = False
         return _nothing()
 
     out: dict[str, Any] = {}
     cases = {("digail/CircleWorld-v0", "ppo"): ["fast", "-inference", "-hand grad", "compiled"],
              ("Hopper-v5", "ppo"): ["fast", "-inference", "-hand grad", "compiled"],
-             ("Hopper-v5", "sac"): ["fast", "-sac hand"]}
+             ("Hopper-v5", "sac"): ["fast", "-sac hand", "-d hand"]}
     for (env_id, learner), variants in cases.items():
         if MATCH not in f"{env_id} {learner}":
             continue
@@ -331,7 +333,7 @@ def main() -> None:
                                  "pieces"])
     parser.add_argument("--out", default="runs/bench/fast_path.json")
     parser.add_argument("--pieces", nargs="*", default=[], help="pieces: only these variants besides fast "
-                        "(inference, 'hand grad', compiled, 'sac hand')")
+                        "(inference, 'hand grad', compiled, 'sac hand', 'd hand')")
     parser.add_argument("--match", default="", help="iteration, pieces: only the cases whose 'env learner' "
                         "contains this")
     args = parser.parse_args()

@@ -11,14 +11,15 @@ equivalence test (tests/test_fast_path.py):
 - `ppo_grad`: PPO's minibatch loss and gradient in one TorchScript function, for minibatches of up to
   `digail.algos.ppo.HAND_GRAD_MAX_ROWS` rows (tests/test_ppo_grad.py: to float rounding);
 - `sac_grad` with `step.FusedAdamState`: a whole SAC update (both gradients, the Adam steps on the optimisers'
-  own state, the Polyak step) as one TorchScript call (tests/test_sac.py: to float rounding against autograd,
-  bit for bit against the same gradients with torch's own optimiser steps);
+  own state, the Polyak step) and D's step with its gradient penalty as one TorchScript call each
+  (tests/test_sac.py: to float rounding against autograd, bit for bit against the same gradients with torch's
+  own optimiser steps);
 - `vae_grad`, `gumbel_chain`, `polish_grad`: the VAE's loss and gradient, its sequential Gumbel-softmax chain
   (reference: `digail.algos.gumbel._reference_chain`) and the polish step's loss and gradient (tests/test_vae.py;
   the polish's bit for bit).
 
 They share one ReLU MLP forward and backward pass (`mlp`) and call torch's private ops only through `ops`, whose
-`adam_step` is the one Adam written out (inside the scripted SAC update); every other optimiser step is
+`adam_step` is the one Adam written out (inside the scripted SAC and D steps); every other optimiser step is
 torch's own. `DIGAIL_REFERENCE=1` in the environment (or `reference()`
 in code) turns every piece off: the updates then run through autograd, the rollouts through the modules' forward
 passes, slower, with the same numbers to float rounding. So does a torch the fast path is not tested on (`ops`,

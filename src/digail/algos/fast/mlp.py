@@ -22,6 +22,11 @@ def forward(x: Tensor, w: list[Tensor], b: list[Tensor]) -> tuple[Tensor, list[T
     return F.linear(xs[-1], w[-1], b[-1]), xs
 
 
+def output(x: Tensor, w: list[Tensor], b: list[Tensor]) -> Tensor:
+    """The MLP's output alone (e.g. D's logits when relabelling a batch)."""
+    return forward(x, w, b)[0]
+
+
 def backward(g: Tensor, xs: list[Tensor], w: list[Tensor], thin: bool) -> tuple[list[Tensor], list[Tensor], Tensor]:
     """The weights' and biases' gradients for the output gradient `g` of `forward` (layer inputs `xs`), and the
     gradient at the first layer's output (for a caller that takes it back into part of the input).

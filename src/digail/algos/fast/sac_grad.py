@@ -7,7 +7,7 @@ critics' loss and gradient (target included) and the policy's loss and gradient 
 action only): the same maths as `SACUpdate.update`'s autograd path, to float rounding (tests/test_sac.py checks
 them against autograd in float64). `sac_update` runs a whole update in one call: both gradients, the three Adam
 steps (torch's fused Adam kernel on the optimisers' own state, as `torch.optim.Adam(fused=True).step` calls it)
-and the targets' Polyak step. Used for Gaussian policies whose executed action
+and the targets' Polyak step; `disc_update` does the same for D. Used for Gaussian policies whose executed action
 is a clip to the bounds and without the BC term; the rest keeps the autograd path.
 """
 
@@ -155,3 +155,62 @@ def sac_update(x: Tensor, x_next_pi: Tensor, next_obs_code: Tensor, x_pi: Tensor
         fused_adam(alpha_params, [(entropy - target_entropy).reshape(())], alpha_adam, alpha_hyper)
     polyak(t_params, q_params, tau)
     return torch.stack([q_loss, pi_loss, alpha_loss, alpha, entropy, q_mean, torch.zeros_like(q_loss)])
+
+
+def disc_grads(x_agent: Tensor, x_expert: Tensor, mix: Tensor, w: list[Tensor], b: list[Tensor],
+               gp_weight: float) -> tuple[list[Tensor], Tensor]:
+    """Gradients of D's loss: binary cross-entropy (agent rows `x_agent` labelled 0, expert rows 1) plus `gp_weight`
+    times the gradient penalty mean((|d logit / d x| - 1)^2) on the rows `mix` (none when `mix` has no rows).
+
+    For a ReLU MLP the input gradient is W_0^T m_0 W_1^T m_1 ... W_L^T with the ReLU masks m_i of the row, so the
+    penalty's gradient is a second pass through the same weights (the biases only move the masks: no gradient).
+    Returns (weight gradients then bias gradients; [loss, agent accuracy, expert accuracy, penalty]).
+    """
+    n_a = x_agent.shape[0]
+    n_e = x_expert.shape[0]
+    out, xs = mlp.forward(torch.cat([x_agent, x_expert]), w, b)
+    logits = out.squeeze(-1)
+    l_a, l_e = logits[:n_a], logits[n_a:]
+    sp = torch.nn.functional.softplus
+    loss = sp(l_a).mean() + sp(l_e.neg()).mean()
+    g_out = torch.cat([torch.sigmoid(l_a) * (1.0 / n_a), torch.sigmoid(l_e.neg()) * (-1.0 / n_e)]).unsqueeze(-1)
+    g_w, g_b, _ = mlp.backward(g_out, xs, w, False)
+    penalty = loss.new_zeros(())
+    n_m = mix.shape[0]
+    if n_m > 0 and gp_weight > 0:
+        L = len(w) - 1
+        masks: list[Tensor] = []
+        h = mix
+        for i in range(L):
+            z = torch.nn.functional.linear(h, w[i], b[i])
+            masks.append((z > 0).to(mix.dtype))
+            h = z.relu()
+        # the input gradient, keeping every layer's t_i (the masked gradient at layer i's output)
+        s = w[L].expand(n_m, w[L].shape[1])
+        ts: list[Tensor] = []
+        for i in range(L - 1, -1, -1):
+            t = masks[i] * s
+            ts.append(t)
+            s = t.mm(w[i])
+        ts.reverse()
+        norm = torch.linalg.vector_norm(s, 2.0, [1])
+        dev = norm - 1.0
+        penalty = (dev * dev).mean()
+        ds = s * (dev * 2.0 / (norm.clamp_min(1e-12) * n_m)).unsqueeze(-1) * gp_weight
+        for i in range(L):
+            g_w[i] = g_w[i] + ts[i].t().mm(ds)
+            ds = ds.mm(w[i].t()) * masks[i]
+        g_w[L] = g_w[L] + ds.sum(0, keepdim=True)
+    parts = torch.stack([loss, (l_a < 0).to(loss.dtype).mean(),
+                         (l_e > 0).to(loss.dtype).mean(), penalty])
+    return g_w + g_b, parts
+
+
+def disc_update(x_agent: Tensor, x_expert: Tensor, mix: Tensor, params: list[Tensor], gp_weight: float,
+                adam: list[list[Tensor]], hyper: list[float]) -> Tensor:
+    """`disc_grads` and D's Adam step (see `fused_adam`) in one call, `params` D's weights then biases; returns the
+    parts."""
+    n = len(params) // 2
+    grads, parts = disc_grads(x_agent, x_expert, mix, params[:n], params[n:], gp_weight)
+    fused_adam(params, grads, adam, hyper)
+    return parts

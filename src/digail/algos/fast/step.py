@@ -1,4 +1,4 @@
-"""The optimisers' state as the scripted SAC update takes it (`FusedAdamState`)."""
+"""The optimisers' state as the scripted SAC and D steps take it (`FusedAdamState`)."""
 
 from __future__ import annotations
 

@@ -9,6 +9,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from digail.algos import fast
+from digail.algos.fast.mlp import plain_layers
+from digail.algos.fast.step import FusedAdamState
 from digail.algos.ppo import maybe_compiled
 from digail.nets.critic import Discriminator
 
@@ -67,7 +70,7 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
 
 class PenaltyStep:
     """One Adam step of D on ready inputs with the gradient penalty (|grad D| - 1)^2 on mixed points (DAC), and D's
-    logits.
+    logits; on the fast path both run the hand-written gradients of `digail.algos.fast.sac_grad`.
 
     Args:
         disc: D, updated in place.
@@ -76,15 +79,44 @@ class PenaltyStep:
 
     def __init__(self, disc: Discriminator, optimizer: torch.optim.Optimizer) -> None:
         self.disc, self.optimizer = disc, optimizer
+        d_lin = plain_layers(disc.net)
+        self.hand = fast.enabled() and d_lin is not None
+        """whether D's step runs the hand-written gradient of `digail.algos.fast.sac_grad.disc_grads`"""
+        self._d_w = [m.weight for m in d_lin or []]
+        self._d_b = [m.bias for m in d_lin or []]
+        self._d_params = [*self._d_w, *self._d_b]
+        self._d_adam = FusedAdamState(optimizer, self._d_params)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """D's logits (n,) for its inputs x (n, .)."""
+        if self.hand:
+            from digail.algos.fast.mlp import output
+            from digail.algos.fast.scripting import scripted
+
+            return scripted(output)(x, self._d_w, self._d_b).squeeze(-1)
         return self.disc.net(x).squeeze(-1)
 
     def __call__(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
                  grad_penalty: float) -> torch.Tensor:
         """The step on agent rows `x_agent` (label 0), expert rows `x_expert` (label 1) and the penalty's points
         `mix` (empty without a penalty); returns the detached [loss, agent accuracy, expert accuracy, penalty]."""
+        adam = self._d_adam.lists() if self.hand else None
+        if adam is not None:
+            from digail.algos.fast.sac_grad import disc_update
+            from digail.algos.fast.scripting import scripted
+
+            with torch.no_grad():
+                return scripted(disc_update)(x_agent, x_expert, mix, self._d_params, grad_penalty, *adam)
+        if self.hand:  # until D's optimiser holds its state (its own first step creates it)
+            from digail.algos.fast.sac_grad import disc_grads
+            from digail.algos.fast.scripting import scripted
+
+            with torch.no_grad():
+                grads, parts = scripted(disc_grads)(x_agent, x_expert, mix, self._d_w, self._d_b, grad_penalty)
+            for p, g in zip(self._d_params, grads, strict=True):
+                p.grad = g
+            self.optimizer.step()
+            return parts
         loss, parts = disc_loss(self.disc, x_agent, x_expert)
         penalty = loss.new_zeros(())
         if grad_penalty > 0:
