@@ -1,0 +1,146 @@
+"""Check digail's robomimic export (MimicGen `datagen_info/subtask_term_signals/<name>`) with MimicGen's own parser,
+`mimicgen.utils.file_utils.parse_source_dataset` (NVlabs/mimicgen, source on PYTHONPATH; not on PyPI).
+
+Run in robomimic 0.3.0's venv:
+
+    PYTHONPATH=MIMICGEN_SOURCE ROBOMIMIC_VENV/bin/python scripts/check_mimicgen_signals.py
+
+It (1) exports the robomimic format fixture's known phases (reach, carry) with digail, as
+scripts/check_format_exports.py does, plus the same codes as digail's csv segment table (run in digail's venv via
+scripts/check_mimicgen_export.py); (2) calls parse_source_dataset on the export as is (expected to fail: the export
+has only subtask_term_signals, not the poses MimicGen's prepare_src_dataset.py adds); (3) calls it on a harness copy
+with placeholder eef_pose / target_pose / gripper_action / object_poses added (signals untouched); (4) compares the
+subtask indices MimicGen derives with digail's segments and writes $MG_CHECK_OUT/mimicgen.check.json (the committed
+record: tests/data/formats/mimicgen.check.json).
+No imports are stubbed: mimicgen/__init__.py catches the ImportError of robosuite itself.
+"""
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+MAIN = Path(os.environ.get("DIGAIL_ROOT", Path(__file__).resolve().parents[1]))
+MG_SRC = Path(os.environ.get("MIMICGEN_SRC", "/root/mimicgen_src"))
+OUT = Path(os.environ.get("MG_CHECK_OUT", "/tmp/mg_check"))
+MG_COMMIT = os.environ.get("MIMICGEN_COMMIT", "72bd767c255545f462e7ccfb2731f2e5d4c1d9bb")
+EXPORT = OUT / "annotated-robomimic.hdf5"
+HARNESS = OUT / "annotated-robomimic.with-placeholder-poses.hdf5"
+SEGMENTS = OUT / "segments.csv"
+
+# 1. digail export (digail's own venv)
+subprocess.run([str(MAIN / ".venv/bin/python"), str(MAIN / "scripts" / "check_mimicgen_export.py")], check=True,
+               cwd=MAIN, env={**os.environ, "PYTHONPATH": str(MAIN / "src")})
+
+sys.path.insert(0, str(MG_SRC))
+import mimicgen.utils.file_utils as MG_FileUtils  # noqa: E402
+
+# digail's segments per demo, in order
+segs = {}
+with open(SEGMENTS) as f:
+    for row in csv.DictReader(f):
+        segs.setdefault(row["episode"], []).append((int(row["start"]), int(row["end"]), row["name"]))
+orders = {tuple(n for _, _, n in s) for s in segs.values()}
+assert len(orders) == 1, f"demos differ in sub-task order: {orders}"
+subtask_names = list(orders.pop())
+with h5py.File(EXPORT, "r") as f:
+    exported = json.loads(f["data/demo_0/datagen_info/subtask_term_signals"].attrs["digail_signals"])
+assert sorted(exported) == sorted(subtask_names), (exported, subtask_names)
+# MimicGen's task spec: one termination signal per sub-task, None for the last (it ends with the demo)
+term_signals = [*subtask_names[:-1], None]
+offsets = [(0, 0)] * len(term_signals)
+demo_keys = MG_FileUtils.get_all_demos_from_dataset(dataset_path=str(EXPORT))
+
+
+def parse(path, signals):
+    return MG_FileUtils.parse_source_dataset(dataset_path=str(path), demo_keys=demo_keys,
+                                             subtask_term_signals=list(signals),
+                                             subtask_term_offset_ranges=list(offsets))
+
+
+# 2. the export as is
+try:
+    parse(EXPORT, term_signals)
+    raw = "parsed"
+except KeyError as e:
+    raw = f"KeyError {e} (datagen_info has only subtask_term_signals; the poses come from prepare_src_dataset.py)"
+print("export as is:", raw)
+
+# 3. harness copy: placeholder poses, signals untouched
+shutil.copyfile(EXPORT, HARNESS)
+with h5py.File(HARNESS, "r+") as f:
+    for key in demo_keys:
+        demo = f[f"data/{key}"]
+        T = demo["actions"].shape[0]
+        dg = demo["datagen_info"]
+        dg.create_dataset("eef_pose", data=np.tile(np.eye(4), (T, 1, 1)))
+        dg.create_dataset("target_pose", data=np.tile(np.eye(4), (T, 1, 1)))
+        dg.create_dataset("gripper_action", data=demo["actions"][:, -1:])
+        dg.create_group("object_poses")
+datagen_infos, subtask_indices, _, _ = parse(HARNESS, term_signals)
+# the fixture's oracle signal `grasp` (written as MimicGen's annotate_subtasks.py writes signals) for comparison
+_, grasp_indices, _, _ = parse(HARNESS, ["grasp", None])
+
+# 4. compare
+per_demo, ok_plus1, ok_equal = {}, True, True
+with h5py.File(EXPORT, "r") as f:
+    for i, key in enumerate(demo_keys):
+        T = f[f"data/{key}/actions"].shape[0]
+        d_ends = [e for _, e, _ in segs[key]]
+        d_starts = [s for s, _, _ in segs[key]]
+        mg = subtask_indices[i].tolist()
+        mg_ends = [b for _, b in mg]
+        # MimicGen's convention: a non-final sub-task's parsed end = first step its signal is 1, plus 1
+        expect = [e + 1 for e in d_ends[:-1]] + [d_ends[-1]]
+        # what MimicGen's annotate_subtasks.py writes for end index e: ones(T); [:e] = 0
+        annot = {}
+        for (_start, e, n) in segs[key][:-1]:
+            a = np.ones(T, dtype=int)
+            a[:e] = 0
+            annot[n] = bool(np.array_equal(a, f[f"data/{key}/datagen_info/subtask_term_signals/{n}"][()]))
+        first_one = {n: int(np.flatnonzero(f[f"data/{key}/datagen_info/subtask_term_signals/{n}"][()])[0])
+                     for n in subtask_names[:-1]}
+        per_demo[key] = {
+            "T": T, "digail_segments": [[s, e, n] for s, e, n in segs[key]],
+            "mimicgen_subtask_indices": mg, "mimicgen_grasp_oracle_indices": grasp_indices[i].tolist(),
+            "first_step_signal_is_1": first_one, "signals_equal_annotate_subtasks_output": annot,
+        }
+        ok_plus1 &= mg_ends == expect and all(annot.values()) and d_ends[-1] == T
+        ok_plus1 &= grasp_indices[i].tolist() == mg
+        ok_equal &= mg_ends == d_ends
+        print(key, "digail ends", d_ends, "starts", d_starts, "| mimicgen", mg, "| grasp oracle",
+              grasp_indices[i].tolist(), "| annotate_subtasks-equal", annot)
+
+result = {
+    "pass": bool(ok_plus1),
+    "criterion": "MimicGen's parsed end of each non-final sub-task == digail's segment end + 1 (the first step the "
+                 "signal is 1 is digail's end, and MimicGen puts that step into the ended sub-task, as it does for "
+                 "signals its own annotate_subtasks.py writes); final sub-task end == T == digail's end; digail's "
+                 "signals equal annotate_subtasks.py's output for digail's ends; same indices as the fixture's "
+                 "MimicGen-style oracle `grasp`",
+    "mimicgen_end_equals_digail_end_literally": bool(ok_equal),
+    "export_as_is": raw,
+    "demos": per_demo,
+}
+record = {
+    "mimicgen_commit": MG_COMMIT,
+    "function": "mimicgen.utils.file_utils.parse_source_dataset (with get_all_demos_from_dataset for demo_keys)",
+    "call": {"subtask_term_signals": term_signals, "subtask_term_offset_ranges": offsets},
+    "stubs": "none (no import stubbed; mimicgen/__init__.py catches ImportError for robosuite, prints a warning). "
+             "Harness: a copy of the export with placeholder datagen_info/eef_pose, target_pose (identity 4x4 per "
+             "step), gripper_action (actions[:, -1:]) and an empty object_poses group, which parse_source_dataset "
+             "reads unconditionally; subtask_term_signals untouched",
+    "file": {"export": str(EXPORT), "harness_copy": str(HARNESS),
+             "from": "tests/data/formats/robomimic_robosuite.hdf5, codes = fixture phases, names reach carry"},
+    "environment": {"python": sys.version.split()[0], "robomimic": __import__("robomimic").__version__,
+                    "h5py": h5py.__version__, "numpy": np.__version__},
+    "result": result,
+}
+(OUT / "mimicgen.check.json").write_text(json.dumps(record, indent=1) + "\n")
+print("PASS" if ok_plus1 else "FAIL", "| literal equality of ends:", ok_equal)
+sys.exit(0 if ok_plus1 else 1)
