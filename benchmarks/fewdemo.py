@@ -249,9 +249,9 @@ SUMMARY_COLUMNS = [(None, None, "BC (the VAE's policy)"), ("gail", "ppo", "GAIL 
 
 
 def summary(records: list[dict[str, Any]], budget: float = 1e6) -> str:
-    """The README's table: one row per (env, demonstration setting), one column per method and learner, each cell
-    the median over seeds of the final normalised return, with the env steps where the runs stopped short of the
-    budget. Where a method was run from more than one start, the start with the most seeds stands for it."""
+    """The summary table (results page): one row per (env, demonstration setting), one column per method and
+    learner, each cell the median over seeds of the final normalised return, with the env steps where the runs
+    stopped short of the budget. Where a method was run from more than one start, the start with the most seeds stands for it."""
     names = " | ".join(c[2] for c in SUMMARY_COLUMNS)
     head = f"| env | demonstrations | {names} |"
     lines = [head, "| " + " | ".join(["---"] * (len(SUMMARY_COLUMNS) + 2)) + " |"]
@@ -290,7 +290,7 @@ def main() -> None:
                         help="env steps whose periodic evaluations are averaged to compare runs at the same steps")
     parser.add_argument("--figure", type=Path, help="draw the learning curves to this PNG")
     parser.add_argument("--markdown", type=Path, help="write the table of docs/results.md to this file")
-    parser.add_argument("--summary", type=Path, help="write the README's table (medians only) to this file")
+    parser.add_argument("--summary", type=Path, help="write the summary table (medians only) to this file")
     args = parser.parse_args()
     if args.drop and not args.merge:
         parser.error("--drop removes entries kept by --merge; add --merge")

@@ -103,10 +103,11 @@ def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stoppe
     assert "| 0.900 by 220k |" in summary(records)
 
 
-def test_the_readme_table_is_the_stored_results_summary() -> None:
-    """The README's few-demonstration table is `fewdemo.py --summary` of benchmarks/results/fewdemo.json."""
+def test_the_summary_table_is_the_stored_results_summary() -> None:
+    """The results page's few-demonstration summary table is `fewdemo.py --summary` of
+    benchmarks/results/fewdemo.json."""
     from fewdemo import summary
 
     root = Path(__file__).resolve().parents[1]
     runs = json.loads((root / "benchmarks/results/fewdemo.json").read_text())["runs"]
-    assert summary(runs) in (root / "README.md").read_text()
+    assert summary(runs) in (root / "docs" / "results.md").read_text()
