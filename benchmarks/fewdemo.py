@@ -251,7 +251,8 @@ SUMMARY_COLUMNS = [(None, None, "BC (the VAE's policy)"), ("gail", "ppo", "GAIL 
 def summary(records: list[dict[str, Any]], budget: float = 1e6) -> str:
     """The summary table (results page): one row per (env, demonstration setting), one column per method and
     learner, each cell the median over seeds of the final normalised return, with the env steps where the runs
-    stopped short of the budget. Where a method was run from more than one start, the start with the most seeds stands for it."""
+    stopped short of the budget. Where a method was run from more than one start, the start with the most seeds
+    stands for it."""
     names = " | ".join(c[2] for c in SUMMARY_COLUMNS)
     head = f"| env | demonstrations | {names} |"
     lines = [head, "| " + " | ".join(["---"] * (len(SUMMARY_COLUMNS) + 2)) + " |"]
