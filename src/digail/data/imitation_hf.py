@@ -132,7 +132,7 @@ def _time_limited(infos: Any) -> bool:
 def read_imitation_transitions(arrays: Any) -> tuple[list[dict[str, Any]], list[str]]:
     """Trajectories from imitation's flattened transitions (`obs`, `acts`, `next_obs`, `dones`, optional `rews`).
 
-    `arrays` is the importer's checked view of the file (`digail.data.importers._Arrays`: `get`, `optional`,
+    `arrays` is the importer's checked view of the file (`digail.data.array_files.Arrays`: `get`, `optional`,
     `where`). Returns the episodes (as `digail.data.importers.trajectories_from_episodes` takes them) and notes.
     """
     where = arrays.where
