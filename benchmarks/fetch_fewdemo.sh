@@ -7,6 +7,9 @@
 #   digail-l2  Directed-Info GAIL + L2 from bc's VAE (q frozen, pi from its decoder)
 #   flatbc-l2  GAIL + L2 from flatbc's policy (one code, so no bonus; same network, data, learner and steps)
 #   gail-l2    GAIL + L2 from a fresh policy
+#   digail-l2-shuffle  the ablations of digail-l2: codes drawn uniformly each step (--train.shuffle-codes),
+#   digail-l2-qtrain   q trained with the policy (--train.q-lr 3e-4), digail-l2-nobonus  the bonus off
+#   digail-l2-k2, digail-l2-k8  K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8); one code is flatbc-l2
 #   digail-l2-sac, flatbc-l2-sac, gail-l2-sac   the same three with the off-policy learner (SAC: 1000 env steps an
 #              iteration, its discriminator with a gradient penalty, as DAC); ITERATIONS default 400 (400k env steps),
 #              a 20-episode evaluation every 20 iterations
@@ -49,6 +52,11 @@ case $METHOD in
   digail-l2) train digail-l2 --vae "$(vae 4)" ;;
   flatbc-l2) train flatbc-l2 --vae "$(vae 1)" ;;
   gail-l2) train gail-l2 --method gail ;;
+  digail-l2-shuffle) train digail-l2-shuffle --vae "$(vae 4)" --train.shuffle-codes ;;
+  digail-l2-qtrain) train digail-l2-qtrain --vae "$(vae 4)" --train.q-lr 3e-4 ;;
+  digail-l2-nobonus) train digail-l2-nobonus --vae "$(vae 4)" --train.bonus-weight 0 ;;
+  digail-l2-k2) train digail-l2-k2 --vae "$(vae 2)" ;;
+  digail-l2-k8) train digail-l2-k8 --vae "$(vae 8)" ;;
   digail-l2-sac) train digail-l2-sac --vae "$(vae 4)" --train.learner sac ;;
   flatbc-l2-sac) train flatbc-l2-sac --vae "$(vae 1)" --train.learner sac ;;
   gail-l2-sac) train gail-l2-sac --method gail --train.learner sac ;;

@@ -412,6 +412,13 @@ class TrainConfig:
     """PPO learner: weight of the gradient penalty (|grad D| - 1)^2 on points between agent and expert samples
     (DAC's; the SAC learner has its own, `sac.grad_penalty`). With a few demonstrations D otherwise tells them
     apart perfectly within a few iterations and its reward stops saying what to improve; 0 disables it"""
+    q_lr: float = 0.0
+    """PPO learner: learning rate of the macro-policy q during training, on -log q(c_t | s_t, c_{t-1}) of the
+    rollouts' own codes (the paper's ascent of its bound L_1 in q as well as pi); 0 keeps q as pre-training left it
+    (frozen, the default)"""
+    shuffle_codes: bool = False
+    """ablation: every code pi sees is a uniform random draw, each step (the BC term's expert codes once, the
+    rollouts' afresh), so the codes carry nothing; the bonus is still log q of the drawn code"""
     reward: Literal["positive", "negative", "logit"] = "positive"
     """generator reward from D: positive = -log(1 - D), negative = log D, logit = log D - log(1 - D)"""
     value_warmup: int = 10
@@ -452,7 +459,8 @@ class TrainConfig:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
                                               bc_batch_size=1, disc_updates=0, disc_minibatch_size=1,
                                               value_warmup=0, env_workers=0),
-                       ("disc_lr", "bc_weight", "anchor_weight", "disc_grad_penalty"), ("replay_fraction",))
+                       ("disc_lr", "bc_weight", "anchor_weight", "disc_grad_penalty", "q_lr"),
+                       ("replay_fraction",))
         _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
         _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
                  self.min_init_log_std)
@@ -461,6 +469,8 @@ class TrainConfig:
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
         _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
+        _require(self.q_lr == 0 or self.learner == "ppo", "--train.q-lr", "0 with --train.learner sac (q is trained "
+                 "on PPO's rollouts only)", self.q_lr)
 
 
 @dataclass(frozen=True)

@@ -7,14 +7,18 @@ expert demonstration), and the reward gains the directed-information bonus lambd
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
 
 from digail.algos.fast.inference import log_softmax
 from digail.algos.gail import GAIL, RewardFn
 from digail.algos.inference import code_net
+from digail.algos.optim import adam
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -45,6 +49,14 @@ class DirectedInfoGAIL(GAIL):
         length = self.expert.replay_codes.shape[1]
         self._replay_table = np.full((len(self.expert.replay_codes) + 1, length + 1), -1, dtype=np.int64)
         self._replay_table[:-1, :length] = self.expert.replay_codes
+        if self.cfg.shuffle_codes:  # the ablation: the BC term's expert codes are uniform draws, made once
+            self.expert = replace(self.expert, codes=torch.randint(self.K, self.expert.codes.shape, generator=self.gen
+                                                                   ).to(self.expert.codes.device))
+        self.q_optimizer = None
+        """Adam of q while it trains with the policy (`q_lr` > 0); None while q stays frozen"""
+        if self.cfg.q_lr > 0:
+            self.model.q.requires_grad_(True)
+            self.q_optimizer = adam(list(self.model.q.parameters()), lr=self.cfg.q_lr)
 
     def start_episodes(self, idx: np.ndarray) -> None:
         super().start_episodes(idx)
@@ -67,12 +79,46 @@ class DirectedInfoGAIL(GAIL):
             codes = logp_all.argmax(-1)
         else:
             codes = (logp_all + self.np_rng.gumbel(size=logp_all.shape)).argmax(-1)  # a sample of q (Gumbel-max)
-        if self.n_replay:
+        if self.cfg.shuffle_codes:
+            codes = self.np_rng.integers(self.K, size=len(codes))
+        elif self.n_replay:
             table = self._replay_table
             replayed = table[self.codes_state.replay_idx[env_idx], np.minimum(t_ep, table.shape[1] - 1)]
             codes = np.where(replayed >= 0, replayed, codes)
         logq = logp_all[np.arange(len(codes)), codes]
         return codes, logq
+
+    def update_macro_policy(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """With `q_lr` > 0, one pass of Adam steps of q on -log q(c_t | s_t, c_{t-1}) over the rollout's steps (its
+        first step is skipped: its c_{t-1} belongs to the rollout before); returns `losses/q`. A no-op otherwise."""
+        if self.q_optimizer is None:
+            return {}
+        obs, codes = batch["obs"][1:], batch["codes"][1:]
+        started = (batch["terminated"] | batch["truncated"])[:-1]  # an episode starts at t: c_{t-1} is the start
+        prev = self.eye[batch["codes"][:-1]] * (~started).unsqueeze(-1)
+        obs, codes, prev = obs.reshape(-1, obs.shape[-1]), codes.reshape(-1), prev.reshape(-1, self.K)
+        size = self.cfg.ppo.minibatch_size
+        perm = torch.randperm(len(obs), generator=self.gen)
+        losses = []
+        for start in range(0, len(obs), size):
+            idx = perm[start:start + size]
+            loss = nn.functional.cross_entropy(self.model.q(obs[idx], prev[idx]), codes[idx])
+            self.q_optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            self.q_optimizer.step()
+            losses.append(float(loss.detach()))
+        return {"losses/q": float(np.mean(losses))}
+
+    def state_dict(self) -> dict[str, Any]:
+        state = super().state_dict()
+        if self.q_optimizer is not None:
+            state["q_optimizer"] = self.q_optimizer.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        if self.q_optimizer is not None:
+            self.q_optimizer.load_state_dict(state["q_optimizer"])
 
 
 # -------------------------------------------------------------------------------------------- the trainer

@@ -219,6 +219,10 @@ class GAIL:
         return {"rollout/ep_return": mean(self.recent_returns), "rollout/ep_length": mean(self.recent_lengths),
                 "rollout/ep_return_closed_loop": mean(self.recent_closed_returns)}
 
+    def update_macro_policy(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        """Train q on a rollout's codes where the method does (Directed-Info GAIL with `q_lr` > 0); one code: no-op."""
+        return {}
+
     # ------------------------------------------------------------------------------------- discriminator
     @property
     def absorbing(self) -> bool:

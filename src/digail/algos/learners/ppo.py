@@ -71,6 +71,7 @@ class PPOLearner:
         flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
         act_in = h.act_input(flat_acts)
         stats = h.update_discriminator(flat_obs, act_in, compile=cfg.ppo.compile)
+        stats.update(h.update_macro_policy(batch))
         with torch.no_grad():
             rews, disc_rew = h.reward(h.disc(flat_obs, act_in).reshape(T, N), batch)
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
