@@ -19,10 +19,11 @@ def _demos() -> list[Trajectory]:
 
 
 def _trainer(**overrides):
+    import gymnasium as gym
+
     from digail.algos.directed_info_gail import build_trainer
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
-    import gymnasium as gym
 
     torch.manual_seed(0)
     demos = _demos()
