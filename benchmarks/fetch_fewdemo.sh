@@ -10,6 +10,8 @@
 #   digail-l2-shuffle  the ablations of digail-l2: codes drawn uniformly each step (--train.shuffle-codes),
 #   digail-l2-qtrain   q trained with the policy (--train.q-lr 3e-4), digail-l2-nobonus  the bonus off
 #   digail-l2-k2, digail-l2-k8  K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8); one code is flatbc-l2
+#   digail-l2-rel, flatbc-l2-rel, gail-l2-rel  digail-l2, flatbc-l2 and gail-l2 with D on Fetch's relative view
+#              (--train.disc-obs relative: no horizontal positions of gripper, object or goal)
 #   digail-l2-sac, flatbc-l2-sac, gail-l2-sac   the same three with the off-policy learner (SAC: 1000 env steps an
 #              iteration, its discriminator with a gradient penalty, as DAC); ITERATIONS default 400 (400k env steps),
 #              a 20-episode evaluation every 20 iterations
@@ -52,6 +54,9 @@ case $METHOD in
   digail-l2) train digail-l2 --vae "$(vae 4)" ;;
   flatbc-l2) train flatbc-l2 --vae "$(vae 1)" ;;
   gail-l2) train gail-l2 --method gail ;;
+  digail-l2-rel) train digail-l2-rel --vae "$(vae 4)" --train.disc-obs relative ;;
+  flatbc-l2-rel) train flatbc-l2-rel --vae "$(vae 1)" --train.disc-obs relative ;;
+  gail-l2-rel) train gail-l2-rel --method gail --train.disc-obs relative ;;
   digail-l2-shuffle) train digail-l2-shuffle --vae "$(vae 4)" --train.shuffle-codes ;;
   digail-l2-qtrain) train digail-l2-qtrain --vae "$(vae 4)" --train.q-lr 3e-4 ;;
   digail-l2-nobonus) train digail-l2-nobonus --vae "$(vae 4)" --train.bonus-weight 0 ;;

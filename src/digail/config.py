@@ -412,6 +412,11 @@ class TrainConfig:
     """PPO learner: weight of the gradient penalty (|grad D| - 1)^2 on points between agent and expert samples
     (DAC's; the SAC learner has its own, `sac.grad_penalty`). With a few demonstrations D otherwise tells them
     apart perfectly within a few iterations and its reward stops saying what to improve; 0 disables it"""
+    disc_obs: Literal["all", "relative"] = "all"
+    """what D sees of the observation: all of it, or the env's relative view (relations between the things in the
+    scene, not where they are: for Fetch the object from the gripper and the goal from the object, no horizontal
+    positions). With a handful of demonstrations D otherwise tells them from the agent by the few object and goal
+    positions they show"""
     q_lr: float = 0.0
     """PPO learner: learning rate of the macro-policy q during training, on -log q(c_t | s_t, c_{t-1}) of the
     rollouts' own codes (the paper's ascent of its bound L_1 in q as well as pi); 0 keeps q as pre-training left it
@@ -469,6 +474,7 @@ class TrainConfig:
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
         _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
+        _require(self.disc_obs in ("all", "relative"), "--train.disc-obs", "all or relative", self.disc_obs)
         _require(self.q_lr == 0 or self.learner == "ppo", "--train.q-lr", "0 with --train.learner sac (q is trained "
                  "on PPO's rollouts only)", self.q_lr)
 

@@ -115,6 +115,16 @@ def task_info(obs: np.ndarray, rest_height: float, grasped: bool) -> dict[str, A
             "lifted": bool(obj[2] - rest_height > LIFTED)}
 
 
+def relative_view(obs: Any) -> Any:
+    """What a discriminator sees of flat observations (n, 28) under `--train.disc-obs relative`: the object from the
+    gripper, the goal from the object, the heights of gripper and object, and fingers, rotation and velocities
+    (n, 24) - no horizontal position of gripper, object or goal, so that D cannot tell a few demonstrations from
+    the agent by where their objects and goals happened to lie. Takes and returns torch tensors."""
+    import torch
+
+    return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:25]], -1)
+
+
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
     """`concat(observation, desired_goal)` as float64 (layout in the module docstring)."""
     return np.concatenate([np.asarray(obs["observation"], dtype=np.float64),

@@ -94,6 +94,9 @@ class EnvSpec:
     gait_features: tuple[int, int] | None = None
     """observation indices of the hip joint's angle and angular velocity whose phase labels a locomotion gait
     (`digail.eval.gait`; Gymnasium v5 layouts, default options); None: no gait phase"""
+    relative_view: str | None = None
+    """`module:function` mapping raw observations (n, D) to what D sees under `--train.disc-obs relative`: relations
+    between the things in the scene instead of where they are (torch tensors in and out); None: the env has none"""
 
     @property
     def paper_return(self) -> tuple[float, float] | None:
@@ -126,7 +129,7 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
-            labels=("reach", "grasp", "carry", "place")),
+            labels=("reach", "grasp", "carry", "place"), relative_view="digail.envs.fetch:relative_view"),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
     # four legs, one per landmark; `order=...` (make_env) sets a route the demonstrations never showed
     EnvSpec("digail/LandmarkRoute-v0", "landmark-route", 100, "digail.envs.landmark_route:LandmarkRouteEnv", 400,

@@ -6,6 +6,10 @@ step on replayed pairs with DAC's gradient penalty (SAC's, interleaved with the 
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Callable
+
+import numpy as np
 import torch
 from torch import nn
 
@@ -13,7 +17,9 @@ from digail.algos import fast
 from digail.algos.fast.mlp import plain_layers
 from digail.algos.fast.step import FusedAdamState
 from digail.algos.ppo import maybe_compiled
+from digail.errors import UserError
 from digail.nets.critic import Discriminator
+from digail.nets.normalizer import ObsNormalizer
 
 
 def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
@@ -66,6 +72,48 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
     loss_mean, acc_agent, acc_expert = torch.stack(stats).mean(0).tolist() if stats else [0.0] * 3
     return {"disc/loss": loss_mean, "disc/acc_agent": acc_agent, "disc/acc_expert": acc_expert,
             "disc/accuracy": 0.5 * (acc_agent + acc_expert)}
+
+
+class ObsView(nn.Module):
+    """The part of a normalised observation D sees: `fn` of the raw observation (the normaliser undone), normalised
+    again on the demonstrations' values of it.
+
+    Args:
+        fn: raw observations (n, D) -> D's features (n, F), torch in and out (an env's `relative_view`).
+        normalizer: the policy's fixed observation normaliser, whose statistics it undoes.
+        demo_obs: (M, D) raw demonstration observations, which set the features' statistics.
+    """
+
+    mean: torch.Tensor
+    std: torch.Tensor
+
+    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], normalizer: ObsNormalizer,
+                 demo_obs: np.ndarray) -> None:
+        super().__init__()
+        self.fn = fn
+        self.register_buffer("mean", normalizer.mean.detach().clone().cpu())
+        self.register_buffer("std", normalizer.std.detach().clone().cpu())
+        with torch.no_grad():
+            feats = fn(torch.as_tensor(np.asarray(demo_obs, np.float32)))
+        self.out = ObsNormalizer(feats.shape[1]).fit(feats.numpy())
+        self.dim = int(feats.shape[1])
+        """F, the features D sees in place of the observation"""
+
+    def forward(self, obs_n: torch.Tensor) -> torch.Tensor:
+        return self.out(self.fn(obs_n * self.std + self.mean))
+
+
+def obs_view(env_id: str, kind: str, normalizer: ObsNormalizer, demo_obs: np.ndarray) -> ObsView | None:
+    """D's view of the observation for `--train.disc-obs kind`: None for `all`, else the env's relative view."""
+    if kind == "all":
+        return None
+    from digail.envs.registry import env_spec
+
+    spec = env_spec(env_id)
+    if spec is None or spec.relative_view is None:
+        raise UserError(f"{env_id} has no relative view of its observation for D; use --train.disc-obs all.")
+    module, _, name = spec.relative_view.partition(":")
+    return ObsView(getattr(importlib.import_module(module), name), normalizer, demo_obs)
 
 
 class PenaltyStep:

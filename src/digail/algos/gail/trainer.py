@@ -22,7 +22,7 @@ from torch import nn
 
 from digail.algos import fast
 from digail.algos.expert_data import expert_data
-from digail.algos.gail.discriminator import PenaltyStep, discriminator_update
+from digail.algos.gail.discriminator import PenaltyStep, discriminator_update, obs_view
 from digail.algos.learners import LEARNERS, Learner
 from digail.algos.optim import adam
 from digail.algos.rollout import CodeState, RolloutState
@@ -120,8 +120,14 @@ class GAIL:
             self.envs.close()
             raise
         self._absorbing = entry.absorbing(cfg)
+        self.disc_view = obs_view(env_id, cfg.disc_obs, model.normalizer,
+                                  np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]))
+        """what D sees of a normalised observation (`--train.disc-obs`); None: all of it"""
+        if self.disc_view is not None:
+            self.disc_view.to(self.device)
+        self._disc_obs_dim = obs_dim if self.disc_view is None else self.disc_view.dim
         # with absorbing states D sees [obs, absorbing flag, action]
-        self.disc = Discriminator(obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
+        self.disc = Discriminator(self._disc_obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
         self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
         with fast.pinned(self.fast_path):
             self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
@@ -130,8 +136,9 @@ class GAIL:
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
         """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
         expert_in = self.expert.disc_in
-        if self._absorbing:
+        if self._absorbing or self.disc_view is not None:
             expert_in = self.disc_input(expert_in[:, :obs_dim], expert_in[:, obs_dim:])
+        if self._absorbing:
             ends = sum(bool(d.terminated) for d in demos)  # one absorbing row per demonstration that terminated
             expert_in = torch.cat([expert_in, self.absorbing_row().expand(ends, -1)])
         self._expert_disc_in = expert_in
@@ -236,15 +243,16 @@ class GAIL:
         return self._expert_disc_in
 
     def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
-        """D's input rows for (normalised obs, action as D sees it) pairs: [obs, (absorbing flag 0,) action]."""
-        parts = [obs_n]
+        """D's input rows for (normalised obs, action as D sees it) pairs: [obs or its view, (absorbing flag 0,)
+        action]."""
+        parts = [obs_n if self.disc_view is None else self.disc_view(obs_n)]
         if self._absorbing:
             parts.append(obs_n.new_zeros(len(obs_n), 1))
         return torch.cat([*parts, act_in], -1)
 
     def absorbing_row(self) -> torch.Tensor:
         """D's input (1, obs_dim + 1 + A) for the absorbing state: zero observation and action, flag 1."""
-        obs_dim = self.model.obs_dim
+        obs_dim = self._disc_obs_dim
         row = torch.zeros(1, obs_dim + 1 + self._act_in_dim, device=self.device)
         row[0, obs_dim] = 1.0
         return row

@@ -73,7 +73,7 @@ class PPOLearner:
         stats = h.update_discriminator(flat_obs, act_in, compile=cfg.ppo.compile)
         stats.update(h.update_macro_policy(batch))
         with torch.no_grad():
-            rews, disc_rew = h.reward(h.disc(flat_obs, act_in).reshape(T, N), batch)
+            rews, disc_rew = h.reward(h.disc.net(h.disc_input(flat_obs, act_in)).reshape(T, N), batch)
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
                                    batch["final_values"], batch["last_values"], cfg.ppo.gamma, cfg.ppo.gae_lambda)
         if cfg.ppo.anneal_lr:

@@ -1,0 +1,68 @@
+"""What D sees of the observation (`--train.disc-obs`): Fetch's relative view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from digail.algos.gail.discriminator import ObsView, obs_view
+from digail.config import PPOConfig, TrainConfig
+from digail.data.trajectory import Trajectory
+from digail.envs.fetch import relative_view
+from digail.errors import UserError
+from digail.nets.normalizer import ObsNormalizer
+
+
+def _fetch_obs(n: int, seed: int) -> np.ndarray:
+    obs = np.random.default_rng(seed).normal(size=(n, 28)).astype(np.float32)
+    obs[:, 6:9] = obs[:, 3:6] - obs[:, 0:3]  # object relative to the gripper, as the env observes it
+    return obs
+
+
+def test_the_relative_view_ignores_where_on_the_table_the_scene_lies():
+    obs = _fetch_obs(64, 0)
+    moved = obs.copy()
+    shift = np.array([0.3, -0.2], np.float32)  # gripper, object and goal moved together, horizontally
+    for sl in (slice(0, 2), slice(3, 5), slice(25, 27)):
+        moved[:, sl] += shift
+    a, b = relative_view(torch.from_numpy(obs)), relative_view(torch.from_numpy(moved))
+    assert a.shape == (64, 24)
+    torch.testing.assert_close(a, b)
+    # but a goal moved away from the object is seen
+    moved[:, 25] += 0.1
+    assert not torch.allclose(a, relative_view(torch.from_numpy(moved)))
+
+
+def test_the_view_undoes_the_policys_normaliser_and_normalises_its_features_on_the_demonstrations():
+    demo = _fetch_obs(500, 1) * 3 + 1
+    norm = ObsNormalizer(28).fit(demo)
+    view = ObsView(relative_view, norm, demo)
+    feats = view(norm(torch.from_numpy(demo)))
+    torch.testing.assert_close(feats.mean(0), torch.zeros(24), atol=1e-4, rtol=0)
+    torch.testing.assert_close(feats.std(0, unbiased=False), torch.ones(24), atol=1e-3, rtol=0)
+
+
+def test_an_env_without_a_relative_view_is_refused_in_one_sentence():
+    assert obs_view("Pendulum-v1", "all", ObsNormalizer(3), np.zeros((2, 3))) is None
+    with pytest.raises(UserError, match="no relative view.*--train.disc-obs all"):
+        obs_view("Pendulum-v1", "relative", ObsNormalizer(3), np.zeros((2, 3)))
+
+
+def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
+    from digail.algos.directed_info_gail import build_trainer
+
+    rng = np.random.default_rng(0)
+    demos = [Trajectory(obs=_fetch_obs(11, i), acts=rng.uniform(-1, 1, (10, 4)).astype(np.float32))
+             for i in range(2)]
+    cfg = TrainConfig(method="gail", disc_obs="relative", hidden=(8,), backend="sync",
+                      ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1))
+    trainer = build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
+                            progress=False)
+    try:
+        assert trainer.disc.net[0].in_features == 24 + 4
+        assert trainer.expert_disc_in.shape == (20, 28)
+        out = trainer.iterate()
+        assert np.isfinite(out["disc/loss"])
+    finally:
+        trainer.close()
