@@ -12,6 +12,8 @@
 #   digail-l2-k2, digail-l2-k8  K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8); one code is flatbc-l2
 #   digail-l2-rel, flatbc-l2-rel, gail-l2-rel  digail-l2, flatbc-l2 and gail-l2 with D on Fetch's relative view
 #              (--train.disc-obs relative: no horizontal positions of gripper, object or goal)
+#   digail-l2-rel-gp-logit, flatbc-l2-rel-gp-logit  the same two on the relative view, with D's gradient penalty 10
+#              and the logit reward log D - log(1 - D) (which keeps grading where D is sure)
 #   digail-l2-sac, flatbc-l2-sac, gail-l2-sac   the same three with the off-policy learner (SAC: 1000 env steps an
 #              iteration, its discriminator with a gradient penalty, as DAC); ITERATIONS default 400 (400k env steps),
 #              a 20-episode evaluation every 20 iterations
@@ -57,6 +59,10 @@ case $METHOD in
   digail-l2-rel) train digail-l2-rel --vae "$(vae 4)" --train.disc-obs relative ;;
   flatbc-l2-rel) train flatbc-l2-rel --vae "$(vae 1)" --train.disc-obs relative ;;
   gail-l2-rel) train gail-l2-rel --method gail --train.disc-obs relative ;;
+  digail-l2-rel-gp-logit) train digail-l2-rel-gp-logit --vae "$(vae 4)" --train.disc-obs relative \
+      --train.disc-grad-penalty 10 --train.reward logit ;;
+  flatbc-l2-rel-gp-logit) train flatbc-l2-rel-gp-logit --vae "$(vae 1)" --train.disc-obs relative \
+      --train.disc-grad-penalty 10 --train.reward logit ;;
   digail-l2-shuffle) train digail-l2-shuffle --vae "$(vae 4)" --train.shuffle-codes ;;
   digail-l2-qtrain) train digail-l2-qtrain --vae "$(vae 4)" --train.q-lr 3e-4 ;;
   digail-l2-nobonus) train digail-l2-nobonus --vae "$(vae 4)" --train.bonus-weight 0 ;;
