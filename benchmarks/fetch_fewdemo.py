@@ -28,6 +28,8 @@ import numpy as np
 METHODS = {
     "bc_k4": "BC (the VAE's policy, K = 4)",
     "bc_k1": "BC, flat (one code)",
+    "bc_k2": "BC (the VAE's policy, K = 2)",
+    "bc_k8": "BC (the VAE's policy, K = 8)",
     "gail-l2": "GAIL + L2, fresh policy",
     "flatbc-l2": "GAIL + L2 from the flat BC policy",
     "digail-l2": "Directed-Info GAIL + L2",
@@ -40,8 +42,28 @@ METHODS = {
     "flatbc-gail-l2": "GAIL + L2 from the flat BC policy",
     "flatbc-gail-l2-gp": "GAIL + L2 from the flat BC policy, D's gradient penalty 10",
     "digail-l2-gp": "Directed-Info GAIL + L2, D's gradient penalty 10",
+    "gail-l2-rel": "GAIL + L2, fresh policy, D on the relative view",
+    "flatbc-l2-rel": "GAIL + L2 from the flat BC policy, D on the relative view",
+    "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view",
+    "flatbc-l2-rel-gp-logit": "GAIL + L2 from the flat BC policy, relative view, penalty 10, logit reward",
+    "digail-l2-rel-gp-logit": "Directed-Info GAIL + L2, relative view, penalty 10, logit reward",
+    "digail-l2-shuffle": "Directed-Info GAIL + L2, codes shuffled each step",
+    "digail-l2-qtrain": "Directed-Info GAIL + L2, q trained with the policy",
+    "digail-l2-nobonus": "Directed-Info GAIL + L2, no directed-info bonus",
+    "digail-l2-k2": "Directed-Info GAIL + L2, K = 2",
+    "digail-l2-k8": "Directed-Info GAIL + L2, K = 8",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
+ABLATIONS = {
+    "digail-l2": "Directed-Info GAIL + L2 (K = 4, q frozen, bonus 0.01)",
+    "digail-l2-shuffle": "codes shuffled each step",
+    "flatbc-l2": "one code (GAIL + L2 from the flat BC policy)",
+    "digail-l2-qtrain": "q unfrozen (trained with the policy, lr 3e-4)",
+    "digail-l2-nobonus": "directed-info bonus off",
+    "digail-l2-k2": "K = 2",
+    "digail-l2-k8": "K = 8",
+}
+"""the rows of the ablation table (what carries Directed-Info GAIL + L2 on Fetch with 4 demonstrations)"""
 TASKS = {
     "fetch": {"script": "benchmarks/fetch_fewdemo.sh", "title": "FetchPickAndPlace", "env_id":
               "digail/FetchPickAndPlace-v4", "dataset": "digail/fetchpickandplace/expert-v0",
@@ -63,6 +85,16 @@ def _curve(run: Path) -> list[tuple[float, float]]:
                 if r.get("eval/success_rate")]
 
 
+def _late_mean(run: Path, key: str, rows: int = 10) -> float | None:
+    """The mean of a metrics.csv column over the run's last `rows` iterations that logged it."""
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return None
+    with path.open() as f:
+        values = [float(r[key]) for r in csv.DictReader(f) if r.get(key)]
+    return float(np.mean(values[-rows:])) if values else None
+
+
 def _steps_to(curve: list[tuple[float, float]], level: float) -> float | None:
     return next((step for step, success in curve if success >= level), None)
 
@@ -71,7 +103,7 @@ def _command(run: Path, script: str) -> str:
     """What the task's job script ran for this folder (the job line that reproduces it)."""
     demos = run.parent.name.removeprefix("d")
     name, _, seed = run.name.rpartition("_s")
-    method = {"bc_k4": "bc", "bc_k1": "flatbc"}.get(name, name)
+    method = {"bc_k4": "bc", "bc_k1": "flatbc", "bc_k2": "digail-l2-k2", "bc_k8": "digail-l2-k8"}.get(name, name)
     return shlex.join([script, demos, method, seed])
 
 
@@ -84,9 +116,11 @@ def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
             continue
         curve = _curve(run)
         rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
-                               "run": str(run), "command": _command(run, TASKS[task]["script"]), "curve": curve,
+                               "run": str(run), "command": _command(run, str(TASKS[task]["script"])), "curve": curve,
                                "env_steps": curve[-1][0] if curve else 0.0,
-                               "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9)}
+                               "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9),
+                               "late_disc_acc_expert": _late_mean(run, "disc/acc_expert"),
+                               "late_disc_reward": _late_mean(run, "rollout/disc_reward")}
         ev = run / "eval.json"
         if ev.is_file():
             m = json.loads(ev.read_text())
@@ -127,6 +161,34 @@ def markdown(rows: list[dict[str, Any]], task: str = "fetch") -> str:
         cells = " | ".join(f"{r[f'median_{k}']:.2f}" for k in others)
         lines.append(f"| {r['demos']} | {METHODS[r['method']]} | {per} (**{r['median_success_rate']:.2f}**) "
                      f"| {cells} | {steps} | {' / '.join(map(str, r['seeds']))} |")
+    return "\n".join(lines) + "\n"
+
+
+def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
+    """The ablation table: per variant of Directed-Info GAIL + L2 with `demos` demonstrations, success per seed, the
+    env steps to 0.5 and 0.9 success of the learning curve, and D's expert accuracy and reward per step over the
+    last 10 iterations (medians over seeds)."""
+    def steps(v: float | None) -> str:
+        return "not reached" if v is None else f"{v / 1000:.0f}k"
+
+    def med(values: list[float | None]) -> str:
+        vals = [v for v in values if v is not None]
+        return f"{np.median(vals):.2f}" if vals else "-"
+
+    lines = ["| variant | success, per seed (median) | steps to 0.5 | steps to 0.9 | D's expert accuracy, last 10 "
+             "iterations | D's reward per step, last 10 iterations | seeds |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for method, label in ABLATIONS.items():
+        done = [r for r in records if r["demos"] == demos and r["method"] == method and r["status"] == "done"]
+        if not done:
+            continue
+        per = " / ".join(f"{r['success_rate']:.2f}" for r in done)
+        median = float(np.median([r["success_rate"] for r in done]))
+        to5, to9 = (" / ".join(steps(r[key]) for r in done) if any(r[key] is not None for r in done)
+                    else "not reached" for key in ("steps_to_0.5", "steps_to_0.9"))
+        lines.append(f"| {label} | {per} (**{median:.2f}**) | {to5} | {to9} | "
+                     f"{med([r['late_disc_acc_expert'] for r in done])} | {med([r['late_disc_reward'] for r in done])} "
+                     f"| {' / '.join(str(r['seed']) for r in done)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -190,6 +252,9 @@ def main() -> None:
 
         replace_between_markers(args.page, (f"<!-- {args.task}_fewdemo:start -->", f"<!-- {args.task}_fewdemo:end -->"),
                                 text.rstrip("\n"))
+        if args.task == "fetch":
+            replace_between_markers(args.page, ("<!-- fetch_ablations:start -->", "<!-- fetch_ablations:end -->"),
+                                    ablation_markdown(records).rstrip("\n"))
     print(text, end="")
 
 

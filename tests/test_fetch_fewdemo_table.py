@@ -38,3 +38,18 @@ def test_medians_over_finished_seeds_and_steps_to_each_level(tmp_path: Path) -> 
     assert row["median_success_rate"] == 0.7 and row["per_seed_success_rate"] == [0.9, 0.3, 0.7]
     assert row["env_steps"] == 40960
     assert "0.90 / 0.30 / 0.70 (**0.70**)" in markdown([row])
+
+
+def test_the_ablation_table_gives_steps_to_each_level_and_ds_late_state(tmp_path: Path) -> None:
+    from fetch_fewdemo import ablation_markdown
+
+    _run(tmp_path / "d4", "digail-l2_s0", [(0, 0.1), (20480, 0.6), (40960, 0.7)], 0.7)
+    _run(tmp_path / "d4", "digail-l2-shuffle_s0", [(0, 0.0), (20480, 0.1)], 0.1)
+    metrics = tmp_path / "d4" / "digail-l2_s0" / "metrics.csv"
+    late = [(0.5, 0.9)] * 5 + [(1.0, 0.1)] * 10  # D's (expert accuracy, reward) per iteration: the last 10 count
+    text = metrics.read_text().replace("losses/policy", "losses/policy,disc/acc_expert,rollout/disc_reward", 1)
+    metrics.write_text(text + "".join(f"{50000 + i},{i},,,{acc},{rew}\n" for i, (acc, rew) in enumerate(late)))
+    lines = ablation_markdown(collect(tmp_path)).splitlines()
+    assert len(lines) == 4
+    assert lines[2].startswith("| Directed-Info GAIL + L2") and "| 20k | not reached | 1.00 | 0.10 | 0 |" in lines[2]
+    assert lines[3].startswith("| codes shuffled each step | 0.10 (**0.10**) | not reached | not reached | - | - |")
