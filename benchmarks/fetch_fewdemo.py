@@ -47,21 +47,21 @@ METHODS = {
     "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view",
     "flatbc-l2-rel-gp-logit": "GAIL + L2 from the flat BC policy, relative view, penalty 10, logit reward",
     "digail-l2-rel-gp-logit": "Directed-Info GAIL + L2, relative view, penalty 10, logit reward",
-    "digail-l2-shuffle": "Directed-Info GAIL + L2, codes shuffled each step",
-    "digail-l2-qtrain": "Directed-Info GAIL + L2, q trained with the policy",
-    "digail-l2-nobonus": "Directed-Info GAIL + L2, no directed-info bonus",
-    "digail-l2-k2": "Directed-Info GAIL + L2, K = 2",
-    "digail-l2-k8": "Directed-Info GAIL + L2, K = 8",
+    "digail-l2-rel-shuffle": "Directed-Info GAIL + L2, relative view, codes shuffled each step",
+    "digail-l2-rel-qtrain": "Directed-Info GAIL + L2, relative view, q trained with the policy",
+    "digail-l2-rel-nobonus": "Directed-Info GAIL + L2, relative view, no directed-info bonus",
+    "digail-l2-rel-k2": "Directed-Info GAIL + L2, relative view, K = 2",
+    "digail-l2-rel-k8": "Directed-Info GAIL + L2, relative view, K = 8",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
 ABLATIONS = {
-    "digail-l2": "Directed-Info GAIL + L2 (K = 4, q frozen, bonus 0.01)",
-    "digail-l2-shuffle": "codes shuffled each step",
-    "flatbc-l2": "one code (GAIL + L2 from the flat BC policy)",
-    "digail-l2-qtrain": "q unfrozen (trained with the policy, lr 3e-4)",
-    "digail-l2-nobonus": "directed-info bonus off",
-    "digail-l2-k2": "K = 2",
-    "digail-l2-k8": "K = 8",
+    "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view (K = 4, q frozen, bonus 0.01)",
+    "digail-l2-rel-shuffle": "codes shuffled each step",
+    "flatbc-l2-rel": "one code (GAIL + L2 from the flat BC policy, relative view)",
+    "digail-l2-rel-qtrain": "q unfrozen (trained with the policy, lr 3e-4)",
+    "digail-l2-rel-nobonus": "directed-info bonus off",
+    "digail-l2-rel-k2": "K = 2",
+    "digail-l2-rel-k8": "K = 8",
 }
 """the rows of the ablation table (what carries Directed-Info GAIL + L2 on Fetch with 4 demonstrations)"""
 TASKS = {
@@ -103,7 +103,7 @@ def _command(run: Path, script: str) -> str:
     """What the task's job script ran for this folder (the job line that reproduces it)."""
     demos = run.parent.name.removeprefix("d")
     name, _, seed = run.name.rpartition("_s")
-    method = {"bc_k4": "bc", "bc_k1": "flatbc", "bc_k2": "digail-l2-k2", "bc_k8": "digail-l2-k8"}.get(name, name)
+    method = {"bc_k4": "bc", "bc_k1": "flatbc", "bc_k2": "bc2", "bc_k8": "bc8"}.get(name, name)
     return shlex.join([script, demos, method, seed])
 
 

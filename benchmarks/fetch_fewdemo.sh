@@ -4,19 +4,18 @@
 # DEMOS: how many expert demonstrations (the first N of digail/fetchpickandplace/expert-v0); METHOD one of
 #   bc       the VAE's policy (K = 4, the fetch preset), closed-loop q           -> runs/fetchfew/dN/bc_k4_sS
 #   flatbc   the same pre-training with one code: a flat behaviour-cloned policy -> runs/fetchfew/dN/bc_k1_sS
+#   bc2, bc8 the same with K = 2 or 8 codes                                      -> runs/fetchfew/dN/bc_k2_sS, ...
 #   digail-l2  Directed-Info GAIL + L2 from bc's VAE (q frozen, pi from its decoder)
 #   flatbc-l2  GAIL + L2 from flatbc's policy (one code, so no bonus; same network, data, learner and steps)
 #   gail-l2    GAIL + L2 from a fresh policy
-#   digail-l2-shuffle  the ablations of digail-l2: codes drawn uniformly each step (--train.shuffle-codes),
-#   digail-l2-qtrain   q trained with the policy (--train.q-lr 3e-4), digail-l2-nobonus  the bonus off
-#   digail-l2-k2, digail-l2-k8  K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8); one code is flatbc-l2
-#   digail-l2-rel, flatbc-l2-rel, gail-l2-rel  digail-l2, flatbc-l2 and gail-l2 with D on Fetch's relative view
-#              (--train.disc-obs relative: no horizontal positions of gripper, object or goal)
-#   digail-l2-rel-gp-logit, flatbc-l2-rel-gp-logit  the same two on the relative view, with D's gradient penalty 10
-#              and the logit reward log D - log(1 - D) (which keeps grading where D is sure)
-#   digail-l2-sac, flatbc-l2-sac, gail-l2-sac   the same three with the off-policy learner (SAC: 1000 env steps an
-#              iteration, its discriminator with a gradient penalty, as DAC); ITERATIONS default 400 (400k env steps),
-#              a 20-episode evaluation every 20 iterations
+#   each of the three with suffixes, in this order:
+#     -rel        D on Fetch's relative view (--train.disc-obs relative: no horizontal positions)
+#     -gp-logit   D's gradient penalty 10 and the logit reward log D - log(1 - D)
+#     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
+#                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
+#     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
+#                 penalty, as DAC); ITERATIONS default 400 (400k env steps), a 20-episode evaluation every 20
+#   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint.
 # Every training: PPO (the fetch preset: batch 4096 over 8 envs), BC / L2 weight 1.0, ITERATIONS (default 100, i.e.
 # 409,600 env steps), a 20-episode evaluation every 5 iterations (the learning curve), then 100 episodes.
@@ -50,26 +49,25 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
+SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac)?$'
+if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
+    || [[ $METHOD =~ ^(flatbc|gail)-.*-(shuffle|qtrain|nobonus|k2|k8) ]]; then
+  echo "unknown method $METHOD" >&2; exit 2
+fi
+ARGS=(); K=4
+case $METHOD in *-rel*) ARGS+=(--train.disc-obs relative) ;; esac
+case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
+case $METHOD in *-shuffle*) ARGS+=(--train.shuffle-codes) ;; esac
+case $METHOD in *-qtrain*) ARGS+=(--train.q-lr 3e-4) ;; esac
+case $METHOD in *-nobonus*) ARGS+=(--train.bonus-weight 0) ;; esac
+case $METHOD in *-k2*) K=2 ;; *-k8*) K=8 ;; esac
+case $METHOD in *-sac) ARGS+=(--train.learner sac) ;; esac
 case $METHOD in
   bc) vae 4 ;;
   flatbc) vae 1 ;;
-  digail-l2) train digail-l2 --vae "$(vae 4)" ;;
-  flatbc-l2) train flatbc-l2 --vae "$(vae 1)" ;;
-  gail-l2) train gail-l2 --method gail ;;
-  digail-l2-rel) train digail-l2-rel --vae "$(vae 4)" --train.disc-obs relative ;;
-  flatbc-l2-rel) train flatbc-l2-rel --vae "$(vae 1)" --train.disc-obs relative ;;
-  gail-l2-rel) train gail-l2-rel --method gail --train.disc-obs relative ;;
-  digail-l2-rel-gp-logit) train digail-l2-rel-gp-logit --vae "$(vae 4)" --train.disc-obs relative \
-      --train.disc-grad-penalty 10 --train.reward logit ;;
-  flatbc-l2-rel-gp-logit) train flatbc-l2-rel-gp-logit --vae "$(vae 1)" --train.disc-obs relative \
-      --train.disc-grad-penalty 10 --train.reward logit ;;
-  digail-l2-shuffle) train digail-l2-shuffle --vae "$(vae 4)" --train.shuffle-codes ;;
-  digail-l2-qtrain) train digail-l2-qtrain --vae "$(vae 4)" --train.q-lr 3e-4 ;;
-  digail-l2-nobonus) train digail-l2-nobonus --vae "$(vae 4)" --train.bonus-weight 0 ;;
-  digail-l2-k2) train digail-l2-k2 --vae "$(vae 2)" ;;
-  digail-l2-k8) train digail-l2-k8 --vae "$(vae 8)" ;;
-  digail-l2-sac) train digail-l2-sac --vae "$(vae 4)" --train.learner sac ;;
-  flatbc-l2-sac) train flatbc-l2-sac --vae "$(vae 1)" --train.learner sac ;;
-  gail-l2-sac) train gail-l2-sac --method gail --train.learner sac ;;
-  *) echo "unknown method $METHOD" >&2; exit 2 ;;
+  bc2) vae 2 ;;
+  bc8) vae 8 ;;
+  digail-l2*) train "$METHOD" --vae "$(vae $K)" "${ARGS[@]}" ;;
+  flatbc-l2*) train "$METHOD" --vae "$(vae 1)" "${ARGS[@]}" ;;
+  gail-l2*) train "$METHOD" --method gail "${ARGS[@]}" ;;
 esac

@@ -43,9 +43,9 @@ def test_medians_over_finished_seeds_and_steps_to_each_level(tmp_path: Path) -> 
 def test_the_ablation_table_gives_steps_to_each_level_and_ds_late_state(tmp_path: Path) -> None:
     from fetch_fewdemo import ablation_markdown
 
-    _run(tmp_path / "d4", "digail-l2_s0", [(0, 0.1), (20480, 0.6), (40960, 0.7)], 0.7)
-    _run(tmp_path / "d4", "digail-l2-shuffle_s0", [(0, 0.0), (20480, 0.1)], 0.1)
-    metrics = tmp_path / "d4" / "digail-l2_s0" / "metrics.csv"
+    _run(tmp_path / "d4", "digail-l2-rel_s0", [(0, 0.1), (20480, 0.6), (40960, 0.7)], 0.7)
+    _run(tmp_path / "d4", "digail-l2-rel-shuffle_s0", [(0, 0.0), (20480, 0.1)], 0.1)
+    metrics = tmp_path / "d4" / "digail-l2-rel_s0" / "metrics.csv"
     late = [(0.5, 0.9)] * 5 + [(1.0, 0.1)] * 10  # D's (expert accuracy, reward) per iteration: the last 10 count
     text = metrics.read_text().replace("losses/policy", "losses/policy,disc/acc_expert,rollout/disc_reward", 1)
     metrics.write_text(text + "".join(f"{50000 + i},{i},,,{acc},{rew}\n" for i, (acc, rew) in enumerate(late)))
