@@ -42,6 +42,7 @@ METHODS = {
     "flatbc-gail-l2": "GAIL + L2 from the flat BC policy",
     "flatbc-gail-l2-gp": "GAIL + L2 from the flat BC policy, D's gradient penalty 10",
     "digail-l2-gp": "Directed-Info GAIL + L2, D's gradient penalty 10",
+    "flatbc-gail-l2-rel": "GAIL + L2 from the flat BC policy, D on the relative view",
     "gail-l2-rel": "GAIL + L2, fresh policy, D on the relative view",
     "flatbc-l2-rel": "GAIL + L2 from the flat BC policy, D on the relative view",
     "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view",

@@ -10,6 +10,8 @@
 #   gail     GAIL from a fresh policy
 #   digail-l2, flatbc-gail-l2, gail-l2   the same with the BC / L2 term (weight 1.0)
 #   digail-l2-gp, flatbc-gail-l2-gp      the L2 ones with a gradient penalty of weight 10 on D
+#   digail-l2-rel, flatbc-gail-l2-rel, gail-l2-rel   the L2 ones with D on the relative view (--train.disc-obs
+#            relative: each landmark seen from the point, and the touch sensors)
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint.
 # Every training: PPO (the preset's: 8 envs, batch 512), ITERATIONS (default 2000, i.e. 1,024,000 env steps), a
 # 20-episode evaluation every 100 iterations (the learning curve), then 100 episodes.
@@ -32,7 +34,7 @@ vae() {  # vae K -> the VAE run folder, pre-trained (and evaluated) once
 
 train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), then evaluates it on 100 episodes
   local name=$1 run="$ROOT/$1_s$S" bc=0 gp=0; shift
-  case $name in *-l2|*-l2-gp) bc=1.0 ;; esac
+  case $name in *-l2|*-l2-gp|*-l2-rel) bc=1.0 ;; esac
   case $name in *-gp) gp=10 ;; esac
   [ -f "$run/eval.json" ] && return 0
   if [ -f "$run/config.json" ]; then
@@ -50,5 +52,8 @@ case $METHOD in
   digail|digail-l2|digail-l2-gp) train "$METHOD" --vae "$(vae 4)" ;;
   flatbc-gail|flatbc-gail-l2|flatbc-gail-l2-gp) train "$METHOD" --vae "$(vae 1)" ;;
   gail|gail-l2) train "$METHOD" --method gail ;;
+  digail-l2-rel) train "$METHOD" --vae "$(vae 4)" --train.disc-obs relative ;;
+  flatbc-gail-l2-rel) train "$METHOD" --vae "$(vae 1)" --train.disc-obs relative ;;
+  gail-l2-rel) train "$METHOD" --method gail --train.disc-obs relative ;;
   *) echo "unknown method $METHOD" >&2; exit 2 ;;
 esac

@@ -34,6 +34,16 @@ def test_the_relative_view_ignores_where_on_the_table_the_scene_lies():
     assert not torch.allclose(a, relative_view(torch.from_numpy(moved)))
 
 
+def test_the_routes_relative_view_sees_the_landmarks_from_the_point():
+    from digail.envs.landmark_route import relative_view as route_view
+
+    obs = torch.tensor([[0.5, -0.5, 1.2, 1.2, -1.2, 1.2, -1.2, -1.2, 1.2, -1.2, 0.0, 0.0, 1.0, 0.0]])
+    moved = obs.clone()
+    moved[:, 0:10] += torch.tensor([0.1, 0.2] * 5)  # the point and every landmark shifted together
+    torch.testing.assert_close(route_view(obs), route_view(moved))
+    torch.testing.assert_close(route_view(obs)[0, :4], torch.tensor([0.7, 1.7, -1.7, 1.7]))
+
+
 def test_the_view_undoes_the_policys_normaliser_and_normalises_its_features_on_the_demonstrations():
     demo = _fetch_obs(500, 1) * 3 + 1
     norm = ObsNormalizer(28).fit(demo)

@@ -93,6 +93,15 @@ def parse_order(order: str | Sequence[int]) -> tuple[int, ...]:
     return legs
 
 
+def relative_view(obs: Any) -> Any:
+    """What a discriminator sees of observations (n, 14) under `--train.disc-obs relative`: each landmark seen from
+    the point (8) and the touch sensors (4), not where the point and the landmarks are. Torch tensors in and out."""
+    import torch
+
+    pos = obs[:, 0:2]
+    return torch.cat([obs[:, 2:10] - pos.repeat(1, 4), obs[:, 10:14]], -1)
+
+
 class LandmarkRouteEnv(gym.Env[np.ndarray, np.ndarray]):
     """A point in the plane driving to four landmarks in the order `order` (see the module docstring).
 

@@ -135,7 +135,8 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("digail/LandmarkRoute-v0", "landmark-route", 100, "digail.envs.landmark_route:LandmarkRouteEnv", 400,
             step_metrics=(StepMetric("leg_done", "legs_done", "sum"), StepMetric("wrong_visit", "wrong_visits", "sum")),
             auto_backend="sync", name="Landmark route",
-            labels=("north-east", "north-west", "south-west", "south-east"), render="image"),
+            labels=("north-east", "north-west", "south-west", "south-east"), render="image",
+            relative_view="digail.envs.landmark_route:relative_view"),
     # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset; the
     # label is the index of the current waypoint, as many as the course has
     EnvSpec("digail/WaypointCourse-v0", "default", 20, "digail.envs.waypoints:WaypointCourseEnv",
