@@ -48,6 +48,7 @@ METHODS = {
     "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view",
     "flatbc-l2-rel-gp-logit": "GAIL + L2 from the flat BC policy, relative view, penalty 10, logit reward",
     "digail-l2-rel-gp-logit": "Directed-Info GAIL + L2, relative view, penalty 10, logit reward",
+    "digail-l2-rel-argmax": "Directed-Info GAIL + L2, relative view, q's argmax codes in every training env",
     "digail-l2-rel-shuffle": "Directed-Info GAIL + L2, relative view, codes shuffled each step",
     "digail-l2-rel-qtrain": "Directed-Info GAIL + L2, relative view, q trained with the policy",
     "digail-l2-rel-nobonus": "Directed-Info GAIL + L2, relative view, no directed-info bonus",
@@ -57,6 +58,7 @@ METHODS = {
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
 ABLATIONS = {
     "digail-l2-rel": "Directed-Info GAIL + L2, D on the relative view (K = 4, q frozen, bonus 0.01)",
+    "digail-l2-rel-argmax": "codes as evaluation takes them (q's argmax in every env, no replayed codes)",
     "digail-l2-rel-shuffle": "codes shuffled each step",
     "flatbc-l2-rel": "one code (GAIL + L2 from the flat BC policy, relative view)",
     "digail-l2-rel-qtrain": "q unfrozen (trained with the policy, lr 3e-4)",

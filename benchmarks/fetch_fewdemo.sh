@@ -11,6 +11,9 @@
 #   each of the three with suffixes, in this order:
 #     -rel        D on Fetch's relative view (--train.disc-obs relative: no horizontal positions)
 #     -gp-logit   D's gradient penalty 10 and the logit reward log D - log(1 - D)
+#     -argmax     (digail-l2 only) every training env takes q's argmax code on its own states, as evaluation
+#                 does (--train.replay-fraction 0 --train.closed-loop-codes argmax), instead of replaying the
+#                 demonstrations' codes in half the envs and sampling q in the other half
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
 #     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
@@ -49,14 +52,15 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac)?$'
+SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
-    || [[ $METHOD =~ ^(flatbc|gail)-.*-(shuffle|qtrain|nobonus|k2|k8) ]]; then
+    || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
   echo "unknown method $METHOD" >&2; exit 2
 fi
 ARGS=(); K=4
 case $METHOD in *-rel*) ARGS+=(--train.disc-obs relative) ;; esac
 case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
+case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
 case $METHOD in *-shuffle*) ARGS+=(--train.shuffle-codes) ;; esac
 case $METHOD in *-qtrain*) ARGS+=(--train.q-lr 3e-4) ;; esac
 case $METHOD in *-nobonus*) ARGS+=(--train.bonus-weight 0) ;; esac
