@@ -195,6 +195,10 @@ def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _seeds(n: int) -> str:
+    return f"{n} seed{'s' if n > 1 else ''}"
+
+
 def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> None:
     import matplotlib
 
@@ -203,26 +207,32 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
 
     # panels for the settings with a trained run (BC alone is a level, drawn as a dashed line in each panel)
     settings = sorted({r["demos"] for r in records if r["curve"]}) or sorted({r["demos"] for r in records})
-    fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 3.8), squeeze=False, sharey=True)
-    present = [m for m in METHODS if any(r["method"] == m for r in records)]
+    fig, axes = plt.subplots(1, len(settings), figsize=(6 * len(settings), 5.2), squeeze=False, sharey=True)
+    # the headline methods only: the probes and ablations have the ablation table (their curves would crowd it)
+    probes = ("-gp", "-argmax", "-shuffle", "-qtrain", "-nobonus", "-k2", "-k8")
+    present = [m for m in METHODS if any(r["method"] == m for r in records) and not any(p in m for p in probes)]
     colours = {m: f"C{i % 10}" for i, m in enumerate(present)}
     for ax, demos in zip(axes[0], settings, strict=True):
         for method in present:
             label = METHODS[method]
             mine = [r for r in records if r["demos"] == demos and r["method"] == method]
-            for i, r in enumerate(mine):
-                if r["curve"]:
-                    steps, success = zip(*r["curve"], strict=True)
-                    ax.plot(np.array(steps) / 1000, success, color=colours[method], alpha=0.8,
-                            label=label if i == 0 else None)
-                elif r["status"] == "done":  # a policy that was not trained: its level as a line
-                    ax.axhline(r["success_rate"], color=colours[method], ls="--", alpha=0.7,
-                               label=label if i == 0 else None)
+            curves = [dict(r["curve"]) for r in mine if r["curve"]]
+            if curves:  # the mean over seeds at the steps every seed evaluated, and the seeds' range as a band
+                steps = sorted(set.intersection(*(set(c) for c in curves)))
+                values = np.array([[c[x] for x in steps] for c in curves])
+                x = np.array(steps) / 1000
+                ax.plot(x, values.mean(0), color=colours[method], label=f"{label} ({_seeds(len(curves))})")
+                if len(curves) > 1:
+                    ax.fill_between(x, values.min(0), values.max(0), color=colours[method], alpha=0.12)
+            levels = [r["success_rate"] for r in mine if not r["curve"] and r["status"] == "done"]
+            if levels:  # a policy that was not trained: its mean level as a line
+                ax.axhline(float(np.mean(levels)), color=colours[method], ls="--", alpha=0.7,
+                           label=f"{label} ({_seeds(len(levels))})")
         ax.set_title(f"{TASKS[task]['title']}, {demos} demonstration{'s' if demos > 1 else ''}")
         ax.set_xlabel("env steps (thousands)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
-    axes[0][0].set_ylabel("success rate (20-episode evaluations)")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=1, frameon=False)
+    axes[0][0].set_ylabel("success rate, mean over seeds (band: range)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
