@@ -169,7 +169,7 @@ def markdown(rows: list[dict[str, Any]], task: str = "fetch") -> str:
 
 def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
     """The ablation table: per variant of Directed-Info GAIL + L2 with `demos` demonstrations, success per seed, the
-    env steps to 0.5 and 0.9 success of the learning curve, and D's expert accuracy and reward per step over the
+    median grasp rate, the env steps to 0.5 and 0.9 success of the learning curve, and D's expert accuracy and reward per step over the
     last 10 iterations (medians over seeds)."""
     def steps(v: float | None) -> str:
         return "not reached" if v is None else f"{v / 1000:.0f}k"
@@ -178,9 +178,9 @@ def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
         vals = [v for v in values if v is not None]
         return f"{np.median(vals):.2f}" if vals else "-"
 
-    lines = ["| variant | success, per seed (median) | steps to 0.5 | steps to 0.9 | D's expert accuracy, last 10 "
-             "iterations | D's reward per step, last 10 iterations | seeds |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| variant | success, per seed (median) | grasp (median) | steps to 0.5 | steps to 0.9 | D's expert "
+             "accuracy, last 10 iterations | D's reward per step, last 10 iterations | seeds |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for method, label in ABLATIONS.items():
         done = [r for r in records if r["demos"] == demos and r["method"] == method and r["status"] == "done"]
         if not done:
@@ -189,7 +189,8 @@ def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
         median = float(np.median([r["success_rate"] for r in done]))
         to5, to9 = (" / ".join(steps(r[key]) for r in done) if any(r[key] is not None for r in done)
                     else "not reached" for key in ("steps_to_0.5", "steps_to_0.9"))
-        lines.append(f"| {label} | {per} (**{median:.2f}**) | {to5} | {to9} | "
+        grasp = med([r.get("grasp_rate") for r in done])
+        lines.append(f"| {label} | {per} (**{median:.2f}**) | {grasp} | {to5} | {to9} | "
                      f"{med([r['late_disc_acc_expert'] for r in done])} | {med([r['late_disc_reward'] for r in done])} "
                      f"| {' / '.join(str(r['seed']) for r in done)} |")
     return "\n".join(lines) + "\n"
