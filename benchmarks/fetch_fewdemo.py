@@ -169,8 +169,8 @@ def markdown(rows: list[dict[str, Any]], task: str = "fetch") -> str:
 
 def ablation_markdown(records: list[dict[str, Any]], demos: int = 4) -> str:
     """The ablation table: per variant of Directed-Info GAIL + L2 with `demos` demonstrations, success per seed, the
-    median grasp rate, the env steps to 0.5 and 0.9 success of the learning curve, and D's expert accuracy and reward per step over the
-    last 10 iterations (medians over seeds)."""
+    median grasp rate, the env steps to 0.5 and 0.9 success of the learning curve, and D's expert accuracy and
+    reward per step over the last 10 iterations (medians over seeds)."""
     def steps(v: float | None) -> str:
         return "not reached" if v is None else f"{v / 1000:.0f}k"
 
