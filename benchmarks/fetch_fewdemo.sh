@@ -16,9 +16,12 @@
 #                 demonstrations' codes in half the envs and sampling q in the other half
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
+#     -1m         the same run trained on to 244 iterations (999,424 env steps, within the benchmark's 1M): the
+#                 100-iteration run is trained first (or found done), copied to METHOD-1m_sS and continued there
+#                 with `digail train --resume --until 244`, the same numbers as a run started with 244
 #     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
 #                 penalty, as DAC); ITERATIONS default 400 (400k env steps), a 20-episode evaluation every 20
-#   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac
+#   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac, digail-l2-rel-argmax-1m
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint.
 # Every training: PPO (the fetch preset: batch 4096 over 8 envs), BC / L2 weight 1.0, ITERATIONS (default 100, i.e.
 # 409,600 env steps), a 20-episode evaluation every 5 iterations (the learning curve), then 100 episodes.
@@ -52,10 +55,19 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac)?$'
+SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
   echo "unknown method $METHOD" >&2; exit 2
+fi
+if [[ $METHOD == *-1m ]]; then  # the 100-iteration run first, then a copy of it continued to 244
+  BASE=${METHOD%-1m}; LONG="$ROOT/${METHOD}_s$S"
+  bash "$0" "$N" "$BASE" "$S"
+  [ -f "$LONG/eval.json" ] && exit 0
+  [ -d "$LONG" ] || { cp -a "$ROOT/${BASE}_s$S" "$LONG.tmp" && mv "$LONG.tmp" "$LONG"; }
+  digail train --resume "$LONG" --until 244
+  digail evaluate "$LONG" --episodes 100
+  exit 0
 fi
 ARGS=(); K=4
 case $METHOD in *-rel*) ARGS+=(--train.disc-obs relative) ;; esac

@@ -110,3 +110,36 @@ def test_sigkill_then_resume_completes(smoke_runs, tmp_path):
     iters = [float(r.split(",")[1]) for r in rows[1:]]
     assert iters[-1] == 40.0
     assert iters == sorted(set(iters)), "metrics.csv repeats iterations after the resume"
+
+
+def test_resume_until_extends_a_finished_run(smoke_runs, tmp_path, capsys):
+    import shutil
+
+    root, demos, vae = smoke_runs
+    run = tmp_path / "extended"
+    shutil.copytree(root / "digail", run)
+    assert main(["evaluate", str(run), "--episodes", "2"]) == 0
+    before = (run / "eval.json").read_text()
+    assert main(["train", "--resume", str(run), "--until", "4"]) == 0
+    state = torch.load(run / "checkpoint.pt", weights_only=True)
+    assert state["iteration"] == 4
+    assert json.loads((run / "config.json").read_text())["train"]["iterations"] == 4
+    assert not (run / "eval.json").exists() and (run / "eval.iteration-2.json").read_text() == before
+    # two iterations more are the same as a run started with four
+    fresh = tmp_path / "four"
+    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--train.iterations", "4",
+                 "--out", str(fresh)]) == 0
+    a, _ = load_model(run / "model.pt")
+    b, _ = load_model(fresh / "model.pt")
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        assert torch.equal(x, y), name
+    capsys.readouterr()
+    # the length it has: nothing to do; a shorter one, and --until without a run, are one sentence each
+    config = (run / "config.json").read_text()
+    assert main(["train", "--resume", str(run), "--until", "4"]) == 0
+    assert (run / "config.json").read_text() == config and (run / "eval.iteration-2.json").exists()
+    assert main(["train", "--resume", str(run), "--until", "3"]) == 2
+    assert "done 4 iterations already" in capsys.readouterr().err
+    assert (run / "config.json").read_text() == config
+    assert main(["train", "--demos", str(demos), "--until", "3", "--out", str(tmp_path / "x")]) == 2
+    assert "--resume" in capsys.readouterr().err and not (tmp_path / "x").exists()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -39,7 +39,10 @@ class TrainArgs:
     bc_weight: float | None = None
     """weight of the BC / L2 term (paper's Fetch experiment; default: the preset's)"""
     resume: Path | None = None
-    """continue a killed run from its last checkpoint (other flags are ignored)"""
+    """continue a killed run from its last checkpoint (other flags are ignored, except `--until`)"""
+    until: int | None = None
+    """with `--resume`: train until this many iterations in all, extending a run past the length it was started
+    with (its eval.json, which describes the shorter run, is kept as eval.iteration-N.json)"""
     seed: int = 0
     """random seed"""
     device: str = "auto"
@@ -53,6 +56,9 @@ class TrainArgs:
         check_seed(self.seed)
         check_at_least(self.demos_episodes, "--demos-episodes")
         check_at_least(self.demos_subsample, "--demos-subsample")
+        check_at_least(self.until, "--until")
+        if self.until is not None and self.resume is None:
+            raise UserError("--until extends a training run: pass the run folder with --resume RUN as well.")
         if self.bc_weight is not None and not (self.bc_weight >= 0 and self.bc_weight != float("inf")):
             raise UserError(f"--bc-weight must be a finite number, not negative, got {self.bc_weight!r}.")
 
@@ -74,9 +80,12 @@ def train_command(args: TrainArgs) -> Path:
 
     set_torch_threads(1)
     run_dir = None
+    until = args.until
     if args.resume is not None:
         run_dir = Path(args.resume)
         args = resume_args(run_dir)
+        if until is not None:
+            args = replace(args, train=replace(args.train, iterations=until))
     device = resolve_device(args.device)
     demos, env_id = load_demos(args.demos, args.env, episodes=args.demos_episodes, every=args.demos_subsample,
                                seed=args.seed)
@@ -117,6 +126,8 @@ def train_command(args: TrainArgs) -> Path:
                 print(f"resuming {run_dir} at iteration {trainer.iteration}/{cfg.iterations}")
             else:
                 print(f"no checkpoint in {run_dir} yet: its training starts again from iteration 0")
+            if until is not None:
+                extend_run(run_dir, config, trainer.iteration, until)
             trainer.model_config = config
             trainer.run_dir = run_dir
             trainer.train(evaluate=periodic_evaluation(env_id, cfg))
@@ -125,6 +136,22 @@ def train_command(args: TrainArgs) -> Path:
         trainer.close()
     print(f"run folder: {run_dir}")
     return run_dir
+
+
+def extend_run(run_dir: Path, config: dict[str, Any], done: int, until: int) -> None:
+    """Record a longer budget in RUN/config.json (so a kill during the extension resumes to it) and set the
+    shorter run's eval.json aside; an `until` below the iterations done is refused, one equal to them is a no-op."""
+    from digail.checkpoint import write_run_config
+
+    if until < done:
+        raise UserError(f"--until {until}: {run_dir} has done {done} iterations already and a run cannot be "
+                        "shortened; pass a larger number to train it longer.")
+    if until == done:  # nothing left to train (e.g. a repeated call after the extension finished)
+        return
+    write_run_config(run_dir, config)
+    old_eval = run_dir / "eval.json"
+    if old_eval.exists():
+        old_eval.replace(run_dir / f"eval.iteration-{done}.json")
 
 
 def resume_args(run_dir: Path) -> TrainArgs:
