@@ -117,15 +117,21 @@ def _circle_envs(n: int = 8) -> list[gym.Env]:
     return [make_env(CIRCLE) for _ in range(n)]
 
 
+def _label_order(run: Path, labels: list[int]) -> list[int]:
+    """The run's codes for the oracle sub-task `labels`, through the code -> label mapping its segmentation.json
+    found on the demonstrations."""
+    seg = json.loads((run / "segmentation.json").read_text())
+    by_label = {int(lb): int(c) for c, lb in seg["mapping"].items()}
+    return [by_label[lb] for lb in labels]
+
+
 def circle(args: argparse.Namespace) -> dict[str, Any]:
     envs = _circle_envs()
     expert = _circle_scores(play_episodes(envs[0], lambda env, obs: circle_reversed_expert(env), args.episodes,
                                           SEED, keep=True))
     rows: list[dict[str, Any]] = []
     for run in args.runs:
-        seg = json.loads((run / "segmentation.json").read_text())
-        by_label = {int(lb): int(c) for c, lb in seg["mapping"].items()}
-        order = [by_label[1], by_label[0]]
+        order = _label_order(run, [1, 0])
         for name, model in _models(run):
             codes, _ = _demo_codes(run, model)
             lengths = demonstrated_lengths(codes)
@@ -296,9 +302,7 @@ def landmark_route(args: argparse.Namespace) -> dict[str, Any]:
                                              keep=True))
     rows: list[dict[str, Any]] = []
     for run in args.runs:
-        seg = json.loads((run / "segmentation.json").read_text())
-        by_label = {int(lb): int(c) for c, lb in seg["mapping"].items()}
-        order = [by_label[lb] for lb in new]
+        order = _label_order(run, new)
         for name, model in _models(run):
             codes, _ = _demo_codes(run, model)
             lengths = demonstrated_lengths(codes)
