@@ -54,6 +54,10 @@ METHODS = {
     "digail-l2-rel-nobonus": "Directed-Info GAIL + L2, relative view, no directed-info bonus",
     "digail-l2-rel-k2": "Directed-Info GAIL + L2, relative view, K = 2",
     "digail-l2-rel-k8": "Directed-Info GAIL + L2, relative view, K = 8",
+    "flatbc-l2-rel-1m": "GAIL + L2 from the flat BC policy, D on the relative view, to 1M steps",
+    "digail-l2-rel-argmax-1m": "Directed-Info GAIL + L2, relative view, q's argmax codes, to 1M steps",
+    "flatbc-l2-rel-sac": "GAIL + L2 + SAC from the flat BC policy, D on the relative view",
+    "digail-l2-rel-sac": "Directed-Info GAIL + L2 + SAC, D on the relative view",
 }
 """method key (the run folder's name without `_s<seed>`) -> the table's name, in the table's order"""
 ABLATIONS = {
@@ -107,7 +111,15 @@ def _command(run: Path, script: str) -> str:
     demos = run.parent.name.removeprefix("d")
     name, _, seed = run.name.rpartition("_s")
     method = {"bc_k4": "bc", "bc_k1": "flatbc", "bc_k2": "bc2", "bc_k8": "bc8"}.get(name, name)
-    return shlex.join([script, demos, method, seed])
+    words = [script, demos, method, seed]
+    config = run / "config.json"
+    if not name.startswith("bc_") and not name.endswith("-1m") and config.is_file():
+        # a length other than the script's default is its fourth argument
+        iterations = json.loads(config.read_text()).get("train", {}).get("iterations")
+        default = 2000 if "route" in script else 400 if name.endswith("-sac") else 100
+        if iterations not in (None, default):
+            words.append(str(iterations))
+    return shlex.join(words)
 
 
 def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
@@ -210,8 +222,11 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
     settings = sorted({r["demos"] for r in records if r["curve"]}) or sorted({r["demos"] for r in records})
     fig, axes = plt.subplots(1, len(settings), figsize=(6 * len(settings), 5.2), squeeze=False, sharey=True)
     # the headline methods only: the probes and ablations have the ablation table (their curves would crowd it)
+    # (a run continued to 1M is drawn instead of its 410k start, which is the first part of its curve)
     probes = ("-gp", "-argmax", "-shuffle", "-qtrain", "-nobonus", "-k2", "-k8")
-    present = [m for m in METHODS if any(r["method"] == m for r in records) and not any(p in m for p in probes)]
+    have = {r["method"] for r in records}
+    present = [m for m in METHODS if m in have and f"{m}-1m" not in have
+               and (m.endswith("-1m") or not any(p in m for p in probes))]
     colours = {m: f"C{i % 10}" for i, m in enumerate(present)}
     for ax, demos in zip(axes[0], settings, strict=True):
         for method in present:
