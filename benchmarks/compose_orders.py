@@ -50,7 +50,7 @@ from digail.envs.landmark_route import ROUTE_ENV_ID
 from digail.eval.composition import CodeSchedule, demonstrated_lengths, order_summary, parse_order, play_order
 from digail.eval.returns import summarize
 from digail.experts.scripted import FourRoomsRouteExpert, circle_reversed_expert, route_expert
-from digail.utils import write_json
+from digail.fsio import write_json
 
 CIRCLE = "digail/CircleWorld-v0"
 ROOMS_ENV = "digail/FourRooms-v0"

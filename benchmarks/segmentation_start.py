@@ -41,14 +41,8 @@ def with_previous_action(t: Trajectory) -> Trajectory:
 
 def main(argv: list[str] | None = None) -> None:
     from digail.algos.model_selection import heldout_split, smallest_within_one_se
-    from digail.algos.segment_init import (
-        _design,
-        _FeatureMap,
-        _LinearPolicies,
-        hard_em_from,
-        hard_em_segmentation,
-        heldout_codes_curve,
-    )
+    from digail.algos.segment_init import _FeatureMap, hard_em_from, hard_em_segmentation, heldout_codes_curve
+    from digail.algos.segment_models import _design, _LinearPolicies
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import segmentation_metrics
     from digail.nets.policy import ActionSpec

@@ -102,22 +102,22 @@ def _full_disk(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _disk_fills_up(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The disk fills up after the checks, while the results are written."""
-    import digail.utils
+    import digail.fsio
 
     def write_json(path, obj):  # noqa: ANN001, ANN202
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(digail.utils, "write_json", write_json)
+    monkeypatch.setattr(digail.fsio, "write_json", write_json)
 
 
 def _file_too_large(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A file-size limit (`ulimit -f`) is reached while the results are written."""
-    import digail.utils
+    import digail.fsio
 
     def write_json(path, obj):  # noqa: ANN001, ANN202
         raise OSError(errno.EFBIG, "File too large")
 
-    monkeypatch.setattr(digail.utils, "write_json", write_json)
+    monkeypatch.setattr(digail.fsio, "write_json", write_json)
 
 
 def _ffmpeg_stops(tmp: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -416,7 +416,7 @@ def test_a_write_past_the_file_size_limit_is_one_sentence_and_leaves_nothing(run
     EFBIG: one sentence, exit status 2, no output folder and no temporary one."""
     out = tmp_path / "vae"
     proc = _digail(["pretrain", "--demos", str(runs / "demos"), "--preset", "smoke", "--out", str(out)],
-                   fsize=24 * 1024, script="import digail.utils; digail.utils.MIN_FREE_BYTES = 0",
+                   fsize=24 * 1024, script="import digail.fsio; digail.fsio.MIN_FREE_BYTES = 0",
                    stdout=subprocess.DEVNULL)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 2, err

@@ -24,7 +24,7 @@ import torch
 
 from digail.cli import main
 from digail.errors import UserError
-from digail.utils import MARKER, check_replaceable, digail_made, run_dir_lock
+from digail.fsio import MARKER, check_replaceable, digail_made, run_dir_lock
 
 CW = "digail/CircleWorld-v0"
 CW_DEMOS = "digail/circleworld/expert-v0"

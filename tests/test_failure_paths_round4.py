@@ -136,7 +136,7 @@ for _pid, _text, _expect in [
 # ------------------------------------------------------------------------------------------------ --force
 def force(target: str) -> Callable[[Path], None]:
     def run(tmp: Path) -> None:
-        from digail.utils import check_new_dir
+        from digail.fsio import check_new_dir
 
         here = tmp / "a" / "inner"
         here.mkdir(parents=True, exist_ok=True)
@@ -217,7 +217,7 @@ for _pid, _target, _what, _expect in [
 
 @probe("force-home", "`--force` onto the home folder (marked)", "the home folder")
 def _force_home(tmp: Path) -> None:
-    from digail.utils import check_replaceable
+    from digail.fsio import check_replaceable
 
     home = tmp / "home"
     home.mkdir()
@@ -237,7 +237,7 @@ def _force_home(tmp: Path) -> None:
 def _force_locked(tmp: Path) -> None:
     import fcntl
 
-    from digail.utils import check_new_dir
+    from digail.fsio import check_new_dir
 
     (tmp / "run").mkdir()
     (tmp / "run" / ".digail").write_text("\n")
@@ -539,7 +539,7 @@ def _lock_folder(tmp: Path) -> None:
 @probe("lock-dangling-link", "a run folder whose `.digail.lock` is a link to a file elsewhere (not created)",
        "is a link, not digail's lock file")
 def _lock_dangling(tmp: Path) -> None:
-    from digail.utils import run_dir_lock
+    from digail.fsio import run_dir_lock
 
     (tmp / "run").mkdir()
     (tmp / "run" / ".digail.lock").symlink_to(tmp / "elsewhere")
@@ -552,7 +552,7 @@ def _lock_dangling(tmp: Path) -> None:
 
 @probe("lock-link-to-file", "a run folder whose `.digail.lock` is a link to a user's file", "is a link")
 def _lock_link(tmp: Path) -> None:
-    from digail.utils import run_dir_lock
+    from digail.fsio import run_dir_lock
 
     (tmp / "run").mkdir()
     (tmp / "notes.txt").write_text("a user's file\n")

@@ -54,7 +54,7 @@ def test_hard_em_start_finds_the_sub_tasks_the_actions_reveal(name: str, minari_
 def test_ordered_pieces_cut_where_the_actions_change() -> None:
     """The exact least-squares cut into K consecutive pieces, codes in time order; fewer steps than K: one piece
     per step."""
-    from digail.algos.segment_init import _ordered_pieces
+    from digail.algos.segment_search import _ordered_pieces
 
     rng = np.random.default_rng(0)
     means = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
@@ -201,7 +201,7 @@ def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minar
 def test_ordered_pieces_of_a_long_demonstration_cut_on_a_grid() -> None:
     """A 30 000-step demonstration would need a 30 001 x 30 001 table for the exact cut: it is cut on a grid of
     at most 1000 candidate positions instead, each within one grid step of the change."""
-    from digail.algos.segment_init import _ordered_pieces
+    from digail.algos.segment_search import _ordered_pieces
 
     truth = np.repeat([0, 1, 2], [10_000, 15_000, 5_000])
     feat = np.array([[1.0], [-1.0], [3.0]])[truth]
@@ -213,7 +213,8 @@ def test_ordered_pieces_of_a_long_demonstration_cut_on_a_grid() -> None:
 def test_capped_costs_bound_what_one_unpredictable_step_costs() -> None:
     """With `outlier_share` eps, a continuous dimension's step costs at most -log(eps / range) nats however far it
     is from the policy's prediction; without it, a step 5 units off at the variance floor costs about 125 000."""
-    from digail.algos.segment_init import OUTLIER_SHARE, _LinearPolicies
+    from digail.algos.segment_init import OUTLIER_SHARE
+    from digail.algos.segment_models import _LinearPolicies
 
     assert VAEConfig().init_outlier_share == OUTLIER_SHARE  # the flag's default is the library's
     rng = np.random.default_rng(0)

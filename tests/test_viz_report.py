@@ -17,7 +17,8 @@ from PIL import Image
 from digail import config
 from digail.cli import main
 from digail.commands.report import smoothing_pair
-from digail.viz.report import BEFORE_POLISH, UNSMOOTHED, fmt, write_report
+from digail.viz.html_page import fmt
+from digail.viz.report import BEFORE_POLISH, UNSMOOTHED, write_report
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync"]

@@ -20,9 +20,9 @@ import numpy as np
 import torch
 
 from digail.errors import UserError
+from digail.fsio import atomic_write_bytes
 from digail.nets.policy import ActionSpec
 from digail.nets.vae import HierarchicalPolicy
-from digail.utils import atomic_write_bytes
 
 FORMAT = "digail-model"
 FORMAT_VERSION = 1
@@ -162,7 +162,7 @@ def run_config(*, kind: str, env_id: str | None, demos: str | Path | None, seed:
 
 def write_run_config(run_dir: Path, config: dict[str, Any]) -> Path:
     """Write `config` (from `run_config`) as RUN/config.json; returns the file."""
-    from digail.utils import write_json
+    from digail.fsio import write_json
 
     path = Path(run_dir) / CONFIG_FILE
     write_json(path, config)

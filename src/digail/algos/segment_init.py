@@ -64,8 +64,16 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-import torch
 
+from digail.algos.segment_models import _design, _LinearPolicies, _pairs, _Transitions
+from digail.algos.segment_search import (
+    _action_features,
+    _by_episode,
+    _kmeans,
+    _ordered_pieces,
+    _viterbi,
+    _viterbi_trans,
+)
 from digail.data.trajectory import Trajectory
 
 OUTLIER_SHARE = 1e-3
@@ -110,180 +118,6 @@ class _FeatureMap:
             return x
         z = math.sqrt(2) * np.cos(x[:, :-1] @ self.freq + self.phase)
         return np.c_[x[:, :-1], z, x[:, -1:]]
-
-
-def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
-    out = []
-    for t in trajs:
-        obs = np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1)
-        out.append(np.c_[(obs - mean) / std, np.ones(len(t))])
-    return out
-
-
-def _kmeans(z: np.ndarray, k: int, rng: np.random.Generator, iters: int = 30) -> np.ndarray:
-    """Labels of k-means (k-means++ start) on the rows of `z`."""
-    centres = [z[rng.integers(len(z))]]
-    for _ in range(1, k):
-        d2 = np.min([((z - c) ** 2).sum(1) for c in centres], 0)
-        p = d2 / d2.sum() if d2.sum() > 0 else None
-        centres.append(z[rng.choice(len(z), p=p)])
-    c = np.array(centres)
-    labels = np.zeros(len(z), np.int64)
-    for _ in range(iters):
-        labels = ((z[:, None, :] - c[None]) ** 2).sum(-1).argmin(1)
-        for j in range(k):
-            if np.any(labels == j):
-                c[j] = z[labels == j].mean(0)
-    return labels
-
-
-def _viterbi(loglik: np.ndarray, lengths: np.ndarray, penalty: float) -> list[np.ndarray]:
-    """Per episode, the codes minimising -sum_t loglik[t, c_t] + penalty * (number of switches).
-
-    `loglik` is (B, T_max, K), zero beyond each episode's length (there every code scores alike, so the best
-    code at the last real step stays the best to the end and the backtrack passes through unchanged). All
-    episodes at once, one loop over time.
-    """
-    B, T, K = loglik.shape
-    rows = np.arange(B)
-    score = loglik[:, 0].copy()
-    back = np.zeros((B, T, K), np.int64)
-    for t in range(1, T):
-        best_prev = score.argmax(1)
-        switch = score[rows, best_prev] - penalty
-        stay = score >= switch[:, None]
-        back[:, t] = np.where(stay, np.arange(K)[None], best_prev[:, None])
-        score = np.where(stay, score, switch[:, None]) + loglik[:, t]
-    return _backtrack(score, back, lengths)
-
-
-def _viterbi_trans(loglik: np.ndarray, logtrans: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
-    """Per episode, the codes maximising sum_t loglik[t, c_t] + sum_{t>0} logtrans[t, c_{t-1}, c_t].
-
-    `loglik` is (B, T_max, K) and `logtrans` (B, T_max, K, K), both zero beyond each episode's length (so the
-    path past the end keeps its code, as in `_viterbi`)."""
-    B, T, K = loglik.shape
-    score = loglik[:, 0].copy()
-    back = np.zeros((B, T, K), np.int64)
-    for t in range(1, T):
-        cand = score[:, :, None] + logtrans[:, t]  # (B, from, to)
-        back[:, t] = cand.argmax(1)
-        score = np.take_along_axis(cand, back[:, t][:, None, :], 1)[:, 0] + loglik[:, t]
-    return _backtrack(score, back, lengths)
-
-
-def _backtrack(score: np.ndarray, back: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
-    """The Viterbi path per episode from the final (B, K) scores and the (B, T, K) back-pointers."""
-    B, T, _ = back.shape
-    rows = np.arange(B)
-    path = np.empty((B, T), np.int64)
-    path[:, -1] = score.argmax(1)
-    for t in range(T - 1, 0, -1):
-        path[:, t - 1] = back[rows, t, path[:, t]]
-    return [path[i, :n].copy() for i, n in enumerate(lengths)]
-
-
-class _Transitions:
-    """The start's macro-policy p(c_t | c_{t-1}, s_t) (module docstring): per previous code a softmax-linear model
-    of the next code on x = [s_n, 1], mixed with weight `base` with the fixed model (switch with probability
-    1 / T, to any other code alike)."""
-
-    def __init__(self, k: int, dim_x: int, mean_len: float, ridge: float = 1e-3, base: float = 0.5) -> None:
-        self.k, self.base = k, base
-        # light ridge: a switch the state predicts should become cheap; the mixture, not the ridge, bounds the rest
-        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
-        self.w = np.zeros((k, dim_x, k))
-        p_switch = 1.0 / mean_len
-        self.fixed = np.full((k, k), math.log(p_switch / max(k - 1, 1)))
-        np.fill_diagonal(self.fixed, math.log(1.0 - p_switch))
-
-    def fit(self, x: np.ndarray, seg: Sequence[np.ndarray], bounds: np.ndarray) -> None:
-        prev, nxt, rows = _pairs(seg, bounds)
-        for j in range(self.k):
-            sel = prev == j
-            if sel.any():  # an unused code keeps its last model
-                self.w[j] = _softmax_regression(x[rows[sel]], nxt[sel], self.k, self.w[j], self.ridge)
-
-    def logprob(self, x: np.ndarray) -> np.ndarray:
-        """(T, K, K) log p(c_t = k | c_{t-1} = j, s_t) for the rows of `x`."""
-        z = np.einsum("td,jdk->tjk", x, self.w)
-        z = z - z.max(-1, keepdims=True)
-        learned = z - np.log(np.exp(z).sum(-1, keepdims=True))
-        return np.logaddexp(math.log(1 - self.base) + learned, math.log(self.base) + self.fixed[None])
-
-
-def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(c_{t-1}, c_t, row of step t) over every step but each episode's first."""
-    return (np.concatenate([c[:-1] for c in seg]), np.concatenate([c[1:] for c in seg]),
-            np.concatenate([np.arange(bounds[i] + 1, bounds[i + 1]) for i in range(len(seg))]))
-
-
-class _LinearPolicies:
-    """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
-
-    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
-                 shared_variance: bool = True, outlier_share: float = 0.0) -> None:
-        self.k, self.discrete, self.shared_variance, self.outlier_share = k, discrete, shared_variance, outlier_share
-        self.log_span = np.zeros(act_dim)  # log of each action dimension's range in the fitted steps
-        # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
-        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
-        self.w = np.zeros((k, dim_x, act_dim))
-        self.log_var = np.zeros((k, act_dim))
-
-    def fit(self, x: np.ndarray, a: np.ndarray, codes: np.ndarray) -> None:
-        sq_resid = np.zeros_like(self.log_var)
-        if not self.discrete:
-            self.log_span = np.log(np.maximum(a.max(0) - a.min(0), 1e-6))
-        for j in range(self.k):
-            sel = codes == j
-            if sel.sum() == 0:
-                continue  # an unused code keeps its last policy
-            xj, aj = x[sel], a[sel]
-            if self.discrete:
-                self.w[j] = _softmax_regression(xj, aj, self.w.shape[2], self.w[j], self.ridge)
-            else:
-                gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
-                self.w[j] = np.linalg.solve(gram, xj.T @ aj)
-                resid = aj - xj @ self.w[j]
-                sq_resid[j] = (resid ** 2).sum(0)
-                if not self.shared_variance:
-                    self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
-        if not self.discrete and self.shared_variance:
-            # one noise level per action dimension for all codes (module docstring: why not one per code)
-            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
-
-    def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
-        """(T, K) log-likelihood of each step's action under each code's policy."""
-        out = np.einsum("td,kda->tka", x, self.w)
-        if self.discrete:
-            out = out - out.max(-1, keepdims=True)
-            logp = out - np.log(np.exp(out).sum(-1, keepdims=True))
-            return np.take_along_axis(logp, a.astype(np.int64)[:, None, None].repeat(self.k, 1), 2)[..., 0]
-        var = np.exp(self.log_var)[None]
-        per_dim = -0.5 * (((a[:, None, :] - out) ** 2) / var + self.log_var[None] + math.log(2 * math.pi))
-        if self.outlier_share > 0:
-            # a share of the steps uniform over the range: what one unpredictable step can cost is capped
-            per_dim = np.logaddexp(math.log1p(-self.outlier_share) + per_dim,
-                                   math.log(self.outlier_share) - self.log_span)
-        return per_dim.sum(-1)
-
-
-def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ridge: np.ndarray,
-                        steps: int = 60) -> np.ndarray:
-    xt = torch.as_tensor(x, dtype=torch.float64)
-    at = torch.as_tensor(a, dtype=torch.int64).reshape(-1)
-    w = torch.tensor(w0, dtype=torch.float64, requires_grad=True)
-    ridge_t = torch.as_tensor(ridge, dtype=torch.float64)
-    opt = torch.optim.LBFGS([w], max_iter=steps, line_search_fn="strong_wolfe")
-
-    def closure() -> torch.Tensor:
-        opt.zero_grad()
-        loss = torch.nn.functional.cross_entropy(xt @ w, at) + (ridge_t[:, None] * w ** 2).sum()
-        loss.backward()
-        return loss
-
-    opt.step(closure)
-    return w.detach().numpy()
 
 
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
@@ -412,33 +246,6 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     return curve
 
 
-def _by_episode(flat: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """(B, T_max, ...) of the per-step rows `flat` (sum(lengths), ...), one episode per row, zero past its end
-    (what `_viterbi` and `_viterbi_trans` take)."""
-    bounds = np.cumsum([0, *lengths])
-    out = np.zeros((len(lengths), int(lengths.max()), *flat.shape[1:]))
-    for i, n in enumerate(lengths):
-        out[i, :n] = flat[bounds[i]:bounds[i + 1]]
-    return out
-
-
-def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = None, mean: np.ndarray | None = None,
-            std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
-    """Features [s_n, 1] and actions of all steps (normalised with `mean` and `std`, by default the demos' own),
-    the number of discrete actions (or action dimensions) and the normalisation."""
-    if mean is None or std is None:
-        obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
-        mean, std = obs.mean(0), obs.std(0) + 1e-6
-    x = np.concatenate(_features(trajs, mean, std))
-    if discrete:
-        a = np.concatenate([np.asarray(t.acts).astype(np.int64).reshape(-1) for t in trajs])
-        n = max(n_act or 0, int(a.max()) + 1)
-    else:
-        a = np.concatenate([np.asarray(t.acts, np.float64).reshape(len(t), -1) for t in trajs])
-        n = a.shape[1]
-    return x, a, n, mean, std
-
-
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
                  rounds: int = 30, ridge: float = 1.0, switch_costs: str = "learned",
                  outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> tuple[float, list[np.ndarray]]:
@@ -448,40 +255,6 @@ def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs,
                     outlier_share=outlier_share, model=model)
-
-
-def _action_features(a: np.ndarray, n_act: int, discrete: bool) -> np.ndarray:
-    """The actions as the starts compare them: one-hot (discrete) or standardised per dimension (continuous)."""
-    return np.eye(n_act)[a] if discrete else (a - a.mean(0)) / (a.std(0) + 1e-6)
-
-
-def _ordered_pieces(feat: np.ndarray, k: int, max_cuts: int = 1000) -> np.ndarray:
-    """Codes 0, 1, ..., k - 1 of the cut of one demonstration's (T, D) action features into k consecutive pieces
-    with the least summed squared deviation from each piece's mean (exact, by dynamic programming over the cuts).
-    Longer demonstrations are cut only at every ceil(T / `max_cuts`)-th step, which keeps the DP's (cuts x cuts)
-    table small."""
-    n = len(feat)
-    at = np.unique(np.r_[np.arange(0, n, math.ceil(n / max_cuts)), n])  # where a piece may begin or end
-    s1 = np.r_[np.zeros((1, feat.shape[1])), np.cumsum(feat, 0)][at]
-    s2 = np.r_[0.0, np.cumsum((feat ** 2).sum(1))][at]
-    m_at = len(at)
-    k = min(k, m_at - 1)
-    i, j = np.triu_indices(m_at, 1)
-    cost = np.full((m_at, m_at), np.inf)  # cost[i, j]: the piece of steps at[i] .. at[j] - 1
-    cost[i, j] = s2[j] - s2[i] - ((s1[j] - s1[i]) ** 2).sum(1) / (at[j] - at[i])
-    best = cost[0].copy()  # best[j]: steps 0 .. at[j] - 1 in m pieces
-    cuts = np.zeros((k, m_at), np.int64)
-    for m in range(1, k):
-        total = best[:, None] + cost
-        cuts[m] = total.argmin(0)
-        best = total.min(0)
-    codes = np.empty(n, np.int64)
-    end = m_at - 1
-    for m in range(k - 1, -1, -1):
-        begin = cuts[m, end] if m > 0 else 0
-        codes[at[begin]:at[end]] = m
-        end = begin
-    return codes
 
 
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,

@@ -9,7 +9,8 @@ from typing import Any
 
 from digail.config import Preset
 from digail.errors import UserError
-from digail.utils import check_new_dir, default_run_dir, one_line
+from digail.fsio import check_new_dir
+from digail.utils import default_run_dir, one_line
 
 
 def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool,
@@ -54,7 +55,7 @@ def saved_args(cls: type, saved: dict[str, Any], run_dir: Path, what: str) -> An
 def check_output_folder(run: Path) -> Path:
     """A run folder an analysis command (evaluate, compose, segment) writes into: it must exist and be writable,
     checked before the rollouts start."""
-    from digail.utils import check_writable
+    from digail.fsio import check_writable
 
     run = Path(run)
     if not run.is_dir():

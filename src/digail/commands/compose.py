@@ -61,7 +61,7 @@ def compose_command(args: ComposeArgs) -> dict[str, Any]:
     from digail.checkpoint import load_model
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.eval.composition import compose, compose_order, episode_limit, parse_order, parse_schedule
-    from digail.utils import run_dir_lock, write_json
+    from digail.fsio import run_dir_lock, write_json
     from digail.viz.run_figures import composition_figure
 
     run = check_output_folder(args.run)

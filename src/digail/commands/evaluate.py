@@ -37,7 +37,7 @@ def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
     from digail.commands.common import check_output_folder, print_eval_summary, run_env_id
     from digail.envs.registry import preset_for
     from digail.eval.returns import evaluate
-    from digail.utils import run_dir_lock, write_json
+    from digail.fsio import run_dir_lock, write_json
 
     run = check_output_folder(args.run)
     with run_dir_lock(run):  # one writer per run folder

@@ -79,8 +79,9 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.data.validation import check_dataset_env
     from digail.envs.registry import env_preset, init_pieces_fn
     from digail.eval.segmentation import summary_line, write_segmentation
+    from digail.fsio import atomic_dir
     from digail.nets.policy import ActionSpec
-    from digail.utils import atomic_dir, set_torch_threads
+    from digail.utils import set_torch_threads
     from digail.viz.figures import codes_curve
 
     set_torch_threads(1)

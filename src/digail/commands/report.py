@@ -34,7 +34,7 @@ class ReportArgs:
 
 def report_command(args: ReportArgs) -> Path:
     """Write the page; returns its path."""
-    from digail.utils import run_dir_lock
+    from digail.fsio import run_dir_lock
     from digail.viz.report import write_compare_report, write_report
 
     if not args.runs:
@@ -73,7 +73,7 @@ def report_command(args: ReportArgs) -> Path:
 
 def check_page_path(out: Path) -> None:
     """Refuse, before anything is drawn, an --out that names a folder or cannot be written."""
-    from digail.utils import check_writable
+    from digail.fsio import check_writable
 
     out = Path(out)
     if out.is_dir():

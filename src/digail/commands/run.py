@@ -20,15 +20,8 @@ import tyro
 
 from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
-from digail.utils import (
-    check_writable,
-    fresh_dir,
-    remove_path,
-    resolve_device,
-    run_dir_lock,
-    set_torch_threads,
-    write_json,
-)
+from digail.fsio import check_writable, fresh_dir, remove_path, run_dir_lock, write_json
+from digail.utils import resolve_device, set_torch_threads
 
 
 @dataclass(frozen=True)

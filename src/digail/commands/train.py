@@ -76,7 +76,8 @@ def train_command(args: TrainArgs) -> Path:
     from digail.algos.directed_info_gail import build_trainer
     from digail.checkpoint import path_ref, run_config, write_run_config
     from digail.commands.common import new_run_dir
-    from digail.utils import check_writable, fresh_dir, resolve_device, run_dir_lock, set_torch_threads
+    from digail.fsio import check_writable, fresh_dir, run_dir_lock
+    from digail.utils import resolve_device, set_torch_threads
 
     set_torch_threads(1)
     run_dir = None

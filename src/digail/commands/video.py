@@ -10,7 +10,7 @@ import tyro
 
 from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
-from digail.utils import check_writable, run_dir_lock
+from digail.fsio import check_writable, run_dir_lock
 
 
 @dataclass(frozen=True)

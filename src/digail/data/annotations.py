@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import atomic_write_bytes, check_writable
+from digail.fsio import atomic_write_bytes, check_writable
 
 EXPORTS = ("robomimic", "lerobot", "csv", "json")
 """where `export_segmentation` writes"""

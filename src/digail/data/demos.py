@@ -26,7 +26,8 @@ from digail.envs.episodes import play_episode
 from digail.envs.registry import env_spec
 from digail.errors import UserError
 from digail.experts import Policy, expert_for
-from digail.utils import check_new_dir, progress_bar
+from digail.fsio import check_new_dir
+from digail.utils import progress_bar
 
 
 def default_dataset_id(env_id: str) -> str:
@@ -193,7 +194,7 @@ def manifest_entry(path_or_id: str | os.PathLike[str], command: str) -> dict[str
 def write_manifest(root: Path | None = None) -> Path:
     """Rewrite `MANIFEST.json` of a Minari root (default: the shipped one) after adding a dataset there."""
     from digail.data.minari_io import SHIPPED_ROOT
-    from digail.utils import write_json
+    from digail.fsio import write_json
 
     path = (SHIPPED_ROOT if root is None else Path(root)) / "MANIFEST.json"
     write_json(path, build_manifest(root))

@@ -28,7 +28,8 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import atomic_dir, one_line
+from digail.fsio import atomic_dir
+from digail.utils import one_line
 
 SUBTASK_COLUMN = "subtask_index"
 """the per-frame column of sub-task indices (into `meta/subtasks.parquet`)"""

@@ -22,7 +22,8 @@ from digail.data.trajectory import SUBTASK_KEY, Trajectory
 from digail.data.validation import validate_for_space
 from digail.envs.registry import make_env
 from digail.errors import UserError
-from digail.utils import atomic_dir, json_default, one_line
+from digail.fsio import atomic_dir, json_default
+from digail.utils import one_line
 
 
 @contextlib.contextmanager

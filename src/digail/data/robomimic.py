@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
-from digail.utils import check_writable, one_line, signals_deferred, umask
+from digail.fsio import check_writable, signals_deferred, umask
+from digail.utils import one_line
 
 SIGNALS_PATH = "datagen_info/subtask_term_signals"
 """where MimicGen keeps each demonstration's sub-task termination signals (below `data/demo_<n>`)"""

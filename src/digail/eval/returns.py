@@ -24,8 +24,8 @@ from digail.envs.episodes import Episode, play_batch, play_episodes
 from digail.envs.registry import env_spec
 from digail.errors import UserError
 from digail.experts import expert_for
+from digail.fsio import write_json
 from digail.nets.vae import HierarchicalPolicy
-from digail.utils import write_json
 from digail.version import __version__
 
 # Final-info keys an env may report, and how eval.json names their aggregate.

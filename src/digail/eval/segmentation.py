@@ -33,8 +33,8 @@ import torch
 
 from digail.algos.decode import padded_obs, segment_many
 from digail.data.trajectory import Trajectory
+from digail.fsio import atomic_write_bytes, write_json
 from digail.nets.vae import HierarchicalPolicy
-from digail.utils import atomic_write_bytes, write_json
 
 FIGURE_EPISODES = 6
 

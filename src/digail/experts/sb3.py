@@ -27,15 +27,8 @@ from digail.experts.recipes import (
     safe_name,
     spec_for,
 )
-from digail.utils import (
-    atomic_write_bytes,
-    one_line,
-    progress_bar,
-    resolve_device,
-    run_dir_lock,
-    set_torch_threads,
-    write_json,
-)
+from digail.fsio import atomic_write_bytes, run_dir_lock, write_json
+from digail.utils import one_line, progress_bar, resolve_device, set_torch_threads
 
 _STEP_RE = re.compile(r"step_(\d+)\.pt$")
 CHECKPOINT_FORMAT = "digail-sb3-checkpoint"

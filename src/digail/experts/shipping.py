@@ -10,7 +10,7 @@ from typing import Any
 from digail.errors import UserError
 from digail.experts.actor import load_expert_actor
 from digail.experts.recipes import WEIGHTS_DIR, shipped_expert_path
-from digail.utils import write_json
+from digail.fsio import write_json
 
 RECORD_FILE = WEIGHTS_DIR / "EXPERTS.json"
 """What ships in `weights/`: per env, the expert's 50-episode evaluation and how it was made."""

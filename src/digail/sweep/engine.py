@@ -438,7 +438,7 @@ def execute(jobs: list[Job], sweep: Path, *, retries: int = 1, cpus: float = 1.0
 
 def remove_temporaries(run_dir: Path) -> None:
     """Remove the temporary siblings a stage writing `run_dir` atomically makes (`.NAME.tmp-*`, `.NAME.old-*`,
-    see `digail.utils.atomic_dir`): a stage killed outright (SIGKILL, Ray's cancel) leaves them behind."""
+    see `digail.fsio.atomic_dir`): a stage killed outright (SIGKILL, Ray's cancel) leaves them behind."""
     import glob
     import shutil
 

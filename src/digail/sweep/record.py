@@ -23,7 +23,7 @@ def save_plan(out: Path, spec: SweepSpec, jobs: list[Job]) -> None:
     """Record the sweep's jobs (so --summarize needs only the folder)."""
     from dataclasses import asdict
 
-    from digail.utils import MARKER, write_marker
+    from digail.fsio import MARKER, write_marker
 
     out.mkdir(parents=True, exist_ok=True)
     if not (out / MARKER).exists():

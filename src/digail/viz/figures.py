@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.colors import BoundaryNorm, ListedColormap  # noqa: E402
 
-from digail.utils import atomic_write_bytes  # noqa: E402
+from digail.fsio import atomic_write_bytes  # noqa: E402
 
 DPI = 100
 """Resolution of every figure: a figure of `(w, h)` inches is `(w * DPI, h * DPI)` pixels."""

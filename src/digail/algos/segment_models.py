@@ -1,0 +1,142 @@
+"""What hard EM fits to a segmentation (`digail.algos.segment_init`), its M-step: the normalised state features
+[s_n, 1] and actions of every step (`_design`), one linear sub-task policy per code (`_LinearPolicies`) and the
+macro-policy that prices the switches when they are learned (`_Transitions`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from digail.data.trajectory import Trajectory
+
+
+def _features(trajs: Sequence[Trajectory], mean: np.ndarray, std: np.ndarray) -> list[np.ndarray]:
+    out = []
+    for t in trajs:
+        obs = np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1)
+        out.append(np.c_[(obs - mean) / std, np.ones(len(t))])
+    return out
+
+
+class _Transitions:
+    """The start's macro-policy p(c_t | c_{t-1}, s_t) (module docstring): per previous code a softmax-linear model
+    of the next code on x = [s_n, 1], mixed with weight `base` with the fixed model (switch with probability
+    1 / T, to any other code alike)."""
+
+    def __init__(self, k: int, dim_x: int, mean_len: float, ridge: float = 1e-3, base: float = 0.5) -> None:
+        self.k, self.base = k, base
+        # light ridge: a switch the state predicts should become cheap; the mixture, not the ridge, bounds the rest
+        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.w = np.zeros((k, dim_x, k))
+        p_switch = 1.0 / mean_len
+        self.fixed = np.full((k, k), math.log(p_switch / max(k - 1, 1)))
+        np.fill_diagonal(self.fixed, math.log(1.0 - p_switch))
+
+    def fit(self, x: np.ndarray, seg: Sequence[np.ndarray], bounds: np.ndarray) -> None:
+        prev, nxt, rows = _pairs(seg, bounds)
+        for j in range(self.k):
+            sel = prev == j
+            if sel.any():  # an unused code keeps its last model
+                self.w[j] = _softmax_regression(x[rows[sel]], nxt[sel], self.k, self.w[j], self.ridge)
+
+    def logprob(self, x: np.ndarray) -> np.ndarray:
+        """(T, K, K) log p(c_t = k | c_{t-1} = j, s_t) for the rows of `x`."""
+        z = np.einsum("td,jdk->tjk", x, self.w)
+        z = z - z.max(-1, keepdims=True)
+        learned = z - np.log(np.exp(z).sum(-1, keepdims=True))
+        return np.logaddexp(math.log(1 - self.base) + learned, math.log(self.base) + self.fixed[None])
+
+
+def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(c_{t-1}, c_t, row of step t) over every step but each episode's first."""
+    return (np.concatenate([c[:-1] for c in seg]), np.concatenate([c[1:] for c in seg]),
+            np.concatenate([np.arange(bounds[i] + 1, bounds[i + 1]) for i in range(len(seg))]))
+
+
+class _LinearPolicies:
+    """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
+
+    def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
+                 shared_variance: bool = True, outlier_share: float = 0.0) -> None:
+        self.k, self.discrete, self.shared_variance, self.outlier_share = k, discrete, shared_variance, outlier_share
+        self.log_span = np.zeros(act_dim)  # log of each action dimension's range in the fitted steps
+        # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
+        self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
+        self.w = np.zeros((k, dim_x, act_dim))
+        self.log_var = np.zeros((k, act_dim))
+
+    def fit(self, x: np.ndarray, a: np.ndarray, codes: np.ndarray) -> None:
+        sq_resid = np.zeros_like(self.log_var)
+        if not self.discrete:
+            self.log_span = np.log(np.maximum(a.max(0) - a.min(0), 1e-6))
+        for j in range(self.k):
+            sel = codes == j
+            if sel.sum() == 0:
+                continue  # an unused code keeps its last policy
+            xj, aj = x[sel], a[sel]
+            if self.discrete:
+                self.w[j] = _softmax_regression(xj, aj, self.w.shape[2], self.w[j], self.ridge)
+            else:
+                gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
+                self.w[j] = np.linalg.solve(gram, xj.T @ aj)
+                resid = aj - xj @ self.w[j]
+                sq_resid[j] = (resid ** 2).sum(0)
+                if not self.shared_variance:
+                    self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
+        if not self.discrete and self.shared_variance:
+            # one noise level per action dimension for all codes (module docstring: why not one per code)
+            self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
+
+    def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """(T, K) log-likelihood of each step's action under each code's policy."""
+        out = np.einsum("td,kda->tka", x, self.w)
+        if self.discrete:
+            out = out - out.max(-1, keepdims=True)
+            logp = out - np.log(np.exp(out).sum(-1, keepdims=True))
+            return np.take_along_axis(logp, a.astype(np.int64)[:, None, None].repeat(self.k, 1), 2)[..., 0]
+        var = np.exp(self.log_var)[None]
+        per_dim = -0.5 * (((a[:, None, :] - out) ** 2) / var + self.log_var[None] + math.log(2 * math.pi))
+        if self.outlier_share > 0:
+            # a share of the steps uniform over the range: what one unpredictable step can cost is capped
+            per_dim = np.logaddexp(math.log1p(-self.outlier_share) + per_dim,
+                                   math.log(self.outlier_share) - self.log_span)
+        return per_dim.sum(-1)
+
+
+def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ridge: np.ndarray,
+                        steps: int = 60) -> np.ndarray:
+    xt = torch.as_tensor(x, dtype=torch.float64)
+    at = torch.as_tensor(a, dtype=torch.int64).reshape(-1)
+    w = torch.tensor(w0, dtype=torch.float64, requires_grad=True)
+    ridge_t = torch.as_tensor(ridge, dtype=torch.float64)
+    opt = torch.optim.LBFGS([w], max_iter=steps, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        loss = torch.nn.functional.cross_entropy(xt @ w, at) + (ridge_t[:, None] * w ** 2).sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    return w.detach().numpy()
+
+
+def _design(trajs: Sequence[Trajectory], discrete: bool, n_act: int | None = None, mean: np.ndarray | None = None,
+            std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+    """Features [s_n, 1] and actions of all steps (normalised with `mean` and `std`, by default the demos' own),
+    the number of discrete actions (or action dimensions) and the normalisation."""
+    if mean is None or std is None:
+        obs = np.concatenate([np.asarray(t.obs[:len(t)], np.float64).reshape(len(t), -1) for t in trajs])
+        mean, std = obs.mean(0), obs.std(0) + 1e-6
+    x = np.concatenate(_features(trajs, mean, std))
+    if discrete:
+        a = np.concatenate([np.asarray(t.acts).astype(np.int64).reshape(-1) for t in trajs])
+        n = max(n_act or 0, int(a.max()) + 1)
+    else:
+        a = np.concatenate([np.asarray(t.acts, np.float64).reshape(len(t), -1) for t in trajs])
+        n = a.shape[1]
+    return x, a, n, mean, std
