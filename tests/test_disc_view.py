@@ -76,3 +76,26 @@ def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
         assert np.isfinite(out["disc/loss"])
     finally:
         trainer.close()
+
+
+def test_a_view_of_the_users_own_is_named_as_module_function(tmp_path, monkeypatch):
+    """`--train.disc-obs module:function` builds D on the user's function; a broken one is one sentence."""
+    (tmp_path / "my_views.py").write_text(
+        "import torch\n"
+        "def gap(obs):\n    return obs[:, :1] - obs[:, 1:2]\n"
+        "def flat(obs):\n    return obs.sum()\n"
+        "def nan(obs):\n    return obs * float('nan')\n"
+        "NOT_A_FUNCTION = 3\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    demo = np.random.default_rng(0).normal(size=(50, 3)).astype(np.float32)
+    norm = ObsNormalizer(3).fit(demo)
+    view = obs_view("Pendulum-v1", "my_views:gap", norm, demo)
+    assert view is not None and view.dim == 1
+    torch.testing.assert_close(view(norm(torch.from_numpy(demo)))[:, 0].mean(), torch.tensor(0.0), atol=1e-4, rtol=0)
+    for ref, phrase in (("my_views:flat", r"returned \(\) for \(50, 3\)"), ("my_views:nan", "NaN"),
+                        ("my_views:missing", "has no 'missing'"), ("my_views:NOT_A_FUNCTION", "not a function"),
+                        ("no_such_module_here:gap", "cannot import module")):
+        with pytest.raises(UserError, match=phrase):
+            obs_view("Pendulum-v1", ref, norm, demo)
+    with pytest.raises(UserError, match="all, relative or module:function"):
+        TrainConfig(disc_obs="positions")

@@ -8,6 +8,7 @@ config is written as `config.json` into every run folder.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -412,10 +413,11 @@ class TrainConfig:
     """PPO learner: weight of the gradient penalty (|grad D| - 1)^2 on points between agent and expert samples
     (DAC's; the SAC learner has its own, `sac.grad_penalty`). With a few demonstrations D otherwise tells them
     apart perfectly within a few iterations and its reward stops saying what to improve; 0 disables it"""
-    disc_obs: Literal["all", "relative"] = "all"
-    """what D sees of the observation: all of it, or the env's relative view (relations between the things in the
+    disc_obs: str = "all"
+    """what D sees of the observation: all of it, the env's relative view (relations between the things in the
     scene, not where they are: for Fetch the object from the gripper and the goal from the object, no horizontal
-    positions). With a handful of demonstrations D otherwise tells them from the agent by the few object and goal
+    positions), or `module:function`, a view of the user's (raw observations (n, D) -> features (n, F), torch in
+    and out). With a handful of demonstrations D otherwise tells them from the agent by the few object and goal
     positions they show"""
     q_lr: float = 0.0
     """PPO learner: learning rate of the macro-policy q during training, on -log q(c_t | s_t, c_{t-1}) of the
@@ -474,7 +476,8 @@ class TrainConfig:
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
         _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
-        _require(self.disc_obs in ("all", "relative"), "--train.disc-obs", "all or relative", self.disc_obs)
+        _require(self.disc_obs in ("all", "relative") or re.fullmatch(r"[\w.]+:\w+", str(self.disc_obs)) is not None,
+                 "--train.disc-obs", "all, relative or module:function", self.disc_obs)
         _require(self.q_lr == 0 or self.learner == "ppo", "--train.q-lr", "0 with --train.learner sac (q is trained "
                  "on PPO's rollouts only)", self.q_lr)
 

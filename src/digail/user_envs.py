@@ -15,6 +15,8 @@ import importlib
 import importlib.util
 import os
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import gymnasium as gym
 
@@ -42,6 +44,24 @@ def import_env_module(env_id: str) -> str:
         raise UserError(f"cannot import module {module!r} named in {env_id!r} ({why}); run from the "
                         "folder that holds it or add that folder to PYTHONPATH.") from exc
     return name
+
+
+def import_function(ref: str, flag: str) -> Callable[..., Any]:
+    """The function `module:function` names, its module imported as `import_env_module` imports an env's (the
+    current folder searched too); one sentence naming `flag` when it cannot be found or is not callable."""
+    module, _, name = ref.partition(":")
+    _search_current_folder()
+    try:
+        fn = getattr(importlib.import_module(module), name)
+    except ImportError as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise UserError(f"{flag} {ref}: cannot import module {module!r} ({why}); run from the folder that holds it "
+                        "or add that folder to PYTHONPATH.") from exc
+    except AttributeError:
+        raise UserError(f"{flag} {ref}: module {module!r} has no {name!r}; name a function it defines.") from None
+    if not callable(fn):
+        raise UserError(f"{flag} {ref}: {name!r} in {module!r} is not a function.")
+    return fn
 
 
 def register_recorded_env(spec_json: str | None) -> bool:

@@ -94,7 +94,7 @@ class ObsView(nn.Module):
         self.register_buffer("mean", normalizer.mean.detach().clone().cpu())
         self.register_buffer("std", normalizer.std.detach().clone().cpu())
         with torch.no_grad():
-            feats = fn(torch.as_tensor(np.asarray(demo_obs, np.float32)))
+            feats = _checked_features(fn, torch.as_tensor(np.asarray(demo_obs, np.float32)))
         self.out = ObsNormalizer(feats.shape[1]).fit(feats.numpy())
         self.dim = int(feats.shape[1])
         """F, the features D sees in place of the observation"""
@@ -103,17 +103,41 @@ class ObsView(nn.Module):
         return self.out(self.fn(obs_n * self.std + self.mean))
 
 
+def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Tensor) -> torch.Tensor:
+    """`fn(obs)`, refused in one sentence unless it is a finite float tensor with a row per observation."""
+    name = getattr(fn, "__qualname__", repr(fn))
+    try:
+        feats = fn(obs)
+    except Exception as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
+        raise UserError(f"D's view {name} fails on the demonstrations' observations ({type(exc).__name__}: "
+                        f"{str(exc).strip()[:120]}); it must map a float tensor (n, D) to features (n, F).") from None
+    if not (isinstance(feats, torch.Tensor) and feats.dim() == 2 and feats.shape[0] == obs.shape[0]
+            and feats.shape[1] >= 1 and feats.is_floating_point()):
+        got = tuple(feats.shape) if isinstance(feats, torch.Tensor) else type(feats).__name__
+        raise UserError(f"D's view {name} returned {got} for {tuple(obs.shape)} observations; it must return a "
+                        "float tensor with one row of features per observation, (n, F).")
+    if not torch.isfinite(feats).all():
+        raise UserError(f"D's view {name} gives NaN or infinite features on the demonstrations; make it finite.")
+    return feats.float()
+
+
 def obs_view(env_id: str, kind: str, normalizer: ObsNormalizer, demo_obs: np.ndarray) -> ObsView | None:
-    """D's view of the observation for `--train.disc-obs kind`: None for `all`, else the env's relative view."""
+    """D's view of the observation for `--train.disc-obs kind`: None for `all`, the env's relative view for
+    `relative`, or the user's function for `module:function`."""
     if kind == "all":
         return None
-    from digail.envs.registry import env_spec
+    if kind == "relative":
+        from digail.envs.registry import env_spec
 
-    spec = env_spec(env_id)
-    if spec is None or spec.relative_view is None:
-        raise UserError(f"{env_id} has no relative view of its observation for D; use --train.disc-obs all.")
-    module, _, name = spec.relative_view.partition(":")
-    return ObsView(getattr(importlib.import_module(module), name), normalizer, demo_obs)
+        spec = env_spec(env_id)
+        if spec is None or spec.relative_view is None:
+            raise UserError(f"{env_id} has no relative view of its observation for D; use --train.disc-obs all, or "
+                            "write one and pass it as --train.disc-obs module:function.")
+        module, _, name = spec.relative_view.partition(":")
+        return ObsView(getattr(importlib.import_module(module), name), normalizer, demo_obs)
+    from digail.user_envs import import_function
+
+    return ObsView(import_function(kind, "--train.disc-obs"), normalizer, demo_obs)
 
 
 class PenaltyStep:
