@@ -22,7 +22,8 @@
 #     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
 #                 penalty, as DAC); ITERATIONS default 400 (400k env steps), a 20-episode evaluation every 20
 #   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac, digail-l2-rel-argmax-1m
-# A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint.
+# A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint, and one
+# made with fewer than ITERATIONS is continued to ITERATIONS (`digail train --resume RUN --until ITERATIONS`).
 # Every training: PPO (the fetch preset: batch 4096 over 8 envs), BC / L2 weight 1.0, ITERATIONS (default 100, i.e.
 # 409,600 env steps), a 20-episode evaluation every 5 iterations (the learning curve), then 100 episodes.
 set -euo pipefail
@@ -44,10 +45,16 @@ vae() {  # vae K -> the VAE run folder, pre-trained (and evaluated) once
 }
 
 train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), then evaluates it on 100 episodes
-  local run="$ROOT/$1_s$S"; shift
-  [ -f "$run/eval.json" ] && return 0
+  local run="$ROOT/$1_s$S" have; shift
   if [ -f "$run/config.json" ]; then
-    digail train --resume "$run"
+    have=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["train"]["iterations"])' "$run/config.json")
+    if [ "$have" -lt "$ITERS" ]; then  # a shorter run (done or not) is continued to ITERS
+      digail train --resume "$run" --until "$ITERS"
+    elif [ -f "$run/eval.json" ]; then
+      return 0
+    else
+      digail train --resume "$run"
+    fi
   else
     digail train --demos $D --demos-episodes "$N" --bc-weight 1.0 --seed "$S" --train.iterations "$ITERS" \
         --train.eval-every "$EVERY" --train.eval-episodes 20 --train.checkpoint-every 5 --out "$run" "$@"
