@@ -87,6 +87,18 @@ def test_discriminator_loss_falls_on_fixed_batches(circle_demos):
     assert last["disc/accuracy"] > 0.8
 
 
+def test_a_rollout_smaller_than_half_ds_minibatch_still_steps_d(circle_demos):
+    """64 agent rows against D's default minibatch of 256 (128 a side): one minibatch of all 64, not none."""
+    cfg = replace(SMALL, method="gail", ppo=replace(SMALL.ppo, batch_size=64, minibatch_size=32))
+    trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=None, seed=0, run_dir=None,
+                            progress=False)
+    batch = trainer.learner.collect()
+    before = [p.detach().clone() for p in trainer.disc.parameters()]
+    out = trainer.update_discriminator(batch["obs"].reshape(-1, 2), trainer.act_input(batch["acts"].reshape(-1, 2)))
+    assert out["disc/loss"] > 0
+    assert any(not torch.equal(a, b) for a, b in zip(before, trainer.disc.parameters(), strict=True))
+
+
 UPDATING = replace(SMALL, iterations=3, value_warmup=0, ppo=replace(SMALL.ppo, batch_size=512))
 """every iteration updates the policy, and 128 steps per env outlast Circle-World's 120-step episodes"""
 

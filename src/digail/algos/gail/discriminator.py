@@ -54,7 +54,8 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
     Returns the mean loss and accuracies as `disc/*` scalars.
     """
     n = len(x_agent)
-    half = max(1, minibatch_size // 2)
+    # a rollout smaller than half a minibatch is one minibatch (else the loop below would never step D)
+    half = max(1, min(minibatch_size // 2, n))
     loss_fn = maybe_compiled(disc_loss, compile)
     stats = []
     for _ in range(updates):
