@@ -92,6 +92,18 @@ def _curve(run: Path) -> list[tuple[float, float]]:
                 if r.get("eval/success_rate")]
 
 
+def _train_minutes(run: Path) -> float | None:
+    """Training wall time in minutes, from each iteration's env steps over its `perf/sps` (periodic evaluations
+    and the final one not included): the CPU cost of a run, one core per job."""
+    path = run / "metrics.csv"
+    if not path.is_file():
+        return None
+    with path.open() as f:
+        rows = [(float(r["step"]), float(r["perf/sps"])) for r in csv.DictReader(f) if r.get("perf/sps")]
+    steps = [b - a for a, b in zip([0.0] + [s for s, _ in rows[:-1]], [s for s, _ in rows], strict=True)]
+    return round(sum(n / sps for n, (_, sps) in zip(steps, rows, strict=True) if sps > 0) / 60, 1) if rows else None
+
+
 def _late_mean(run: Path, key: str, rows: int = 10) -> float | None:
     """The mean of a metrics.csv column over the run's last `rows` iterations that logged it."""
     path = run / "metrics.csv"
@@ -132,7 +144,7 @@ def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
         curve = _curve(run)
         rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
                                "run": str(run), "command": _command(run, str(TASKS[task]["script"])), "curve": curve,
-                               "env_steps": curve[-1][0] if curve else 0.0,
+                               "env_steps": curve[-1][0] if curve else 0.0, "train_minutes": _train_minutes(run),
                                "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9),
                                "late_disc_acc_expert": _late_mean(run, "disc/acc_expert"),
                                "late_disc_reward": _late_mean(run, "rollout/disc_reward")}
