@@ -100,8 +100,13 @@ def _train_minutes(run: Path) -> float | None:
         return None
     with path.open() as f:
         rows = [(float(r["step"]), float(r["perf/sps"])) for r in csv.DictReader(f) if r.get("perf/sps")]
-    steps = [b - a for a, b in zip([0.0] + [s for s, _ in rows[:-1]], [s for s, _ in rows], strict=True)]
-    return round(sum(n / sps for n, (_, sps) in zip(steps, rows, strict=True) if sps > 0) / 60, 1) if rows else None
+    if not rows:
+        return None
+    seconds, last = 0.0, 0.0
+    for step, sps in rows:
+        seconds += (step - last) / sps if sps > 0 else 0.0
+        last = step
+    return round(seconds / 60, 1)
 
 
 def _late_mean(run: Path, key: str, rows: int = 10) -> float | None:

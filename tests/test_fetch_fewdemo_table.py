@@ -13,9 +13,9 @@ from fetch_fewdemo import collect, markdown, table  # noqa: E402
 def _run(root: Path, name: str, curve: list[tuple[int, float]], success: float | None) -> None:
     run = root / name
     run.mkdir(parents=True)
-    lines = ["step,iteration,eval/success_rate,losses/policy"]
-    for step, s in curve:
-        lines += [f"{step},{step // 4096},{s},", f"{step + 1},{step // 4096},,0.1"]  # training rows have no eval
+    lines = ["step,iteration,eval/success_rate,losses/policy,perf/sps"]
+    for step, s in curve:  # training rows have no eval; each trains 4096 steps at 2048 steps/s
+        lines += [f"{step},{step // 4096},{s},,", f"{step + 4096},{step // 4096},,0.1,2048"]
     (run / "metrics.csv").write_text("\n".join(lines) + "\n")
     if success is not None:
         (run / "eval.json").write_text(json.dumps({"episodes": 100, "success_rate": success, "grasp_rate": 1.0,
@@ -33,6 +33,7 @@ def test_medians_over_finished_seeds_and_steps_to_each_level(tmp_path: Path) -> 
     assert len(records) == 4 and by[("gail-l2", 0)]["status"] == "running"
     assert by[("digail-l2", 0)]["steps_to_0.5"] == 20480 and by[("digail-l2", 0)]["steps_to_0.9"] == 40960
     assert by[("digail-l2", 1)]["steps_to_0.5"] is None
+    assert by[("digail-l2", 0)]["train_minutes"] == round(45056 / 2048 / 60, 1)  # to its last step at 2048/s
     assert by[("digail-l2", 0)]["command"] == "benchmarks/fetch_fewdemo.sh 4 digail-l2 0"
     (row,) = table(records)
     assert row["median_success_rate"] == 0.7 and row["per_seed_success_rate"] == [0.9, 0.3, 0.7]
