@@ -69,6 +69,8 @@ ABLATIONS = {
     "digail-l2-rel-nobonus": "directed-info bonus off",
     "digail-l2-rel-k2": "K = 2",
     "digail-l2-rel-k8": "K = 8",
+    "digail-l2-rel-argmax-1m": "codes as evaluation takes them, trained on to 1M env steps",
+    "flatbc-l2-rel-1m": "one code, trained on to 1M env steps",
 }
 """the rows of the ablation table (what carries Directed-Info GAIL + L2 on Fetch with 4 demonstrations)"""
 TASKS = {
