@@ -243,12 +243,11 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
     # the headline methods only: the probes and ablations have the ablation table (their curves would crowd it)
     # (a run continued to 1M is drawn instead of its 410k start, which is the first part of its curve)
     probes = ("-gp", "-argmax", "-shuffle", "-qtrain", "-nobonus", "-k2", "-k8")
-    have = {r["method"] for r in records}
-    present = [m for m in METHODS if m in have and f"{m}-1m" not in have
-               and (m.endswith("-1m") or not any(p in m for p in probes))]
-    colours = {m: f"C{i % 10}" for i, m in enumerate(present)}
+    headline = [m for m in METHODS if m.endswith("-1m") or not any(p in m for p in probes)]
+    colours = {m: f"C{i % 10}" for i, m in enumerate(m for m in headline if any(r["method"] == m for r in records))}
     for ax, demos in zip(axes[0], settings, strict=True):
-        for method in present:
+        have = {r["method"] for r in records if r["demos"] == demos}
+        for method in (m for m in headline if m in have and f"{m}-1m" not in have):
             label = METHODS[method]
             mine = [r for r in records if r["demos"] == demos and r["method"] == method]
             curves = [dict(r["curve"]) for r in mine if r["curve"]]
@@ -266,8 +265,8 @@ def figure(records: list[dict[str, Any]], path: Path, task: str = "fetch") -> No
         ax.set_title(f"{TASKS[task]['title']}, {demos} demonstration{'s' if demos > 1 else ''}")
         ax.set_xlabel("env steps (thousands)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=1, frameon=False)
-    axes[0][0].set_ylabel("success rate, mean over seeds (band: range)")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=1, frameon=False)
+    axes[0][0].set_ylabel("success rate, mean of seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
