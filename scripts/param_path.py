@@ -7,7 +7,7 @@ passes through from where it is born to its last read, and how often that path c
 
 The value is born twice: where the command line is parsed (the function that calls `tyro.cli` and hands the
 arguments to the command's function), and, for a field of a nested config that starts from a preset
-(`--train.*`, `--vae.*`), where the preset is read (`config.get_preset`); from there it travels up through the
+(`--train.*`, `--vae.*`), where the preset is read (`preset.get_preset`); from there it travels up through the
 functions that return it to the command's `defaults(argv)`, and on to the parse. From the command's function the
 path follows the value forward in source order: a call that passes it (or an object holding it: the arguments, a
 config taken from them, `dataclasses.replace` of one, an object that keeps it in `self`) enters the callee, and
@@ -347,8 +347,8 @@ def _header(stmt: ast.stmt) -> ast.stmt:
 
 def preset_chain(index: Index, qual: str, seen: frozenset[str] = frozenset()) -> list[str]:
     """The functions the preset returns through, from where it is read up to `qual`: in `qual`, the call whose
-    result is (or becomes) the returned preset, followed down to `config.get_preset`."""
-    if qual.endswith("config.get_preset"):
+    result is (or becomes) the returned preset, followed down to `preset.get_preset`."""
+    if qual.endswith("preset.get_preset"):
         return [qual]
     fn = index.functions[qual]
     for node in ast.walk(fn.node):
@@ -361,7 +361,7 @@ def preset_chain(index: Index, qual: str, seen: frozenset[str] = frozenset()) ->
 
 
 def _returns_preset(index: Index, qual: str, seen: frozenset[str]) -> bool:
-    return preset_chain(index, qual, seen)[0].endswith("config.get_preset")
+    return preset_chain(index, qual, seen)[0].endswith("preset.get_preset")
 
 
 def parse_site(index: Index) -> str:

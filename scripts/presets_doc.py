@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from digail.config import PRESET_FILES, PRESETS
+from digail.preset import PRESET_FILES, PRESETS
 
 FLAGS = {"vae.codes": "--codes"}
 """settings whose command-line flag is not their path"""

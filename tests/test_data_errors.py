@@ -133,7 +133,7 @@ def test_codes_auto_needs_two_demonstrations(tmp_path: Path, capsys: pytest.Capt
 def test_select_codes_refuses_one_demonstration(pendulum: Path) -> None:
     """The library call refuses too (the command checks first, before any folder is made)."""
     from digail.algos.vae_pretrain import select_codes
-    from digail.config import get_preset
+    from digail.preset import get_preset
 
     with pytest.raises(UserError, match="K cannot be chosen from 1 demonstration"):
         select_codes(load_dataset(pendulum).trajs[:1], get_preset("smoke").vae, [2, 3], progress=False)

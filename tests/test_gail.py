@@ -178,8 +178,8 @@ def test_directed_info_gail_learns_four_rooms(rooms_demos):
     was written by hand (same loss, other rounding) 200 gave 0.87 / 0.93 / 0.89 on seeds 0 / 1 / 2, at the
     threshold's edge; 300 gave 0.99 / 0.97 / 0.99."""
     from digail.algos.vae_pretrain import pretrain
-    from digail.config import get_preset
     from digail.eval.returns import evaluate
+    from digail.preset import get_preset
 
     preset = get_preset("four-rooms")
     demos = rooms_demos

@@ -55,7 +55,7 @@ def test_a_preset_value_climbs_once_on_its_way_to_the_trainer() -> None:
     index = pp.Index()
     path = pp.path_of(index, "train", ("train", "bonus_weight"))
     files, climbs = pp.summary(path, pp.layers())
-    assert path[0] == "digail.config.get_preset" and path[-1] == "digail.algos.gail.trainer.GAIL.__init__"
+    assert path[0] == "digail.preset.get_preset" and path[-1] == "digail.algos.gail.trainer.GAIL.__init__"
     assert "digail.cli._main" not in path and not any(q.startswith("digail.envs.") for q in path), path
     assert (len(files), climbs) == (6, 1), (files, path)
 

@@ -10,10 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from digail import config
-from digail.config import PRESET_FILES, PRESETS, Preset, TrainConfig, VAEConfig, get_preset
+from digail import config, preset
+from digail.config import TrainConfig, VAEConfig
 from digail.envs.registry import ENV_SPECS, preset_for
 from digail.errors import UserError
+from digail.preset import PRESET_FILES, PRESETS, Preset, get_preset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,10 +78,10 @@ def test_paper_preset_per_env() -> None:
 def test_bad_preset_file_is_one_sentence(tmp_path: Path) -> None:
     (tmp_path / "a.toml").write_text('[train]\niterations = 3\n')
     with pytest.raises(UserError, match="iterations must be a table"):
-        config._load_presets(tmp_path)
+        preset._load_presets(tmp_path)
     (tmp_path / "a.toml").write_text('extends = "b"\n')
     with pytest.raises(UserError, match="does not exist"):
-        config._load_presets(tmp_path)
+        preset._load_presets(tmp_path)
     (tmp_path / "a.toml").write_text('[train]\nepochz = { value = 1, why = "x", see = "" }\n')
     with pytest.raises(UserError, match="unknown setting 'train.epochz'"):
-        config._load_presets(tmp_path)
+        preset._load_presets(tmp_path)

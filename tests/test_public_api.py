@@ -45,9 +45,10 @@ def test_train_copies_the_vae_and_picks_the_method_from_it(monkeypatch):
     Directed-Info GAIL when given a VAE, as GAIL (one code) without one."""
     import torch
 
-    from digail.config import VAEConfig, get_preset
+    from digail.config import VAEConfig
     from digail.data.minari_io import load_dataset
     from digail.envs import registry
+    from digail.preset import get_preset
 
     monkeypatch.setattr(registry, "preset_for", lambda env_id, name=None: get_preset("smoke"))
     env_id, trajs = "digail/CircleWorld-v0", load_dataset("digail/circleworld/expert-v0").trajs[:4]

@@ -219,10 +219,10 @@ def _hopper_trainer(backend: str, seed: int = 0):
     import gymnasium as gym
 
     from digail.algos.gail import GAIL
-    from digail.config import get_preset
     from digail.data.minari_io import load_dataset
     from digail.nets.policy import ActionSpec
     from digail.nets.vae import HierarchicalPolicy
+    from digail.preset import get_preset
 
     demos = load_dataset("digail/hopper/expert-v0").trajs[:3]
     cfg = replace(get_preset("smoke").train, backend=backend, method="gail")

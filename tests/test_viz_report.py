@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from digail import config
+from digail import preset
 from digail.cli import main
 from digail.commands.report import smoothing_pair
 from digail.viz.html_page import fmt
@@ -82,10 +82,10 @@ def smoke_run(tmp_path_factory):
     """`digail run` on Circle-World with SMOKE settings plus a smoothing term (SMOKE has none), so that the run
     also pre-trains the VAE without it for the side-by-side figure."""
     out = tmp_path_factory.mktemp("report") / "cw"
-    smoke = config.PRESETS["smoke"]
+    smoke = preset.PRESETS["smoke"]
     weight = 0.1
     with pytest.MonkeyPatch.context() as mp:
-        mp.setitem(config.PRESETS, "smoke", replace(smoke, vae=replace(smoke.vae, smoothing_weight=weight)))
+        mp.setitem(preset.PRESETS, "smoke", replace(smoke, vae=replace(smoke.vae, smoothing_weight=weight)))
         assert main(["run", "digail/CircleWorld-v0", "--preset", "smoke", "--episodes", "4", "--out", str(out)]) == 0
     return out
 

@@ -24,11 +24,12 @@ import torch
 
 from digail.algos.directed_info_gail import build_trainer
 from digail.checkpoint import load_model
-from digail.config import TrainConfig, get_preset
+from digail.config import TrainConfig
 from digail.data.minari_io import load_dataset
 from digail.envs.circle_world import STEPS_PER_CIRCLE
 from digail.eval.returns import run_episodes, task_metrics
 from digail.nets.critic import generator_reward
+from digail.preset import get_preset
 
 ENV, DEMOS = "digail/CircleWorld-v0", "digail/circleworld/expert-v0"
 

@@ -37,7 +37,7 @@ torch.set_num_threads(1)
 import torch._dynamo  # imported by the first Adam: kept out of the timings
 from digail.algos.polish import polish
 from digail.algos.vae_pretrain import pretrain
-from digail.config import get_preset
+from digail.preset import get_preset
 from digail.data.minari_io import load_dataset
 dataset, preset, epochs, steps, seed = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
 trajs = list(load_dataset(dataset).trajs)

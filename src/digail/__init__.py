@@ -24,12 +24,13 @@ if TYPE_CHECKING:  # what the lazy names below resolve to, for type checkers and
     from digail.algos.directed_info_gail import train
     from digail.algos.vae_pretrain import pretrain
     from digail.checkpoint import load_model, save_model
-    from digail.config import TrainConfig, VAEConfig, get_preset
+    from digail.config import TrainConfig, VAEConfig
     from digail.data.minari_io import Dataset, load_dataset
     from digail.eval.composition import compose, compose_order
     from digail.eval.returns import evaluate
     from digail.eval.segmentation import segmentation_metrics
     from digail.nets.vae import HierarchicalPolicy
+    from digail.preset import get_preset
 
 _register_envs()
 
@@ -39,7 +40,7 @@ _PUBLIC: dict[str, str] = {
     "Dataset": "digail.data.minari_io",
     "VAEConfig": "digail.config",
     "TrainConfig": "digail.config",
-    "get_preset": "digail.config",
+    "get_preset": "digail.preset",
     "pretrain": "digail.algos.vae_pretrain",
     "segment": "digail.algos.decode",
     "train": "digail.algos.directed_info_gail",

@@ -7,9 +7,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from digail.config import Preset
 from digail.errors import UserError
 from digail.fsio import check_new_dir
+from digail.preset import Preset
 from digail.utils import default_run_dir, one_line
 
 
@@ -110,8 +110,8 @@ def preset_from_argv(argv: Sequence[str]) -> tuple[Preset, str, str]:
             env_id = dataset_env_id(known.demos)
         except UserError:
             env_id = ""  # reported properly by the command itself
-    from digail.config import resolve_preset
     from digail.envs.registry import env_preset
+    from digail.preset import resolve_preset
 
     # the preset read straight from `config` (the registry gives only its name): its values go from there to the
     # command's defaults and the parse, not back up through the registry

@@ -9,8 +9,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from digail.config import VAEConfig, check_at_least, check_codes, check_seed, preset_name
+from digail.config import VAEConfig, check_at_least, check_codes, check_seed
 from digail.errors import UserError
+from digail.preset import preset_name
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,11 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
-from digail.config import Preset, resolve_preset
 from digail.envs.circle_world import CircleWorldVecEnv
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.errors import UserError
 from digail.paper import paper_return
+from digail.preset import Preset, resolve_preset
 from digail.utils import mujoco_gl_error, one_line
 
 
