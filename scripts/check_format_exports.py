@@ -17,13 +17,12 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "data" / "formats"
-sys.path.insert(0, str(ROOT / "scripts"))
+# run as a script, so its own folder (scripts/) is already where imports look
 from format_fixture_episodes import episodes  # noqa: E402
 
 NAMES = ["reach", "carry"]

@@ -2,11 +2,10 @@
 (reach=0, carry=1) as check_format_exports.py does, and write digail's own segment table (csv export of the same
 codes) beside it, into $MG_CHECK_OUT (default /tmp/mg_check)."""
 import os
-import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+# run as a script, so its own folder (scripts/) is already where imports look
 from format_fixture_episodes import episodes  # noqa: E402
 
 from digail.data.annotations import export_segmentation  # noqa: E402

@@ -26,7 +26,6 @@ import h5py
 import numpy as np
 
 MAIN = Path(os.environ.get("DIGAIL_ROOT", Path(__file__).resolve().parents[1]))
-MG_SRC = Path(os.environ.get("MIMICGEN_SRC", "/root/mimicgen_src"))
 OUT = Path(os.environ.get("MG_CHECK_OUT", "/tmp/mg_check"))
 MG_COMMIT = os.environ.get("MIMICGEN_COMMIT", "72bd767c255545f462e7ccfb2731f2e5d4c1d9bb")
 EXPORT = OUT / "annotated-robomimic.hdf5"
@@ -37,8 +36,7 @@ SEGMENTS = OUT / "segments.csv"
 subprocess.run([str(MAIN / ".venv/bin/python"), str(MAIN / "scripts" / "check_mimicgen_export.py")], check=True,
                cwd=MAIN, env={**os.environ, "PYTHONPATH": str(MAIN / "src")})
 
-sys.path.insert(0, str(MG_SRC))
-import mimicgen.utils.file_utils as MG_FileUtils  # noqa: E402
+import mimicgen.utils.file_utils as MG_FileUtils  # noqa: E402  (the source checkout is on PYTHONPATH, see above)
 
 # digail's segments per demo, in order
 segs = {}

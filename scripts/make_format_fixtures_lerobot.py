@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from format_fixture_episodes import episodes  # noqa: E402
+# run as a script, so its own folder (scripts/) is already where imports look
+from format_fixture_episodes import episodes
 
 OUT = Path(__file__).resolve().parents[1] / "tests" / "data" / "formats" / "lerobot"
 REPO_ID = "digail/format-fixture"

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
 import pytest
 import torch
 
@@ -12,6 +17,23 @@ from digail.envs import make_env
 from digail.experts import expert_for
 
 torch.set_num_threads(1)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def repo_module(path: str) -> ModuleType:
+    """The benchmark or script at `path` (relative to the repository) as a module, loaded from its file once:
+    tests use the harnesses without putting their folders on `sys.path`, where their short names could shadow
+    installed modules."""
+    name = Path(path).stem
+    if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(REPO / path):
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, REPO / path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses and pickle look a class's module up by name
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(autouse=True, scope="session")

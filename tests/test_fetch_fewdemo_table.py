@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from fetch_fewdemo import collect, markdown, table  # noqa: E402
+from conftest import repo_module
+
+fetch_fewdemo = repo_module("benchmarks/fetch_fewdemo.py")
+collect, markdown, table = fetch_fewdemo.collect, fetch_fewdemo.markdown, fetch_fewdemo.table
 
 
 def _run(root: Path, name: str, curve: list[tuple[int, float]], success: float | None) -> None:
@@ -42,7 +43,7 @@ def test_medians_over_finished_seeds_and_steps_to_each_level(tmp_path: Path) -> 
 
 
 def test_the_ablation_table_gives_steps_to_each_level_and_ds_late_state(tmp_path: Path) -> None:
-    from fetch_fewdemo import ablation_markdown
+    ablation_markdown = fetch_fewdemo.ablation_markdown
 
     _run(tmp_path / "d4", "digail-l2-rel_s0", [(0, 0.1), (20480, 0.6), (40960, 0.7)], 0.7)
     _run(tmp_path / "d4", "digail-l2-rel-shuffle_s0", [(0, 0.0), (20480, 0.1)], 0.1)

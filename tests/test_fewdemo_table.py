@@ -7,9 +7,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import repo_module
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from fewdemo import first_reach, table, window_mean  # noqa: E402
+fewdemo = repo_module("benchmarks/fewdemo.py")
+first_reach, table, window_mean = fewdemo.first_reach, fewdemo.table, fewdemo.window_mean
 
 
 def test_window_mean_averages_only_the_evaluations_inside_the_window() -> None:
@@ -34,7 +35,7 @@ def test_the_table_takes_medians_over_seeds_of_both_figures() -> None:
 
 
 def test_the_markdown_table_puts_each_seed_in_its_place() -> None:
-    from fewdemo import markdown
+    markdown = fewdemo.markdown
 
     def run(seed: int, final: float | None, learner: str | None) -> dict[str, object]:
         return {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "gail" if learner else
@@ -51,7 +52,7 @@ def test_the_markdown_table_puts_each_seed_in_its_place() -> None:
 
 def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A 1M run continues a 430k one: the 430k entry must leave the table, not share its median."""
-    from fewdemo import main
+    main = fewdemo.main
 
     def entry(run: str) -> dict[str, object]:
         return {"run": run, "env": "Walker2d-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "gail",
@@ -70,7 +71,6 @@ def test_merge_drops_the_entries_a_longer_run_continues(tmp_path: Path, monkeypa
 def test_merge_puts_a_rerun_in_its_place_and_leaves_the_other_entries_alone(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A rerun replaces its entry where it stood; kept entries keep their stored window means, made from full curves."""
-    import fewdemo
 
     def entry(run: str, final: float) -> dict[str, object]:
         return {"run": run, "env": "Walker2d-v5", "demos_episodes": 1, "demos_subsample": 1, "method": "gail",
@@ -88,7 +88,7 @@ def test_merge_puts_a_rerun_in_its_place_and_leaves_the_other_entries_alone(
 
 
 def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stopped() -> None:
-    from fewdemo import summary
+    summary = fewdemo.summary
 
     def run(seed: int, final: float, init: str | None, steps: float) -> dict[str, object]:
         return {"env": "Hopper-v5", "demos_episodes": 4, "demos_subsample": 20, "method": "digail", "learner": "sac",
@@ -106,7 +106,7 @@ def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stoppe
 def test_the_summary_table_is_the_stored_results_summary() -> None:
     """The results page's few-demonstration summary table is `fewdemo.py --summary` of
     benchmarks/results/fewdemo.json."""
-    from fewdemo import summary
+    summary = fewdemo.summary
 
     root = Path(__file__).resolve().parents[1]
     runs = json.loads((root / "benchmarks/results/fewdemo.json").read_text())["runs"]

@@ -9,13 +9,13 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import sys
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from conftest import repo_module
 
 from digail.cli import main
 from digail.data.annotations import export_segmentation, segments
@@ -25,8 +25,7 @@ from digail.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "data" / "formats"
-sys.path.insert(0, str(ROOT / "scripts"))
-from format_fixture_episodes import episodes  # noqa: E402
+episodes = repo_module("scripts/format_fixture_episodes.py").episodes
 
 IMITATION_DIR = FIXTURES / "imitation_dataset"
 TRANSITIONS = FIXTURES / "imitation_transitions.npz"

@@ -185,10 +185,9 @@ def test_one_standard_error_rule_keeps_the_smallest_k_the_data_cannot_tell_from_
 def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minari_root: Path) -> None:
     """The benchmark scores one-to-one accuracy with K given: with fewer codes than label values the smallest
     labels cannot be matched (Four Rooms ran K = 4 against 5 labels, a ceiling of 0.876)."""
-    import sys
+    from conftest import repo_module
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from segmentation import SHIPPED
+    SHIPPED = repo_module("benchmarks/segmentation.py").SHIPPED  # noqa: N806
 
     for name, course in COURSES.items():
         ds = load_dataset(record_course(name, minari_root, seed=0, episodes=3))

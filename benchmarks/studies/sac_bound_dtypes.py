@@ -7,23 +7,36 @@ weight and input gradients, the policy's gradient back through the critics, the 
 backward), timed on one thread by its `matmul_bound`, once with float32 and once with bfloat16 operands.
 With `--sb3` (default benchmarks/results/sac_speed.json) each bound is also divided by that file's SB3 steps per CPU
 second at the same size: the most any SAC update of these nets could gain over SB3 here. Writes
-benchmarks/results/sac_bound_dtypes.json.
+benchmarks/studies/results/sac_bound_dtypes.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from sac_speed import matmul_bound, update_matmuls  # noqa: E402
+
+def _sac_speed() -> ModuleType:
+    """benchmarks/sac_speed.py, loaded from its file (this study lives one folder below it)."""
+    spec = importlib.util.spec_from_file_location("sac_speed", Path(__file__).resolve().parents[1] / "sac_speed.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+_speed = _sac_speed()
+matmul_bound, update_matmuls = _speed.matmul_bound, _speed.update_matmuls
 
 
 def main() -> None:
@@ -31,7 +44,7 @@ def main() -> None:
     parser.add_argument("--env", default="Hopper-v5")
     parser.add_argument("--sizes", nargs="+", default=["64", "256", "64:256"])
     parser.add_argument("--sb3", type=Path, default=Path("benchmarks/results/sac_speed.json"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/sac_bound_dtypes.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/studies/results/sac_bound_dtypes.json"))
     args = parser.parse_args()
     torch.set_num_threads(1)
     sb3 = json.loads(args.sb3.read_text()) if args.sb3.is_file() else {}
