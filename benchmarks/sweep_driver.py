@@ -1,6 +1,7 @@
 """How many trials one `digail sweep` driver moves through Ray per second when the trials themselves cost nothing.
 
-    python benchmarks/sweep_driver.py [--trials 200] [--cpus 2] [--remote] [--out benchmarks/results/sweep_driver.json]
+    python benchmarks/sweep_driver.py [--trials 200] [--cpus 2] [--remote]
+        [--out benchmarks/studies/results/sweep_driver.json]
 
 Plans a sweep of `--trials` VAE-baseline trials (CircleWorld, one seed each, so `--trials` VAE jobs and as many
 evaluations), and runs it with the real driver (`digail.sweep.engine.execute`: scheduling, dependencies, state
@@ -55,7 +56,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--cpus", type=int, default=2)
     parser.add_argument("--remote", action="store_true")
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "sweep_driver.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "studies" / "results" / "sweep_driver.json")
     args = parser.parse_args()
 
     from digail.sweep import save_plan, start_ray, stop_ray, summarize_sweep

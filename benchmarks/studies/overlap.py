@@ -9,7 +9,7 @@ the weights):
   then waits for all N to step (the trainer's loop);
 - `halves`: two `SubprocVecEnv`s of N/2 envs (half the workers each); while one half steps, the main process infers
   the other half's next actions, so inference hides behind stepping where a core is free for it.
-Writes runs/bench/overlap.json (`--out`; the published measurement is benchmarks/results/overlap.json):
+Writes runs/bench/overlap.json (`--out`; the published measurement is benchmarks/studies/results/overlap.json):
 steps per second (medians over interleaved rounds), halves_over_lockstep (median of
 per-round ratios), and the main process's inference share of a lockstep step (the most overlap could hide).
 """

@@ -1,0 +1,39 @@
+"""Rules of the repository itself: modules stay readable in size, and nothing edits the import path by hand."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_no_source_module_is_over_500_lines() -> None:
+    long = {str(p.relative_to(ROOT)): n for p in sorted((ROOT / "src").rglob("*.py"))
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, f"split these by concept: {long}"
+
+
+def test_tests_benchmarks_and_scripts_never_edit_sys_path() -> None:
+    """A harness is imported from its file (tests/conftest.py's `repo_module`) or run as a script, whose own folder
+    Python already searches; an inserted folder would let its short module names shadow installed ones."""
+    edit = re.compile(r"sys\.path\.(insert|append)\(")
+    found = [str(p.relative_to(ROOT)) for folder in ("tests", "benchmarks", "scripts")
+             for p in sorted((ROOT / folder).rglob("*.py"))
+             if edit.search(p.read_text()) and p.name != Path(__file__).name]
+    assert not found, found
+
+
+def test_benchmarks_results_holds_only_what_the_docs_publish() -> None:
+    """benchmarks/results/ is the published record: each file there is named by the README, a docs page (the
+    experiment logs aside) or the benchmark that writes it; one-off studies keep theirs in
+    benchmarks/studies/results/."""
+    pages = [ROOT / "README.md", ROOT / "Makefile",
+             *(p for p in (ROOT / "docs").rglob("*.md") if "experiments" not in p.relative_to(ROOT / "docs").parts[0]),
+             *(ROOT / "benchmarks").glob("*.py")]
+    text = "\n".join(p.read_text() for p in pages)
+    results = ROOT / "benchmarks" / "results"
+    files = [p for p in results.iterdir() if p.is_file()]
+    files += [p for p in (results / "figures").iterdir() if p.is_file()]
+    unnamed = [str(p.relative_to(results)) for p in sorted(files) if p.name not in text]
+    assert not unnamed, f"move these to benchmarks/studies/results/ or cite them: {unnamed}"
