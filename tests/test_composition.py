@@ -70,41 +70,58 @@ class _Ramp(gym.Env):
 
 
 def _threshold_q() -> HierarchicalPolicy:
-    """q(. | s, c_prev) with argmax 1 exactly when s > 0.5, whatever c_prev (one linear layer with set weights)."""
+    """q(. | s, c_prev) with argmax 1 exactly when s > 0.55, whatever c_prev, and probabilities within 0.01 of 0 or
+    1 at every state of `_Ramp` (one linear layer with set weights)."""
     model = HierarchicalPolicy(1, 2, ActionSpec(False, 1), hidden=())
     with torch.no_grad():
         layer = model.q.net[0]
-        layer.weight.copy_(torch.tensor([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]]))
-        layer.bias.copy_(torch.tensor([0.0, -5.0]))
+        layer.weight.copy_(torch.tensor([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]]))
+        layer.bias.copy_(torch.tensor([0.0, -55.0]))
     return model
 
 
 def test_order_switches_when_q_leaves_the_running_code():
     model = _threshold_q()
     eps, switches = play_order(model, [_Ramp()], [0, 1], episodes=2, seed=0, hold=1)
-    # code 0 is left where s = t / 10 first exceeds 0.5, at t = 6; code 1 then runs to the end
+    # code 0 is left where s = t / 10 first exceeds 0.55, at t = 6; code 1 then runs to the end
     assert [e.codes for e in eps] == [[0] * 6 + [1] * 4] * 2
     assert [s.switch_steps for s in switches] == [[6], [6]] and all(s.completed for s in switches)
     assert [s.switch_by for s in switches] == [["q"], ["q"]] and switches[0].last_over_step is None
-    # order 1, 0: q leaves code 1 at once (s < 0.5), but a code's first step is never asked, so the switch is t = 1;
+    # order 1, 0: q leaves code 1 at once (s < 0.55), but a code's first step is never asked, so the switch is t = 1;
     # the last code 0 is over (per q) from t = 6 on, which is noted and changes nothing
     eps, switches = play_order(model, [_Ramp()], [1, 0], episodes=1, seed=0, hold=1)
     assert eps[0].codes == [1] + [0] * 9 and switches[0].switch_steps == [1] and switches[0].last_over_step == 6
-    # hold 3: the third step in a row past 0.5 (t = 8)
+    # hold 3: the third step past 0.55 (t = 8)
     eps, switches = play_order(model, [_Ramp()], [0, 1], episodes=1, seed=0, hold=3)
     assert eps[0].codes == [0] * 8 + [1] * 2 and switches[0].switch_steps == [8]
 
 
 def test_switch_rule_hold_ignores_flickers_and_lengths_replace_q():
-    flicker = [0, 0, 1, 0, 0, 1, 1, 1]  # q's argmax given the running code 0, steps 0..7
+    flicker = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 1.0]  # q's leave probability of the running code 0, steps 0..7
     one, two = OrderSwitch([0, 2, 1], hold=1), OrderSwitch([0, 2, 1], hold=2)
-    assert [one.step(t, k) for t, k in enumerate(flicker)][:3] == [0, 0, 2]  # the one-step flicker at t = 2 ends it
-    assert [two.step(t, k) for t, k in enumerate(flicker)] == [0, 0, 0, 0, 0, 0, 2, 2]  # ignored; t = 5, 6 end it
+    assert [one.step(t, p) for t, p in enumerate(flicker)][:3] == [0, 0, 2]  # the one-step flicker at t = 2 ends it
+    assert [two.step(t, p) for t, p in enumerate(flicker)] == [0, 0, 0, 0, 0, 0, 2, 2]  # ignored; t = 5, 6 end it
     assert two.switch_steps == [6] and not two.completed
     # code 2's end never seen by q: it runs its demonstrated 3 steps (t = 6, 7, 8), whatever q says
     rule = OrderSwitch([2, 1], hold=1, lengths={2: 3})
-    assert [rule.step(t, 2 if t % 2 else 0) for t in range(6)] == [2, 2, 2, 1, 1, 1]
+    assert [rule.step(t, 1.0 if t % 2 else 0.0) for t in range(6)] == [2, 2, 2, 1, 1, 1]
     assert rule.switch_steps == [3] and rule.switch_by == ["length"]
+
+
+def test_switch_rule_sums_a_leave_split_over_two_steps():
+    """A path passes the end of a sub-task between two steps: q's leave probability split over them (each below
+    1/2, as on Circle-World) still ends the sub-task, at the second step, and with a little more on the first
+    step at the first; a lone 0.3 does not, nor two that are far apart."""
+    rule = OrderSwitch([0, 1])
+    assert [rule.step(t, p) for t, p in enumerate([0.0, 0.0, 0.47, 0.21, 0.0, 0.0])] == [0, 0, 0, 1, 1, 1]
+    rule = OrderSwitch([0, 1])
+    assert [rule.step(t, p) for t, p in enumerate([0.0, 0.0, 0.51, 0.21, 0.0, 0.0])] == [0, 0, 1, 1, 1, 1]
+    apart = [0.0, 0.3, 0.0, 0.3, 0.0, 0.3]
+    rule = OrderSwitch([0, 1])
+    assert [rule.step(t, p) for t, p in enumerate(apart)] == [0] * 6 and rule.switch_steps == []
+    # a code's turn starts afresh: the leave probabilities before its first step do not count
+    rule = OrderSwitch([0, 1, 0])
+    assert [rule.step(t, p) for t, p in enumerate([0.0, 0.9, 0.3, 0.1, 0.45])] == [0, 1, 1, 1, 0]
 
 
 def test_demonstrated_lengths_lists_codes_q_never_leaves():
@@ -146,9 +163,12 @@ def test_circle_world_reversed_by_order(circle_demos):
     natural, eps = compose_order(model, ENV, [0, 1], episodes=6, seed=20_000, keep_obs=6)
     assert natural["order_completed_rate"] >= 0.8
     for e, steps in zip(eps, natural["switch_steps"], strict=True):
-        # the regression-fitted pi closes its circle a few steps early or late; q switches where it does, within
-        # half the shortest step (0.052) of the origin, not after 60 steps
-        assert not steps or (40 < steps[0] < 90 and np.linalg.norm(e.obs[steps[0]]) < 0.05)
+        # the regression-fitted pi closes its circle a few steps early or late; q switches where it does, on the
+        # first pass by the origin (at the step within 0.08 of it or the next: which of the two can depend on the
+        # CPU's float kernels), not a circle later
+        if steps:
+            near = np.linalg.norm(np.asarray(e.obs[steps[0] - 1:steps[0] + 1]), axis=1).min()
+            assert 40 < steps[0] < 90 and near < 0.08, (steps, near)
     lengths = demonstrated_lengths([t.subtasks[:-1] for t in circle_demos])
     assert lengths == {1: 60}
     blind, _ = compose_order(model, ENV, [1, 0], episodes=6, seed=20_000)

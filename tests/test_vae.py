@@ -468,7 +468,9 @@ def test_polish_sharpens_pi_keeps_the_segmentation_and_widens_q_switching() -> N
     after = fit(model)
     assert [c.tolist() for c in segment_many(model, trajs)] == [c.tolist() for c in codes]
     assert after[0] > before[0] + 0.5, (before, after)
-    assert after[1] > before[1] + 0.1 and after[1] >= 0.7, (before, after)
+    # q switches at >= 0.9 of the jittered states after polishing on every CPU (0.95 measured); before, 0.67 to
+    # 0.87 depending on the float kernels the pre-training ran on, so the gain itself is not a fixed number
+    assert after[1] >= 0.9 and after[1] >= before[1], (before, after)
 
 
 def test_anticipate_switches_moves_each_switch_earlier_without_crossing_the_previous_one() -> None:

@@ -24,15 +24,15 @@ class ComposeArgs:
     """run folder of a trained policy"""
     order: str | None = None
     """closed loop: the codes to run in turn, e.g. '2,0,1'; each runs until the macro-policy q says its sub-task is
-    over (argmax q(. | s_t, c_(t-1) = the running code) leaves that code for --hold steps in a row), then the next
-    takes over; the last runs until the episode ends. No durations to give"""
+    over (q's probability of leaving the running code, summed over its last --hold + 1 steps, reaches --hold - 1/2),
+    then the next takes over; the last runs until the episode ends. No durations to give"""
     schedule: str | None = None
     """open loop: code:steps pairs, e.g. '1:60,0:60' (the default when --order is not given: Circle-World's
     reversed circles when code 1 is the counter-clockwise one; code ids are arbitrary, `mapping` in the run's
     segmentation.json says which code matched which sub-task)"""
     hold: int = 1
-    """--order only: steps in a row q must leave the running code before the next one takes over (2 or more
-    ignores one-step flickers of q, and delays every switch by as many steps less one)"""
+    """--order only: how many steps q must leave the running code for before the next one takes over (see
+    --order; 2 or more ignores one-step flickers of q, and delays every switch by as many steps less one)"""
     fallback: Literal["length", "none"] = "length"
     """--order only: a code the demonstrations leave only by ending (q never switched away from it) has an end q
     cannot see; 'length' runs it for the median length of its demonstrated segments, 'none' until the episode

@@ -166,11 +166,20 @@ class OrderSwitch:
     """The closed-loop switching rule of one episode under a code order.
 
     The current code is `order[i]`, which took over at step `t_i` (0 for the first). At every later step t of its
-    turn the macro-policy is asked what comes next as if that code had been running:
-    `k_t = argmax q(. | s_t, c_{t-1} = order[i])`. When `k_t != order[i]` for `hold` steps in a row, the sub-task
-    is over: `order[i + 1]` runs from that step on (step t's action already comes from it) and t is noted in
-    `switch_steps`. Which code q would switch *to* is ignored; only that it leaves the current one counts, since
-    the user's order, not q, says what comes next.
+    turn the macro-policy is asked how likely it is to leave that code: `leave_t = 1 - q(order[i] | s_t,
+    c_{t-1} = order[i])`. When the leave probabilities of the turn's last `hold + 1` steps sum to at least
+    `hold - 1/2`, the sub-task is over: `order[i + 1]` runs from that step on (step t's action already comes from
+    it) and t is noted in `switch_steps`. With probabilities of 0 or 1 this reads "q leaves the code at `hold` of
+    the last `hold + 1` steps" (hold 1: at one step; hold 2 ignores a one-step flicker). Which code q would switch
+    *to* is ignored; only that it leaves the current one counts, since the user's order, not q, says what comes
+    next.
+
+    Why a sum and not q's argmax at single steps: a closed-loop path passes the state where a sub-task ends
+    between two steps, so q's leave probability is often split over them (0.47 then 0.21 on Circle-World). An
+    argmax then decides on whether one step's share is 0.49 or 0.51, which the CPU's float kernels change (the
+    states drift in the last bits over a whole circle), and a missed end costs a whole extra circle. The half step
+    of slack in the sum makes such a split end the sub-task at the same step or the next on every machine.
+    Wherever the argmax leaves the code, the leave probability is above 1/2, so no end the argmax sees is missed.
 
     The step a code takes over is never asked: its state is where the previous sub-task (or the episode) ended,
     which q may rightly read as an end (on Circle-World the origin ends the clockwise circle and starts it too).
@@ -189,7 +198,8 @@ class OrderSwitch:
         self.lengths = {int(c): int(n) for c, n in (lengths or {}).items()}
         self.index = 0
         self.started = 0
-        self.streak = 0
+        self._recent: list[float] = []
+        """q's leave probabilities at the running code's last steps (at most hold + 1)"""
         self.switch_steps: list[int] = []
         """steps at which the next code of the order took over (one fewer than the order's codes when it ran
         to the end)"""
@@ -208,18 +218,19 @@ class OrderSwitch:
         """whether every code of the order took its turn"""
         return self.index == len(self.order) - 1
 
-    def step(self, t: int, q_next: int) -> int:
-        """The code of step t, given `q_next = argmax q(. | s_t, c_{t-1} = self.current)`."""
+    def step(self, t: int, leave: float) -> int:
+        """The code of step t, given `leave = 1 - q(current | s_t, c_{t-1} = current)`, q's probability of
+        leaving the running code at t."""
         if t <= self.started:  # a code's first step is never asked (see the class docstring)
             return self.current
         by = ""
         if self.current in self.lengths and not self.completed:
             by = "length" if t - self.started >= self.lengths[self.current] else ""
         else:
-            self.streak = self.streak + 1 if int(q_next) != self.current else 0
-            by = "q" if self.streak >= self.hold else ""
+            self._recent = (self._recent + [float(leave)])[-(self.hold + 1):]
+            by = "q" if sum(self._recent) >= self.hold - 0.5 else ""
         if by:
-            self.streak = 0
+            self._recent = []
             if not self.completed:
                 self.index += 1
                 self.started = int(t)
@@ -273,8 +284,9 @@ def order_act(model: HierarchicalPolicy, order: Sequence[int], to_env: Any, hold
         obs_n = model.normalizer(torch.as_tensor(np.stack([np.asarray(o, np.float32) for o in obs]), device=device))
         rules = [switches.setdefault(id(e), (e, OrderSwitch(order, hold, lengths)))[1] for e in eps]
         current = torch.as_tensor([r.current for r in rules], device=device)
-        q_next = model.q(obs_n, one_hot(current, K)).argmax(-1).tolist()
-        codes = [r.step(e.length, k) for r, e, k in zip(rules, eps, q_next, strict=True)]
+        stay = torch.softmax(model.q(obs_n, one_hot(current, K)), -1).gather(1, current[:, None])[:, 0]
+        leave = (1.0 - stay).tolist()
+        codes = [r.step(e.length, p) for r, e, p in zip(rules, eps, leave, strict=True)]
         for e, c in zip(eps, codes, strict=True):
             e.codes.append(c)
         code_1h = eye[torch.as_tensor(codes, device=device)]
@@ -306,8 +318,8 @@ def order_summary(switches: Sequence[OrderSwitch]) -> dict[str, Any]:
     per_switch = [float(np.mean([s.switch_steps[i] for s in done])) for i in range(len(first.order) - 1)] \
         if done else []
     return {"order": first.order, "hold": first.hold,
-            "rule": f"next code once argmax q(. | s_t, c_(t-1) = current code) differs from it {first.hold} "
-                    "step(s) in a row, from a code's second step on",
+            "rule": f"next code once q's probabilities of leaving the current code, summed over its last "
+                    f"{first.hold + 1} steps, reach {first.hold - 0.5:g}, from a code's second step on",
             "demonstrated_lengths": {str(c): n for c, n in first.lengths.items()},
             "order_completed_rate": float(np.mean([s.completed for s in switches])) if switches else 0.0,
             "mean_switch_steps": per_switch,
