@@ -190,7 +190,7 @@ def test_robomimic_export_is_a_copy_with_signals(tmp_path):
     with pytest.raises(UserError) as exc:
         export_segmentation("robomimic", ROBOSUITE, im.episode_keys, codes, ["a", "b"], source=im.source,
                             force=True)
-    one_sentence(exc, "is the input file")
+    one_sentence(exc, "is the input;")
     assert digest(ROBOSUITE) == before
 
 
@@ -208,9 +208,15 @@ def test_lerobot_export_is_a_copy_with_a_column(tmp_path):
     table = pq.read_table(out / "data" / "chunk-000" / "file-000.parquet")
     hf = json.loads(table.schema.metadata[b"huggingface"])
     assert hf["info"]["features"]["subtask_index"]["dtype"] == "int64"
+    rows = table.to_pydict()
+    for key, c in zip(im.episode_keys, codes, strict=True):
+        frames = sorted((f, k) for e, f, k in zip(rows["episode_index"], rows["frame_index"], rows["subtask_index"],
+                                                  strict=True) if e == int(key))
+        assert [k for _, k in frames] == [*c.tolist(), int(c[-1])]  # the last frame takes the code before
+    # read again, digail's own segmentation is not taken for oracle labels
     again = read_demonstrations(out)
-    for t, c in zip(again.trajs, codes, strict=True):
-        np.testing.assert_array_equal(t.subtasks, np.concatenate([c, c[-1:]]))  # the last frame takes the code before
+    assert all(t.subtasks is None for t in again.trajs)
+    assert any("a segmentation digail exported" in note for note in again.notes), again.notes
 
 
 def test_table_exports(tmp_path):

@@ -33,7 +33,8 @@ class SegmentArgs:
     names: tuple[str, ...] | None = None
     """one name per code for the exported annotations (default: code_0, code_1, ...)"""
     obs_keys: tuple[str, ...] | None = None
-    """robomimic / LeRobot --demos only: the observation keys to read, as given to `digail import --obs-keys`"""
+    """robomimic / LeRobot --demos only: the observation keys to read, as given to `digail import --obs-keys`
+    (default: the keys the run's dataset was imported with, in that order)"""
     force: bool = False
     """replace an existing --out"""
 
@@ -42,7 +43,9 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     """Segment with the run's macro-policy, write codes and scores into the run folder.
 
     Uses the run's training demonstrations (the `demos` entry of RUN/config.json) unless `args.demos` is given.
-    Returns the metrics written to RUN/segmentation.json.
+    Everything the command refuses is refused before the run folder is written: the export's `--out` (never the
+    input, the run or its dataset; `digail.data.annotations.check_export`) and observation keys in another order
+    than the run was trained on. Returns the metrics written to RUN/segmentation.json.
     """
     import numpy as np
 
@@ -59,33 +62,37 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     run, demos = check_output_folder(args.run), args.demos
     with run_dir_lock(run):  # one writer per run folder
         model, meta = load_model(run)
+        config = read_config(run) or meta["config"]
+        trained_on = config.get("demos")
         if demos is None:
-            config = read_config(run) or meta["config"]
-            demos = config.get("demos")
+            demos = trained_on
             if not demos:
                 raise UserError(f"{run} does not record its demonstrations; pass --demos.")
-        source: str | None
-        source_format: str | None
-        if is_import_source(demos):  # another tool's file, read as it is (no environment to check)
-            imported = prepare_import(demos, obs_keys=args.obs_keys)
+        run_dataset, run_keys = _run_dataset(trained_on)
+        import_source = is_import_source(demos)
+        source, source_format, record = _source_of(demos, import_source)
+        obs_keys = _obs_keys(args.obs_keys, run_keys, demos, import_source, record)
+        names: list[str] = []
+        if args.export is not None:  # before anything is read or written
+            names = code_names(model.codes, args.names)
+            protected = [(run, "the run folder")]
+            if run_dataset is not None:
+                protected.append((run_dataset, "the run's dataset"))
+            if not import_source:
+                protected.append((record["folder"], "the input"))
+            check_export(args.export, args.out, source, source_format, args.force, protected=protected)
+        if import_source:  # another tool's file, read as it is (no environment to check)
+            imported = prepare_import(demos, obs_keys=obs_keys)
             for note in imported.notes:
                 print(f"note: {note}.")
-            trajs, source, source_format = imported.trajs, imported.source, imported.fmt
-            episode_keys = imported.episode_keys
+            trajs, episode_keys = imported.trajs, imported.episode_keys
         else:
-            if args.obs_keys:
-                raise UserError(f"--obs-keys applies when --demos is a robomimic file or a LeRobot dataset; {demos} is "
-                                "a Minari dataset, whose observations were chosen when it was imported, drop it.")
             dataset = load_dataset(demos)
             if meta.get("env_id") and dataset.env_id and dataset.env_id != meta["env_id"]:
                 raise UserError(f"the model was trained on {meta['env_id']} but {demos} holds {dataset.env_id} "
                                 "demonstrations; pass demonstrations of the model's environment.")
-            record = dataset.metadata.get("digail") or {}
-            trajs, source, source_format = dataset.trajs, record.get("imported_from"), record.get("format")
+            trajs = dataset.trajs
             episode_keys = record.get("episode_keys") or [str(i) for i in range(len(trajs))]
-        if args.export is not None:
-            names = code_names(model.codes, args.names)
-            check_export(args.export, args.out, source, source_format, args.force)
         if args.label_map is not None:
             labels = {int(v) for t in trajs if t.subtasks is not None for v in set(t.subtasks.tolist())}
             if not labels:
@@ -103,3 +110,53 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
                                        force=args.force)
             print(f"wrote the segmentation as {args.export} annotations ({', '.join(names)}) to {path}")
     return metrics
+
+
+def _run_dataset(trained_on: str | None) -> tuple[Path | None, list[str] | None]:
+    """The folder of the dataset a run was trained on and the observation keys it was imported with (robomimic and
+    LeRobot sources), each None where unknown (no record, or the dataset is gone)."""
+    from digail.data.minari_io import dataset_metadata
+
+    if not trained_on:
+        return None, None
+    try:
+        folder, metadata = dataset_metadata(trained_on)
+    except UserError:  # moved or deleted since: nothing to protect or compare with
+        return (Path(trained_on) if Path(trained_on).exists() else None), None
+    keys = ((metadata.get("digail") or {}).get("source_metadata") or {}).get("obs_keys")
+    return folder, [str(k) for k in keys] if isinstance(keys, list) and keys else None
+
+
+def _source_of(demos: str, import_source: bool) -> tuple[str | None, str | None, dict[str, Any]]:
+    """Where the demonstrations come from, known before they are read: the file or folder another tool wrote and
+    its layout, and for a Minari dataset digail's record of its import (with `folder`: the dataset's folder)."""
+    from digail.data.formats import detect
+    from digail.data.minari_io import dataset_metadata
+
+    if import_source:
+        return str(demos), detect(Path(demos)) or "named-array", {}
+    folder, metadata = dataset_metadata(demos)
+    record = dict(metadata.get("digail") or {})
+    record["folder"] = folder
+    return record.get("imported_from"), record.get("format"), record
+
+
+def _obs_keys(given: tuple[str, ...] | None, run_keys: list[str] | None, demos: str, import_source: bool,
+              record: dict[str, Any]) -> list[str] | None:
+    """The observation keys to read, in the order the run was trained on: the run's own when none are given;
+    refused when the given keys, or a dataset's imported ones, are another order or another set."""
+    if not import_source:
+        if given:
+            raise UserError(f"--obs-keys applies when --demos is a robomimic file or a LeRobot dataset; {demos} is "
+                            "a Minari dataset, whose observations were chosen when it was imported, drop it.")
+        keys = (record.get("source_metadata") or {}).get("obs_keys")
+        if run_keys and isinstance(keys, list) and keys and [str(k) for k in keys] != run_keys:
+            raise UserError(f"{demos} was imported with observation keys {', '.join(map(str, keys))} but the run was "
+                            f"trained on {', '.join(run_keys)}, in this order; import it again with --obs-keys "
+                            f"{' '.join(run_keys)}.")
+        return None
+    if given and run_keys and list(given) != run_keys:
+        raise UserError(f"--obs-keys {' '.join(given)} is not what the run was trained on: {' '.join(run_keys)}, in "
+                        f"this order (each key is a block of the observation the model reads); pass --obs-keys "
+                        f"{' '.join(run_keys)} or drop it.")
+    return list(given) if given else run_keys

@@ -9,7 +9,10 @@ Four targets (`EXPORTS`):
 - `csv`, `json`: a plain table of segments, one row per segment: `episode` (the episode's name in its source),
   `start`, `end` (the segment covers steps start .. end - 1), `code`, `name`.
 
-Steps are the demonstration's action steps as digail read them; the input is never written.
+Steps are the demonstration's action steps as digail read them. Where an export goes is checked once, before any
+work (`check_export`): never the input, the run folder or its dataset (nor anything inside or holding them), never
+a link, a FIFO or a device, and an existing output only with `--force` and only when digail wrote it (a folder
+with digail's marker; a file that is an export of the same kind).
 """
 
 from __future__ import annotations
@@ -17,14 +20,17 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
+import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from digail.data.input_files import file_kind
 from digail.errors import UserError
-from digail.fsio import atomic_write_bytes, check_writable
+from digail.fsio import atomic_write_bytes, check_not_locked, check_replaceable, check_writable
 
 EXPORTS = ("robomimic", "lerobot", "csv", "json")
 """where `export_segmentation` writes"""
@@ -40,9 +46,9 @@ def code_names(n_codes: int, names: Sequence[str] | None = None) -> list[str]:
     names = list(names)
     if len(names) != n_codes:
         raise UserError(f"--names gives {len(names)} names for a model of {n_codes} codes; give one name per code.")
-    if len(set(names)) != len(names) or any(not n or "/" in n for n in names):
-        raise UserError("--names must be distinct, non-empty and without '/'; they name HDF5 datasets and table "
-                        "rows.")
+    if len(set(names)) != len(names) or any(not n or "/" in n or n in (".", "..") for n in names):
+        raise UserError("--names must be distinct, non-empty, without '/' and neither '.' nor '..'; they name HDF5 "
+                        "datasets and table rows.")
     return names
 
 
@@ -63,16 +69,21 @@ def segment_rows(episode_keys: Sequence[str], codes: Sequence[np.ndarray], names
             for key, episode_codes in zip(episode_keys, codes, strict=True) for a, b, k in segments(episode_codes)]
 
 
-def check_export(fmt: str, out: Path | None, source: str | None, source_format: str | None, force: bool) -> None:
-    """Refuse, before any work, an export that cannot be written: no `--out`, an existing one without `force`, an
-    annotated copy of a source that is not of its layout or no longer there."""
+def check_export(fmt: str, out: Path | None, source: str | None, source_format: str | None, force: bool, *,
+                 protected: Sequence[tuple[str | os.PathLike[str], str]] = ()) -> None:
+    """Refuse, before any work, an export that cannot or must not be written: an unknown format, no `--out`, an
+    `--out` that `check_export_target` refuses (the source and `protected` are never written), an annotated copy of
+    a source that is not of its layout or no longer there.
+
+    Args:
+        protected: further (path, what it is) pairs `out` must stay clear of: the run folder, its dataset.
+    """
     if fmt not in EXPORTS:
         raise UserError(f"unknown export {fmt!r}; choose one of {', '.join(EXPORTS)}.")
     if out is None:
         raise UserError(f"--export {fmt} needs --out: the file or folder to write.")
-    if out.exists() and not force:
-        raise UserError(f"output {out} already exists; choose another --out or pass --force.")
-    check_writable(out)
+    inputs = [(source, "the input")] if source is not None else []
+    check_export_target(fmt, out, force, [*inputs, *protected])
     need = SOURCE_FORMAT.get(fmt)
     if need is None:
         return
@@ -83,8 +94,89 @@ def check_export(fmt: str, out: Path | None, source: str | None, source_format: 
     if not Path(source).exists():
         raise UserError(f"the demonstrations were imported from {source}, which is no longer there; pass the {need} "
                         "source as --demos.")
-    if Path(out).resolve() == Path(source).resolve():
-        raise UserError(f"--out {out} is the input; digail never modifies its input, choose another --out.")
+
+
+def check_export_target(fmt: str, out: Path, force: bool,
+                        protected: Sequence[tuple[str | os.PathLike[str], str]] = ()) -> None:
+    """Refuse an `--out` that an export must not write, in one sentence: one that is, lies inside or holds a
+    `protected` path (the input, the run, its dataset; links resolved); a link (even one to nothing), a FIFO, a
+    device or a socket; a folder where a file export goes or a file where the LeRobot folder goes; an existing one
+    without `force`, and with it anything but digail's own output (`check_replaceable` for the LeRobot folder, an
+    export of the same kind for a file); a place that cannot be written."""
+    out = Path(out)
+    real = Path(os.path.realpath(out))
+    for path, what in protected:
+        other = Path(os.path.realpath(path))
+        relation = ("is" if real == other else "is inside" if other in real.parents else
+                    "holds" if real in other.parents else None)
+        if relation is not None:
+            named = "" if relation == "is" else f", {path}"
+            raise UserError(f"--out {out} {relation} {what}{named}; an export never writes over what digail reads or "
+                            "a run's files, choose another --out.")
+    try:
+        st = os.lstat(out)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise UserError(f"cannot look at --out {out} ({(exc.strerror or type(exc).__name__).lower()}); choose "
+                        "another --out.") from None
+    if st is not None:
+        if stat.S_ISLNK(st.st_mode):
+            raise UserError(f"--out {out} is a symbolic link; an export is written only as a file or folder of its "
+                            "own, never through a link: remove the link or choose another --out.")
+        kind = file_kind(st.st_mode)
+        if kind is not None:
+            raise UserError(f"--out {out} is {kind}, not a file or folder digail wrote; choose another --out.")
+        is_dir = stat.S_ISDIR(st.st_mode)
+        if fmt == "lerobot" and not is_dir:
+            raise UserError(f"--out {out} is a file, but --export lerobot writes a folder (a copy of the dataset); "
+                            "choose a new folder name.")
+        if fmt != "lerobot" and is_dir:
+            suffix = {"robomimic": "hdf5"}.get(fmt, fmt)
+            raise UserError(f"--out {out} is a folder, but --export {fmt} writes a file; give a file name such as "
+                            f"{out / ('segments.' + suffix)}.")
+        if not force:
+            raise UserError(f"output {out} already exists; choose another --out or pass --force.")
+        if is_dir:
+            check_replaceable(out)
+            check_not_locked(out)
+        elif not _digail_export(fmt, out):
+            raise UserError(f"{out} is not a {fmt} export digail wrote, and --force replaces only those; move it "
+                            "away or choose another --out.")
+    check_writable(out)
+
+
+_TABLE_HEADS = {"csv": b"episode,start,end,code,name\n", "json": b'{\n "names": ['}
+"""how the tables `export_segmentation` writes begin: what tells an earlier export from a user's file"""
+
+
+def _digail_export(fmt: str, path: Path) -> bool:
+    """Whether the regular file `path` is an export of kind `fmt` digail wrote (which `--force` may replace)."""
+    if fmt in _TABLE_HEADS:
+        head = _TABLE_HEADS[fmt]
+        try:
+            with open(path, "rb") as f:
+                return f.read(len(head)) == head
+        except OSError:
+            return False
+    import h5py
+
+    from digail.data.robomimic import SIGNALS_PATH, demo_keys
+
+    try:
+        if not h5py.is_hdf5(path):
+            return False
+        with h5py.File(path, "r") as f:
+            data = f.get("data")
+            if not isinstance(data, h5py.Group):
+                return False
+            for key in demo_keys(data):
+                signals = data.get(f"{key}/{SIGNALS_PATH}", getlink=False)
+                if isinstance(signals, h5py.Group) and "digail_signals" in signals.attrs:
+                    return True
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError):
+        return False
+    return False
 
 
 def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes: Sequence[np.ndarray],
@@ -101,19 +193,23 @@ def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes:
         force: replace an existing `out`.
     """
     out = Path(out)
+    check_export_target(fmt, out, force, [(source, "the input")] if source is not None else [])
     if len(episode_keys) != len(codes):
         raise UserError(f"the segmentation has {len(codes)} episodes but the source lists {len(episode_keys)}; "
                         "segment the demonstrations read from the source.")
-    if fmt == "robomimic":
+    if fmt in SOURCE_FORMAT:
+        from digail.data.lerobot import write_subtask_index
         from digail.data.robomimic import write_subtask_signals
 
-        assert source is not None
-        return write_subtask_signals(source, out, episode_keys, codes, names, force=force)
-    if fmt == "lerobot":
-        from digail.data.lerobot import write_subtask_index
-
-        assert source is not None
-        return write_subtask_index(source, out, episode_keys, codes, names, force=force)
+        if source is None or not Path(source).exists():
+            raise UserError(f"--export {fmt} copies the {fmt} source, but {source} is no longer there; put it back "
+                            "and segment again.")
+        write = write_subtask_signals if fmt == "robomimic" else write_subtask_index
+        try:
+            return write(source, out, episode_keys, codes, names, force=force)
+        except FileNotFoundError as exc:  # the source moved away while it was copied
+            raise UserError(f"{exc.filename or source} disappeared while the export was written; nothing was "
+                            "written, put the source back and segment again.") from None
     rows = segment_rows(episode_keys, codes, names)
     if fmt == "json":
         data = (json.dumps({"names": list(names), "segments": rows}, indent=1) + "\n").encode()

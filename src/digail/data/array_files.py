@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.data.input_files import check_h5_links, regular_file
 from digail.errors import UserError
 from digail.utils import one_line
 
@@ -106,8 +107,9 @@ def open_arrays(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Arr
     if path.is_dir():
         raise UserError(f"{where} is a folder; pass an .npz or HDF5 file (a Minari dataset folder needs no "
                         "import).")
-    if not path.is_file():
+    if not path.exists():
         raise UserError(f"no file at {where}; pass the path of an .npz or HDF5 file of demonstrations.")
+    regular_file(path, "demonstrations file")  # a FIFO or a device is refused before it is opened
     suffix = path.suffix.lower()
     if suffix == ".npz":
         try:
@@ -140,7 +142,12 @@ def open_arrays(source: str | os.PathLike[str] | Mapping[str, Any]) -> tuple[Arr
         except OSError as exc:
             raise UserError(f"cannot read {where} as an HDF5 file ({one_line(exc)}); the file is damaged or not "
                             "HDF5.") from exc
-        arrays = {k: _LazyH5(h5, k, where) for k, v in h5.items() if isinstance(v, h5py.Dataset)}
+        try:
+            check_h5_links(h5, where)
+            arrays = {k: _LazyH5(h5, k, where) for k, v in h5.items() if isinstance(v, h5py.Dataset)}
+        except BaseException:
+            h5.close()
+            raise
         return Arrays(where, arrays), h5
     raise UserError(f"{where} is neither an .npz nor an HDF5 file; save the demonstrations with numpy.savez or "
                     "h5py.")
@@ -164,7 +171,7 @@ class _LazyNpz:
                           (2, 0): np.lib.format.read_array_header_2_0}.get(version)
                 header = None if reader is None else reader(f)
                 if header is not None and not header[2].hasobject:
-                    _check_declared(self.where, self.key, header[0], header[2], info.file_size - f.tell())
+                    check_declared(self.where, self.key, header[0], header[2], info.file_size - f.tell())
             arr = self.npz[self.key]
         except UserError:
             raise
@@ -178,7 +185,7 @@ class _LazyNpz:
         return arr if dtype is None else arr.astype(dtype)
 
 
-def _check_declared(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype[Any], stored: int | None) -> None:
+def check_declared(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype[Any], stored: int | None) -> None:
     """Refuse, before reading it, an array whose header declares more bytes than the file stores for it (`stored`;
     None when compression hides it) or than this machine's memory holds."""
     from digail.utils import available_memory, human_bytes
@@ -198,19 +205,14 @@ class _LazyH5:
         self.h5, self.key, self.where = h5, key, where
 
     def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        from digail.data.input_files import h5_array
+
         try:
             ds = self.h5[self.key]
-            if ds.dtype.kind in "biufc":
-                # a contiguous uncompressed dataset stores every byte it declares, inside the file; a chunked one
-                # may leave chunks unwritten (read as zeros), so only the memory bounds it
-                contiguous = ds.compression is None and ds.chunks is None
-                stored = min(int(ds.id.get_storage_size()), Path(self.h5.filename).stat().st_size) \
-                    if contiguous else None
-                _check_declared(self.where, self.key, ds.shape, ds.dtype, stored)
-            arr = np.asarray(ds[()])
         except (OSError, KeyError) as exc:
             raise UserError(f"cannot read '{self.key}' from {self.where} ({one_line(exc)}); the file is damaged.") \
                 from exc
+        arr = h5_array(ds, self.where, self.key)
         return arr if dtype is None else arr.astype(dtype)
 
 

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.data.input_files import inside, read_json
 from digail.errors import UserError
 from digail.utils import one_line
 
@@ -39,18 +40,25 @@ def is_imitation_folder(path: str | Path) -> bool:
 
 def _arrow_files(path: Path) -> list[Path]:
     """The folder's Arrow files in the order `state.json` lists them (sorted names when it lists none)."""
+    state = read_json(path / "state.json", "the datasets folder")
     try:
-        state = json.loads((path / "state.json").read_text())
         names = [entry["filename"] for entry in state.get("_data_files", [])]
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        if not all(isinstance(n, str) for n in names):
+            raise TypeError("a file name that is not text")
+    except (KeyError, TypeError, AttributeError) as exc:
         raise UserError(f"cannot read {path / 'state.json'} ({one_line(exc)}); the datasets folder is damaged, "
                         "save it again with imitation.data.serialize.save.") from exc
-    files = [path / n for n in names] if names else sorted(path.glob("*.arrow"))
-    missing = [f.name for f in files if not f.is_file()]
-    if missing or not files:
-        raise UserError(f"{path} is a datasets folder without its data ({', '.join(missing) or 'no .arrow file'}); "
-                        "copy the whole folder imitation.data.serialize.save wrote.")
-    return files
+    if not names:
+        names = sorted(f.name for f in path.glob("*.arrow"))
+    if not names:
+        raise UserError(f"{path} is a datasets folder without its data (no .arrow file); copy the whole folder "
+                        "imitation.data.serialize.save wrote.")
+    where = str(path / "state.json")
+    for name in names:  # the names come from state.json: never ../x or /etc/passwd, checked before any is opened
+        if not (path / name).exists() and not Path(name).is_absolute() and ".." not in Path(name).parts:
+            raise UserError(f"{path} is a datasets folder without its data ({name}); copy the whole folder "
+                            "imitation.data.serialize.save wrote.")
+    return [inside(path, name, where, "data file") for name in names]
 
 
 def _read_table(files: list[Path]) -> Any:
@@ -70,9 +78,14 @@ def _read_table(files: list[Path]) -> Any:
     return pa.concat_tables(tables) if len(tables) > 1 else tables[0]
 
 
-def _cell(column: Any, i: int) -> np.ndarray:
-    """Row `i` of a (nested) list column as a numeric array."""
-    return np.asarray(column[i].as_py())
+def _cell(column: Any, i: int, where: str, name: str) -> np.ndarray:
+    """Row `i` of a (nested) list column as an array (its values checked later as the importers check arrays)."""
+    value = column[i].as_py()
+    try:
+        return np.asarray(value)
+    except ValueError:  # rows of different lengths inside one trajectory
+        raise UserError(f"{where}, trajectory {i} has '{name}' rows of different lengths; every step needs the "
+                        "same size.") from None
 
 
 def read_imitation_folder(path: str | Path) -> dict[str, Any]:
@@ -103,8 +116,9 @@ def read_imitation_folder(path: str | Path) -> dict[str, Any]:
         terminal = bool(term_col[i].as_py())
         if terminal and infos_col is not None and _time_limited(infos_col[i].as_py()):
             terminal, kept_truncated = False, kept_truncated + 1
-        eps.append({"where": f"{where}, trajectory {i}", "obs": _cell(obs_col, i), "acts": _cell(acts_col, i),
-                    "rews": None if rews_col is None else _cell(rews_col, i), "terminated": terminal})
+        eps.append({"where": f"{where}, trajectory {i}", "obs": _cell(obs_col, i, where, "obs"),
+                    "acts": _cell(acts_col, i, where, "acts"),
+                    "rews": None if rews_col is None else _cell(rews_col, i, where, "rews"), "terminated": terminal})
     if not eps:
         raise UserError(f"{where} holds no trajectories; save at least one.")
     notes = []

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.data.input_files import check_tree, inside, read_json
 from digail.errors import UserError
 from digail.fsio import atomic_dir
 from digail.utils import one_line
@@ -35,6 +36,9 @@ SUBTASK_COLUMN = "subtask_index"
 """the per-frame column of sub-task indices (into `meta/subtasks.parquet`)"""
 SUBTASKS_TABLE = "meta/subtasks.parquet"
 """the table of sub-task names, laid out as LeRobot's `meta/tasks.parquet`"""
+DIGAIL_KEY = b"digail"
+"""the schema-metadata key of `SUBTASKS_TABLE` that marks the column as digail's own export: a segmentation, which
+a later reading does not take for oracle labels"""
 _NON_NUMERIC = ("image", "video", "string")
 
 
@@ -45,15 +49,25 @@ def is_lerobot(path: str | Path) -> bool:
 
 
 def _info(path: Path) -> dict[str, Any]:
-    try:
-        info = json.loads((path / "meta" / "info.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise UserError(f"cannot read {path / 'meta' / 'info.json'} ({one_line(exc)}); the LeRobot dataset is "
-                        "damaged.") from exc
+    info = read_json(inside(path, "meta/info.json", str(path)), "the LeRobot dataset")
     if not isinstance(info, dict) or not isinstance(info.get("features"), dict):
         raise UserError(f"{path / 'meta' / 'info.json'} has no 'features' table; it is not a LeRobot dataset's "
                         "info.json.")
     return info
+
+
+def _digail_subtasks(path: Path) -> bool:
+    """Whether the dataset's `subtask_index` column is digail's own export (its names table says so)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    if not (path / SUBTASKS_TABLE).exists():
+        return False
+    table = inside(path, SUBTASKS_TABLE, str(path), "names table")
+    try:
+        return DIGAIL_KEY in (pq.read_schema(table).metadata or {})
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise UserError(f"cannot read {table} as Parquet ({one_line(exc)}); the file is damaged.") from None
 
 
 def data_files(path: Path) -> list[Path]:
@@ -62,7 +76,8 @@ def data_files(path: Path) -> list[Path]:
     if not files:
         raise UserError(f"{path} has meta/info.json but no Parquet files below data/; copy the whole LeRobot "
                         "dataset folder.")
-    return files
+    # each a regular file inside the dataset (a FIFO would block the reader for ever, a link could lead anywhere)
+    return [inside(path, str(f.relative_to(path)), str(path), "frame file") for f in files]
 
 
 def _column(table: Any, name: str, where: str) -> np.ndarray:
@@ -70,15 +85,25 @@ def _column(table: Any, name: str, where: str) -> np.ndarray:
     import pyarrow as pa
 
     col = table.column(name).combine_chunks()
+    if col.null_count:
+        raise UserError(f"{where} has {col.null_count} empty (null) values in '{name}'; every frame needs one.")
+    leaf = col.type
+    while pa.types.is_fixed_size_list(leaf) or pa.types.is_list(leaf) or pa.types.is_large_list(leaf):
+        leaf = leaf.value_type
+    if not (pa.types.is_integer(leaf) or pa.types.is_floating(leaf) or pa.types.is_boolean(leaf)):
+        raise UserError(f"{where} has '{name}' of type {col.type}, which is not numeric; choose numeric features.")
     if pa.types.is_fixed_size_list(col.type) or pa.types.is_list(col.type) or pa.types.is_large_list(col.type):
-        values = col.flatten().to_numpy(zero_copy_only=False)
-        if len(col) and len(values) % len(col):
-            raise UserError(f"{where} has '{name}' rows of different lengths; each frame needs the same size.")
+        if not pa.types.is_fixed_size_list(col.type) and len(col):
+            lengths = col.value_lengths().to_numpy(zero_copy_only=False)
+            if lengths.min() != lengths.max():  # a reshape would mix neighbouring frames' values
+                raise UserError(f"{where} has '{name}' rows of different lengths ({int(lengths.min())} to "
+                                f"{int(lengths.max())} values); each frame needs the same size.")
+        values = col.flatten()
+        while isinstance(values, pa.ListArray | pa.LargeListArray | pa.FixedSizeListArray):
+            values = values.flatten()
+        values = values.to_numpy(zero_copy_only=False)
         return values.reshape(len(col), -1)
-    try:
-        return col.to_numpy(zero_copy_only=False)
-    except (pa.ArrowInvalid, NotImplementedError) as exc:
-        raise UserError(f"{where} has '{name}' of type {col.type}, which is not numeric.") from exc
+    return col.to_numpy(zero_copy_only=False)
 
 
 def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dict[str, Any]:
@@ -124,7 +149,8 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     if "action" not in features:
         raise UserError(f"{where} has no 'action' feature (it has {', '.join(features)}); digail needs the actions.")
     wanted = [*chosen, "action", "episode_index", "frame_index"]
-    optional = [c for c in ("next.reward", SUBTASK_COLUMN) if c in features]
+    ours = SUBTASK_COLUMN in features and _digail_subtasks(path)
+    optional = [c for c in ("next.reward", SUBTASK_COLUMN) if c in features and not (c == SUBTASK_COLUMN and ours)]
     tables = []
     for file in data_files(path):
         try:
@@ -136,7 +162,13 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
             tables.append(pq.read_table(file, columns=wanted + [c for c in optional if c in schema_names]))
         except (OSError, pa.ArrowInvalid) as exc:
             raise UserError(f"cannot read {file} as Parquet ({one_line(exc)}); the file is damaged.") from exc
-    table = pa.concat_tables(tables, promote_options="default") if len(tables) > 1 else tables[0]
+    try:
+        table = pa.concat_tables(tables, promote_options="default") if len(tables) > 1 else tables[0]
+    except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
+        raise UserError(f"{where} has frame files whose columns do not agree ({one_line(exc)}); the dataset is "
+                        "damaged.") from None
+    if not table.num_rows:
+        raise UserError(f"{where} holds no frames (its Parquet files have no rows); copy the whole dataset.")
     episode = _column(table, "episode_index", where).reshape(-1).astype(np.int64)
     frame = _column(table, "frame_index", where).reshape(-1).astype(np.int64)
     order = np.lexsort((frame, episode))
@@ -168,6 +200,8 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
         notes.append(f"camera features not read: {', '.join(cameras)}")
     if labels is not None:
         notes.append(f"oracle sub-task labels read from the '{SUBTASK_COLUMN}' column")
+    elif ours:
+        notes.append(f"the '{SUBTASK_COLUMN}' column is a segmentation digail exported, not read as oracle labels")
     version = info.get("codebase_version", "unknown")
     found = (f"a LeRobot dataset (format {version}, {len(eps)} episodes, {table.num_rows} frames; observation "
              f"{' + '.join(chosen)}, action 'action')")
@@ -207,6 +241,7 @@ def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Seque
     for key, demo_codes in zip(episode_keys, codes, strict=True):
         demo_codes = np.asarray(demo_codes, dtype=np.int64).reshape(-1)
         by_episode[int(key)] = np.concatenate([demo_codes, demo_codes[-1:]])
+    check_tree(source)  # no FIFO to block the copy, no link to copy another folder's files from
     with atomic_dir(out, force=force) as tmp:
         shutil.copytree(source, tmp, dirs_exist_ok=True)
         for file in data_files(tmp):
@@ -237,7 +272,8 @@ def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Seque
              "metadata": None},
             {"name": "subtask", "field_name": "subtask", "pandas_type": "unicode", "numpy_type": "object",
              "metadata": None}], "pandas_version": "2.2.0"}
-        names_table = names_table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode()})
+        names_table = names_table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode(),
+                                                           DIGAIL_KEY: b"segmentation"})
         pq.write_table(names_table, tmp / SUBTASKS_TABLE)
     return out
 

@@ -108,7 +108,7 @@ def _read_metadata(data: Path) -> dict[str, Any]:
     try:
         with open(data / "metadata.json") as f:
             metadata = json.load(f)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: JSON nested beyond the parser's depth
         raise UserError(f"cannot read {data / 'metadata.json'} ({one_line(exc)}); the dataset is corrupt, "
                         "re-create it with `digail demos`.") from exc
     if not isinstance(metadata, dict):
@@ -140,6 +140,12 @@ def dataset_env_id(path_or_id: str | os.PathLike[str]) -> str:
         raise UserError(f"dataset {folder} records no environment id; pass the environment explicitly "
                         "with --env.")
     return env_id
+
+
+def dataset_metadata(path_or_id: str | os.PathLike[str]) -> tuple[Path, dict[str, Any]]:
+    """A dataset's folder and its `data/metadata.json`, read alone (cheap: no episode is loaded)."""
+    folder = resolve_dataset(path_or_id)
+    return folder, _read_metadata(folder / "data")
 
 
 # ------------------------------------------------------------------------------------------------ reading

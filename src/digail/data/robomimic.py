@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from digail.data.input_files import check_h5_links, h5_array, regular_file
 from digail.errors import UserError
 from digail.fsio import check_writable, signals_deferred, umask
 from digail.utils import one_line
@@ -53,8 +54,8 @@ def is_robomimic(path: str | Path) -> bool:
         with h5py.File(path, "r") as f:
             data = f.get("data")
             return isinstance(data, h5py.Group) and any(
-                isinstance(data.get(k), h5py.Group) for k in data if k.startswith("demo"))
-    except OSError:
+                isinstance(k, str) and k.startswith("demo") and isinstance(data.get(k), h5py.Group) for k in data)
+    except (OSError, RuntimeError, KeyError, ValueError):  # damaged: read_robomimic names it when asked
         return False
 
 
@@ -70,7 +71,9 @@ def demo_keys(data: Any) -> list[str]:
 
 
 def _is_low_dim(dataset: Any) -> bool:
-    return dataset.ndim <= 2 and dataset.dtype != np.uint8
+    import h5py
+
+    return isinstance(dataset, h5py.Dataset) and dataset.ndim <= 2 and dataset.dtype != np.uint8
 
 
 def _flat(group: Any, keys: Sequence[str], where: str) -> np.ndarray:
@@ -79,7 +82,9 @@ def _flat(group: Any, keys: Sequence[str], where: str) -> np.ndarray:
         if key not in group:
             raise UserError(f"{where} has no observation '{key}' (it has {', '.join(sorted(group))}); choose keys "
                             "every demonstration has with --obs-keys.")
-        arr = np.asarray(group[key][()])
+        arr = h5_array(group[key], where, key)  # checked: numeric, real, stored in the file, within memory
+        if arr.ndim == 0:
+            raise UserError(f"{where} has '{key}' as a single number; it needs one row per step.")
         parts.append(arr.reshape(len(arr), -1).astype(np.float32))
     lengths = {len(p) for p in parts}
     if len(lengths) != 1:
@@ -107,82 +112,124 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
 
     path = Path(path)
     where = str(path)
+    regular_file(path, "robomimic file")  # a FIFO or a device is refused before it is opened
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
         raise UserError(f"cannot read {where} as an HDF5 file ({one_line(exc)}); the file is damaged or not "
                         "HDF5.") from exc
     with f:
-        data = f.get("data")
-        keys = demo_keys(data) if isinstance(data, h5py.Group) else []
-        if not keys:
-            raise UserError(f"{where} has no data/demo_<n> groups; it is not a robomimic file.")
-        first = data[keys[0]]
-        if "obs" not in first or "actions" not in first:
-            raise UserError(f"{where}: data/{keys[0]} lacks {'obs' if 'obs' not in first else 'actions'}; robomimic "
-                            "demonstrations hold obs/<key> and actions (convert image-only files with robomimic's "
-                            "dataset_states_to_obs.py first).")
-        available = sorted(first["obs"])
-        low_dim = [k for k in available if _is_low_dim(first["obs"][k])]
-        images = [k for k in available if k not in low_dim]
-        if obs_keys:
-            for key in obs_keys:
-                if key not in available:
-                    raise UserError(f"{where} has no observation key '{key}'; it has {', '.join(available)}.")
-                if key in images:
-                    raise UserError(f"{where} has '{key}' as an image ({first['obs'][key].shape[1:]} per step); "
-                                    f"choose low-dimensional keys: {', '.join(low_dim) or 'none'}.")
-            chosen = list(obs_keys)
+        check_h5_links(f, where)  # soft and external links (to nowhere, in a loop, to another file) refused
+        try:
+            return _read_demos(f, where, obs_keys)
+        except UserError:
+            raise
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError, AttributeError) as exc:  # flipped bytes
+            raise UserError(f"cannot read {where} ({one_line(exc)}); the file is damaged.") from None
+
+
+def _demo_group(data: Any, key: str, where: str) -> Any:
+    """`data/<key>`, checked to be a demonstration group holding an `obs` group and an `actions` array."""
+    import h5py
+
+    demo = data[key]
+    if not isinstance(demo, h5py.Group):
+        raise UserError(f"{where}: data/{key} is an array, not a demonstration group; robomimic demonstrations are "
+                        "groups holding obs/<key> and actions.")
+    for part, kind in (("obs", h5py.Group), ("actions", h5py.Dataset)):
+        if not isinstance(demo.get(part), kind):
+            what = "lacks" if part not in demo else "has the wrong kind of"
+            raise UserError(f"{where}: data/{key} {what} {part}; robomimic demonstrations hold obs/<key> and actions "
+                            "(convert image-only files with robomimic's dataset_states_to_obs.py first).")
+    return demo
+
+
+def _last_rows_equal(demo: Any, keys: Sequence[str]) -> bool:
+    """Whether the demonstration's last `next_obs` row repeats its last `obs` row in every key both have."""
+    for c in keys:
+        if c in demo["obs"] and c in demo["next_obs"]:
+            a, b = demo["obs"][c], demo["next_obs"][c]
+            if not a.shape or not b.shape or not a.shape[0] or not b.shape[0] or a.dtype.kind not in "biuf" \
+                    or b.dtype.kind not in "biuf" or not np.array_equal(a[-1], b[-1]):
+                return False
+    return True
+
+
+def _read_demos(f: Any, where: str, obs_keys: Sequence[str] | None) -> dict[str, Any]:
+    import h5py
+
+    data = f.get("data")
+    keys = demo_keys(data) if isinstance(data, h5py.Group) else []
+    if not keys:
+        raise UserError(f"{where} has no data/demo_<n> groups; it is not a robomimic file.")
+    demos = {key: _demo_group(data, key, where) for key in keys}
+    first = demos[keys[0]]
+    available = sorted(first["obs"])
+    low_dim = [k for k in available if _is_low_dim(first["obs"][k])]
+    images = [k for k in available if k not in low_dim]
+    if obs_keys:
+        for key in obs_keys:
+            if key not in available:
+                raise UserError(f"{where} has no observation key '{key}'; it has {', '.join(available)}.")
+            if key in images:
+                raise UserError(f"{where} has '{key}' as an image ({first['obs'][key].shape[1:]} per step); "
+                                f"choose low-dimensional keys: {', '.join(low_dim) or 'none'}.")
+        chosen = list(obs_keys)
+    else:
+        chosen = low_dim
+        if not chosen:
+            raise UserError(f"{where} has only image observations ({', '.join(images)}); digail reads "
+                            "low-dimensional keys (e.g. robot0_eef_pos, object) with --obs-keys.")
+    # robomimic's D4RL conversion, having no state after an episode's last action, repeats the last state as
+    # the last next_obs in every demonstration; a robot at rest at the end of a real one does that only in some
+    with_steps = [k for k in keys if demos[k]["actions"].shape and demos[k]["actions"].shape[0]]
+    placeholder = bool(with_steps) and all(
+        isinstance(demos[k].get("next_obs"), h5py.Group) and _last_rows_equal(demos[k], chosen) for k in with_steps)
+    eps, dropped, signal_names = [], 0, set()
+    labels: list[np.ndarray | None] = []
+    kept: list[str] = []
+    for key in keys:
+        demo = demos[key]
+        row = f"{where}, data/{key}"
+        acts = h5_array(demo["actions"], row, "actions")
+        if acts.ndim == 0 or not len(acts):  # nothing to learn from; said in the notes
+            continue
+        obs = _flat(demo["obs"], chosen, row)
+        rews = h5_array(demo["rewards"], row, "rewards").reshape(-1) if "rewards" in demo else None
+        n = len(acts)
+        if len(obs) != n or (rews is not None and len(rews) != n):
+            raise UserError(f"{row} has {len(obs)} observations, {n} actions"
+                            f"{'' if rews is None else f', {len(rews)} rewards'}; robomimic stores one of each "
+                            "per step.")
+        next_obs = demo.get("next_obs")
+        last = _flat(next_obs, chosen, f"{row}/next_obs")[-1:] if isinstance(next_obs, h5py.Group) else None
+        if last is not None and len(last) and not placeholder:
+            obs = np.concatenate([obs, last])
         else:
-            chosen = low_dim
-            if not chosen:
-                raise UserError(f"{where} has only image observations ({', '.join(images)}); digail reads "
-                                "low-dimensional keys (e.g. robot0_eef_pos, object) with --obs-keys.")
-        # robomimic's D4RL conversion, having no state after an episode's last action, repeats the last state as
-        # the last next_obs in every demonstration; a robot at rest at the end of a real one does that only in some
-        placeholder = all("next_obs" in data[k] and all(
-            np.array_equal(data[k]["obs"][c][-1], data[k]["next_obs"][c][-1]) for c in chosen
-            if c in data[k]["obs"] and c in data[k]["next_obs"]) for k in keys)
-        eps, dropped, signal_names = [], 0, set()
-        labels: list[np.ndarray | None] = []
-        kept: list[str] = []
-        for key in keys:
-            demo = data[key]
-            row = f"{where}, data/{key}"
-            obs = _flat(demo["obs"], chosen, row)
-            acts = np.asarray(demo["actions"][()])
-            rews = np.asarray(demo["rewards"][()]).reshape(-1) if "rewards" in demo else None
-            n = len(acts)
-            if len(obs) != n or (rews is not None and len(rews) != n):
-                raise UserError(f"{row} has {len(obs)} observations, {n} actions"
-                                f"{'' if rews is None else f', {len(rews)} rewards'}; robomimic stores one of each "
-                                "per step.")
-            last = _flat(demo["next_obs"], chosen, f"{row}/next_obs")[-1:] if "next_obs" in demo else None
-            if last is not None and not placeholder:
-                obs = np.concatenate([obs, last])
-            else:
-                dropped += 1
-                acts, rews = acts[:-1], None if rews is None else rews[:-1]
-                if not len(acts):
-                    continue
-            kept.append(key)
-            signals = demo.get(SIGNALS_PATH)
-            oracle = _oracle_signals(signals) if isinstance(signals, h5py.Group) else []
-            if oracle:
-                signal_names.update(oracle)
-                ended = np.stack([np.maximum.accumulate(np.asarray(signals[s][()]).reshape(-1) != 0)
-                                  for s in oracle]).sum(axis=0)
-                step_labels = np.concatenate([ended, ended[-1:]])[:len(obs)]
-                labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
-            else:
-                labels.append(None)
-            eps.append({"where": row, "obs": obs, "acts": acts, "acts_name": "actions", "rews": rews,
-                        "terminated": False})
-        env_args = data.attrs.get("env_args")
-        masks = sorted(f["mask"]) if isinstance(f.get("mask"), h5py.Group) else []
+            dropped += 1
+            acts, rews = acts[:-1], None if rews is None else rews[:-1]
+            obs = obs[:len(acts) + 1]
+            if not len(acts):
+                continue
+        kept.append(key)
+        signals = demo.get(SIGNALS_PATH)
+        oracle = _oracle_signals(signals) if isinstance(signals, h5py.Group) else []
+        if oracle:
+            signal_names.update(oracle)
+            ended = np.stack([np.maximum.accumulate(h5_array(signals[s], row, f"{SIGNALS_PATH}/{s}").reshape(-1)
+                                                    != 0) for s in oracle]).sum(axis=0)
+            step_labels = np.concatenate([ended, ended[-1:]])[:len(obs)]
+            labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
+        else:
+            labels.append(None)
+        eps.append({"where": row, "obs": obs, "acts": acts, "acts_name": "actions", "rews": rews,
+                    "terminated": False})
+    env_args = data.attrs.get("env_args")
+    masks = sorted(f["mask"]) if isinstance(f.get("mask"), h5py.Group) else []
     if not eps:
         raise UserError(f"{where} holds no demonstration with at least one step; import longer ones.")
     notes = []
+    empty = len(keys) - len(kept)
     if images:
         notes.append(f"image observations skipped: {', '.join(images)} (digail reads low-dimensional keys)")
     if dropped:
@@ -190,6 +237,8 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
                "writes that for want of the next state)" if placeholder else
                f"{dropped} of {len(keys)} demonstrations store no next_obs")
         notes.append(f"{why}, so the last action of each was dropped and the demonstration kept as truncated")
+    if empty:
+        notes.append(f"{empty} of {len(keys)} demonstrations have no step with the state after it and were skipped")
     if all(lab is not None for lab in labels):
         for ep, lab in zip(eps, labels, strict=True):
             ep["subtasks"] = lab
@@ -199,10 +248,10 @@ def read_robomimic(path: str | Path, obs_keys: Sequence[str] | None = None) -> d
         notes.append(f"only some demonstrations have {SIGNALS_PATH}, so no oracle labels were read")
     metadata: dict[str, Any] = {"obs_keys": chosen}
     if env_args is not None:
-        text = env_args.decode() if isinstance(env_args, bytes) else str(env_args)
+        text = env_args.decode(errors="replace") if isinstance(env_args, bytes) else str(env_args)
         try:
             metadata["env_args"] = json.loads(text)
-        except ValueError:
+        except (ValueError, RecursionError):  # kept as text: it only describes the environment
             metadata["env_args"] = text
     env_name = metadata.get("env_args", {}).get("env_name") if isinstance(metadata.get("env_args"), dict) else None
     of_env = f" of {env_name}" if env_name else ""
