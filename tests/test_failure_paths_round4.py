@@ -704,7 +704,7 @@ def test_at_least_a_hundred_probes() -> None:
 def test_the_reliability_page_lists_every_probe() -> None:
     """docs/reference/errors.md publishes these probes: one row each, under the same words."""
     page = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "errors.md").read_text()
-    section = page.split("## Probes", 1)[1].split("::: digail.errors", 1)[0]
+    section = page.split("## Probes\n", 1)[1].split("\n## ", 1)[0].split("::: digail.errors", 1)[0]
     rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith(("| tried", "| ---"))]
     assert len(rows) == len(PROBES)
     missing = [p.id for p in PROBES if f"| {p.what.replace('|', chr(92) + '|')} |" not in section]

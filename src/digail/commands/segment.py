@@ -68,10 +68,12 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
             demos = trained_on
             if not demos:
                 raise UserError(f"{run} does not record its demonstrations; pass --demos.")
-        run_dataset, run_keys = _run_dataset(trained_on)
+        run_dataset, run_keys, run_format = _run_dataset(trained_on)
         import_source = is_import_source(demos)
         source, source_format, record = _source_of(demos, import_source)
-        obs_keys = _obs_keys(args.obs_keys, run_keys, demos, import_source, record)
+        # the run's order applies to sources of the layout its dataset was imported from
+        obs_keys = _obs_keys(args.obs_keys, run_keys if run_format == source_format else None, demos, import_source,
+                             record)
         names: list[str] = []
         if args.export is not None:  # before anything is read or written
             names = code_names(model.codes, args.names)
@@ -112,19 +114,21 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     return metrics
 
 
-def _run_dataset(trained_on: str | None) -> tuple[Path | None, list[str] | None]:
-    """The folder of the dataset a run was trained on and the observation keys it was imported with (robomimic and
-    LeRobot sources), each None where unknown (no record, or the dataset is gone)."""
+def _run_dataset(trained_on: str | None) -> tuple[Path | None, list[str] | None, str | None]:
+    """The folder of the dataset a run was trained on, the observation keys it was imported with (robomimic and
+    LeRobot sources) and the layout it was imported from, each None where unknown (no record, or the dataset is
+    gone)."""
     from digail.data.minari_io import dataset_metadata
 
     if not trained_on:
-        return None, None
+        return None, None, None
     try:
         folder, metadata = dataset_metadata(trained_on)
     except UserError:  # moved or deleted since: nothing to protect or compare with
-        return (Path(trained_on) if Path(trained_on).exists() else None), None
-    keys = ((metadata.get("digail") or {}).get("source_metadata") or {}).get("obs_keys")
-    return folder, [str(k) for k in keys] if isinstance(keys, list) and keys else None
+        return (Path(trained_on) if Path(trained_on).exists() else None), None, None
+    record = metadata.get("digail") or {}
+    keys = (record.get("source_metadata") or {}).get("obs_keys")
+    return folder, [str(k) for k in keys] if isinstance(keys, list) and keys else None, record.get("format")
 
 
 def _source_of(demos: str, import_source: bool) -> tuple[str | None, str | None, dict[str, Any]]:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.data.input_files import file_kind
+from digail.data.input_files import check_tree, file_kind
 from digail.errors import UserError
 from digail.fsio import atomic_write_bytes, check_not_locked, check_replaceable, check_writable
 
@@ -94,6 +94,8 @@ def check_export(fmt: str, out: Path | None, source: str | None, source_format: 
     if not Path(source).exists():
         raise UserError(f"the demonstrations were imported from {source}, which is no longer there; pass the {need} "
                         "source as --demos.")
+    if fmt == "lerobot":
+        check_tree(source)  # what the copy would block on (a FIFO) or bring in from elsewhere (a link out)
 
 
 def check_export_target(fmt: str, out: Path, force: bool,

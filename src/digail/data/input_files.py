@@ -48,8 +48,8 @@ def regular_file(path: str | os.PathLike[str], what: str = "file") -> Path:
         raise UserError(f"cannot read {path} ({one_line(exc)}); check the path and its permissions.") from None
     kind = file_kind(mode)
     if kind is not None:
-        raise UserError(f"{path} is {kind}, not a regular file; digail reads {what}s only from regular files, "
-                        "copy the data into one.")
+        raise UserError(f"{path} is {kind}, not a regular file; digail reads only regular files, so copy the "
+                        "data into one.")
     if stat.S_ISDIR(mode):
         raise UserError(f"{path} is a folder where a {what} belongs; the dataset is damaged.")
     return path

@@ -86,7 +86,8 @@ def _column(table: Any, name: str, where: str) -> np.ndarray:
 
     col = table.column(name).combine_chunks()
     if col.null_count:
-        raise UserError(f"{where} has {col.null_count} empty (null) values in '{name}'; every frame needs one.")
+        raise UserError(f"{where} has {col.null_count} empty (null) value{'s' if col.null_count > 1 else ''} in "
+                        f"'{name}'; every frame needs one.")
     leaf = col.type
     while pa.types.is_fixed_size_list(leaf) or pa.types.is_list(leaf) or pa.types.is_large_list(leaf):
         leaf = leaf.value_type
