@@ -6,6 +6,9 @@ BIN := $(VENV)/bin
 # in a fresh venv can pull a multi-GB CUDA build.
 TORCH := torch==2.13.0
 PINS := "gymnasium[mujoco,classic-control]==1.4.0" "mujoco==3.11.0" "stable-baselines3==2.9.2" "gymnasium-robotics==1.4.2"
+# Meta-World pins mujoco 3.3.0 but runs on the pin above: installed without its dependencies (all of which the
+# pins bring: gymnasium, mujoco, numpy, scipy, imageio), after them, so it cannot move them
+METAWORLD := metaworld==3.1.1
 
 .PHONY: demo test test-kernels test-slow test-all bench lint docs venv clean presets-doc hashes table1 table2 readme-tables segmentation-table
 
@@ -16,6 +19,7 @@ $(BIN)/activate:
 $(VENV)/.installed: $(BIN)/activate pyproject.toml
 	$(BIN)/pip install -q $(TORCH)
 	$(BIN)/pip install -q $(PINS) -e ".[dev,sweep]"
+	$(BIN)/pip install -q --no-deps $(METAWORLD)
 	touch $@
 
 venv: $(VENV)/.installed

@@ -31,9 +31,12 @@ from digail.utils import progress_bar
 
 
 def default_dataset_id(env_id: str) -> str:
-    """Minari id for an env's expert demonstrations, e.g. Hopper-v5 -> digail/hopper/expert-v0."""
-    name = env_id.split("/")[-1]
+    """Minari id for an env's expert demonstrations, e.g. Hopper-v5 -> digail/hopper/expert-v0 (a namespace other
+    than digail's leads the name: metaworld/pick-place-v3 -> digail/metaworld-pick-place/expert-v0)."""
+    namespace, _, name = env_id.rpartition("/")
     name = re.sub(r"-v\d+$", "", name).lower()
+    if namespace and namespace != "digail":
+        name = f"{namespace.lower()}-{name}"
     name = re.sub(r"[^a-z0-9_-]", "", name) or "env"
     return f"digail/{name}/expert-v0"
 

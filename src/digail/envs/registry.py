@@ -17,6 +17,8 @@ import numpy as np
 
 from digail.envs.circle_world import CircleWorldVecEnv
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
+from digail.envs.metaworld import EPISODE_STEPS as METAWORLD_STEPS
+from digail.envs.metaworld import env_id as metaworld_id
 from digail.errors import UserError
 from digail.paper import paper_return
 from digail.preset import Preset, resolve_preset
@@ -50,6 +52,8 @@ class EnvSpec:
     """`module:Class` for envs digail registers itself (None: Gymnasium or gymnasium-robotics registers it)"""
     max_episode_steps: int | None = None
     """time limit of an env digail registers"""
+    kwargs: tuple[tuple[str, Any], ...] = ()
+    """keyword arguments of the entry point, as (name, value) pairs (one class serving several envs)"""
     compose_schedule: tuple[tuple[int, int], ...] | None = None
     """what `digail run` composes at the end: (oracle label, steps) pairs of a behaviour never demonstrated; the
     run translates labels into its own code ids through the segmentation's matching"""
@@ -78,12 +82,13 @@ class EnvSpec:
     labels: tuple[str, ...] = ()
     """what each oracle sub-task label in `info["subtask"]` means, by label value (empty: the env gives none); the
     segmentation metrics score codes against these"""
-    reward: Literal["cost", "task", "survival"] = "cost"
+    reward: Literal["cost", "task", "survival", "shaped"] = "cost"
     """the env reward's convention: `cost` never positive (minus a distance, a cost or a per-step penalty until
     success: higher is better, episodes do not end early for doing badly), `task` a step penalty with a positive
     reward on success that ends the episode, `survival` a bonus for every step alive that outweighs the rest, with
     episodes ended by falling (the episode length then carries reward information: log it, and prefer a positive
-    GAIL reward, `--train.reward positive`)"""
+    GAIL reward, `--train.reward positive`), `shaped` a non-negative progress reward that grows towards success
+    (Meta-World's, 0-10 per step), the episode ending at success (prefer a step cost, `--train.reward negative`)"""
     render: Literal["image", "mujoco", "pygame", "none"] = "mujoco"
     """how `render_mode="rgb_array"` draws a frame: `image` the env's own array (no extra package), `mujoco`
     offscreen MuJoCo (`MUJOCO_GL` must be set before MuJoCo is imported: `digail.utils.ensure_offscreen_gl`),
@@ -145,6 +150,11 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     EnvSpec("InvertedPendulum-v5", "invertedpendulum", 25, envpool=True, reward="survival"),
     EnvSpec("Hopper-v5", "hopper", 50, envpool=True, reward="survival", gait_features=(2, 8)),
     EnvSpec("Walker2d-v5", "walker2d", 50, envpool=True, reward="survival", gait_features=(2, 11)),
+    # every Meta-World v3 task (digail.envs.metaworld), labelled by its scripted expert's phase; Meta-World is
+    # imported only when one is made
+    *(EnvSpec(metaworld_id(task), "metaworld", 50, "digail.envs.metaworld:MetaWorldEnv", steps,
+              kwargs=(("task", task),), auto_backend="sync", name=f"Meta-World {task[:-3]}", reward="shaped")
+      for task, steps in METAWORLD_STEPS.items()),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""
 
@@ -195,7 +205,8 @@ def register_envs() -> None:
     """Register digail's own envs (the entries with an entry point) with Gymnasium (idempotent)."""
     for spec in ENV_SPECS.values():
         if spec.entry_point is not None and spec.env_id not in gym.registry:
-            gym.register(id=spec.env_id, entry_point=spec.entry_point, max_episode_steps=spec.max_episode_steps)
+            gym.register(id=spec.env_id, entry_point=spec.entry_point, max_episode_steps=spec.max_episode_steps,
+                         kwargs=dict(spec.kwargs))
 
 
 def make_env(env_id: str, **kwargs: Any) -> gym.Env:

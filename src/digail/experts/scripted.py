@@ -18,6 +18,7 @@ from digail.envs.circle_world import CircleWorldEnv, reference_point, reversed_r
 from digail.envs.four_rooms import CORRIDORS, FourRoomsEnv, shortest_paths_to
 from digail.envs.landmark_route import DEMO_ORDER, ROUTE_ENV_ID, LandmarkRouteEnv
 from digail.experts.fetch import fetch_expert
+from digail.experts.metaworld import METAWORLD_EXPERTS
 
 
 def _unwrapped(env: gym.Env, cls: type) -> Any:
@@ -127,6 +128,7 @@ SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
     "digail/CircleWorld-v0": circle_expert,
     "digail/FetchPickAndPlace-v4": fetch_expert,
     "digail/LandmarkRoute-v0": route_expert,
+    **METAWORLD_EXPERTS,
 }
 """env id -> its scripted expert"""
 
