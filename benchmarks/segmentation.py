@@ -10,7 +10,9 @@ Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once pe
 (curved legs joined smoothly, legs that weave, distractor dimensions, episodes that start in a random sub-task,
 eight short sub-tasks); three shipped data sets: Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor
 or the apple) and the Fetch phases (K = 4: reach, grasp, carry, place); and Hopper's gait phase (K = 4: the shipped
-Hopper demonstrations' first 8 episodes labelled by `digail.eval.gait.gait_phase`, written once into `--data`).
+Hopper demonstrations' first 8 episodes labelled by `digail.eval.gait.gait_phase`, written once into `--data`); and
+nine Meta-World tasks (`metaworld-<task>`: the shipped demonstrations of the scripted expert, its phases as the label
+with runs under `digail.envs.metaworld.MIN_SEGMENT` steps merged, written once into `--data`; K = the phases left).
 The shipped ones run with `--preset default`, the settings an env without a preset gets, so every task sees the
 same defaults. Each (task, seed) runs exactly what a user types:
 
@@ -78,11 +80,17 @@ DERIVED: dict[str, dict[str, Any]] = {
 }
 """shipped data sets relabelled with a phase computed from the observation (written into `--data` once)"""
 
+METAWORLD = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball", "disassemble", "peg-insert-side",
+             "box-close", "hammer")
+"""Meta-World tasks: the shipped demonstrations (50 episodes of the scripted expert) with the expert's phase as the
+label, runs shorter than `digail.envs.metaworld.MIN_SEGMENT` steps merged into their neighbour (written into `--data`
+once); K is the number of phases left"""
+
 KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode", "time_s")
 
 
 def task_names() -> list[str]:
-    return [*COURSES, *SHIPPED, *DERIVED]
+    return [*COURSES, *SHIPPED, *DERIVED, *(f"metaworld-{t}" for t in METAWORLD)]
 
 
 def derived_dataset(name: str, data_root: Path) -> Path:
@@ -102,8 +110,31 @@ def derived_dataset(name: str, data_root: Path) -> Path:
     return folder
 
 
+def metaworld_dataset(name: str, data_root: Path) -> tuple[Path, int, str]:
+    """The folder of Meta-World task `name`'s data set (the shipped one, flickers merged), K and its description."""
+    from digail.data.minari_io import load_dataset
+    from digail.data.minari_write import write_dataset
+    from digail.envs.metaworld import MIN_SEGMENT, merge_short_runs
+
+    task = name.removeprefix("metaworld-")
+    folder = (data_root / f"segbench-{name}").resolve()
+    if not (folder / "data" / "metadata.json").is_file():
+        ds = load_dataset(f"digail/{name}/expert-v0")
+        labelled = [dataclasses.replace(t, subtasks=merge_short_runs(np.asarray(t.subtasks), MIN_SEGMENT))
+                    for t in ds.trajs]
+        write_dataset(labelled, folder, ds.env_id or f"metaworld/{task}-v3", f"segbench/{name}-v0",
+                      description=f"Meta-World {task}: the expert's phases, runs under {MIN_SEGMENT} steps merged")
+    labels = np.concatenate([np.asarray(t.subtasks) for t in load_dataset(folder).trajs])
+    codes = len(np.unique(labels))
+    return folder, codes, (f"Meta-World {task}: the scripted expert's {codes} phases (shipped, 50 episodes, "
+                           f"{len(labels) - 50} steps)")
+
+
 def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     """(demos, K, shipped, description) of task `name`, recording a course's data set first if needed."""
+    if name.startswith("metaworld-"):
+        folder, codes, description = metaworld_dataset(name, data_root)
+        return str(folder), codes, True, description
     if name in COURSES:
         folder = record_course(name, data_root, seed=0)
         return str(folder), COURSES[name].codes, False, COURSES[name].description

@@ -1,0 +1,101 @@
+"""Few-demonstration imitation on Meta-World, a one-seed screen: behaviour cloning with and without codes.
+
+    python benchmarks/metaworld_fewdemo.py                   # -> results/metaworld_fewdemo.json
+    python benchmarks/metaworld_fewdemo.py --tasks pick-place --methods bc flatbc --seeds 0 --out /tmp/few.json
+
+Per (task, method, seed), from the first `--demos` episodes of the task's shipped demonstrations (seeds 0..N-1):
+
+    bc      the VAE's policy (K = the expert's phase count, `digail.envs.metaworld.phase_counts`), closed-loop q:
+            digail pretrain --demos D --demos-episodes N --codes K --seed S --out R/TASK/bc_sS
+    flatbc  the same pre-training with one code, a flat behaviour-cloned policy of the same network:
+            digail pretrain --demos D --demos-episodes N --codes 1 --seed S --out R/TASK/flatbc_sS
+    digail-l2, flatbc-l2  (with --iterations N) Directed-Info GAIL + L2 from bc's VAE, GAIL + L2 from flatbc's
+            policy (one code: no bonus), the task's preset (PPO, batch 4096 over 8 envs, the step-cost reward):
+            digail train --demos D --demos-episodes N --vae R/TASK/bc_sS --bc-weight 1.0 --train.iterations I ...
+
+then `digail evaluate RUN --episodes E` on fresh placements (the evaluation seeds, 10000 on); the row keeps the
+success rate, the mean episode length and the commands. Both pre-trainings use the task's preset (metaworld: the
+default VAE).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+TASKS = ("pick-place", "hammer", "assembly", "shelf-place")
+
+
+def run(cmd: list[str]) -> None:
+    from digail.cli import main as digail
+
+    print("$ digail " + shlex.join(cmd), flush=True)
+    if digail(cmd) != 0:
+        raise SystemExit(f"failed: digail {shlex.join(cmd)}")
+
+
+def one(task: str, method: str, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    from digail.envs.metaworld import phase_counts
+
+    demos = f"digail/metaworld-{task}/expert-v0"
+    root = args.runs / task
+    common = ["--demos", demos, "--demos-episodes", str(args.demos), "--seed", str(seed)]
+    commands: list[list[str]] = []
+    folder = root / f"{method}_s{seed}"
+    if method in ("bc", "flatbc"):
+        codes = phase_counts()[f"{task}-v3"] if method == "bc" else 1
+        commands.append(["pretrain", *common, "--codes", str(codes), "--out", str(folder), "--force"])
+    else:
+        start = root / f"{'bc' if method == 'digail-l2' else 'flatbc'}_s{seed}"
+        if not (start / "model.pt").is_file():
+            raise SystemExit(f"{method} starts from {start}; run {start.name.split('_')[0]} first")
+        commands.append(["train", *common, "--vae", str(start), "--bc-weight", "1.0", "--train.iterations",
+                         str(args.iterations), "--train.checkpoint-every", "5", "--out", str(folder), "--force"])
+    commands.append(["evaluate", str(folder), "--episodes", str(args.episodes)])
+    t0 = time.perf_counter()
+    for cmd in commands:
+        run(cmd)
+    ev = json.loads((folder / "eval.json").read_text())
+    return {"task": task, "method": method, "seed": seed, "demos": args.demos, "episodes": ev["episodes"],
+            "success_rate": ev.get("success_rate"), "mean_length": ev.get("mean_length"),
+            "expert_success_rate": (ev.get("expert") or {}).get("success_rate"),
+            "minutes": round((time.perf_counter() - t0) / 60, 1),
+            "commands": ["digail " + shlex.join(c) for c in commands]}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS))
+    parser.add_argument("--methods", nargs="+", default=["bc", "flatbc"],
+                        choices=["bc", "flatbc", "digail-l2", "flatbc-l2"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--demos", type=int, default=10)
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--iterations", type=int, default=10, help="training iterations of the -l2 methods")
+    parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_fewdemo"))
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_fewdemo.json")
+    args = parser.parse_args(argv)
+    result: dict[str, Any] = {"rows": []}
+    if args.out.exists():  # rows of earlier calls that this one does not rerun are kept
+        result = json.loads(args.out.read_text())
+    command = "python benchmarks/metaworld_fewdemo.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    for task in args.tasks:
+        for method in args.methods:
+            for seed in args.seeds:
+                row = {**one(task, method, seed, args), "benchmark_command": command}
+                result["rows"] = [r for r in result["rows"] if (r["task"], r["method"], r["seed"])
+                                  != (task, method, seed)] + [row]
+                print(f"== {task} {method} seed {seed}: success {row['success_rate']:.2f} "
+                      f"length {row['mean_length']:.0f} ({row['minutes']} min)", flush=True)
+                args.out.parent.mkdir(parents=True, exist_ok=True)
+                args.out.write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
