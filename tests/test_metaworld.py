@@ -272,3 +272,83 @@ def test_a_frame_renders_headless(metaworld) -> None:  # type: ignore[no-untyped
     frame = np.asarray(env.render())
     env.close()
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8 and frame.std() > 5
+
+
+def _robomimic_file(trajs, path) -> None:  # type: ignore[no-untyped-def]
+    """Meta-World episodes in robomimic's layout: the 39 numbers as obs/state, the actions, one done per demo."""
+    import h5py
+
+    with h5py.File(path, "w") as f:
+        data = f.create_group("data")
+        for i, t in enumerate(trajs):
+            demo = data.create_group(f"demo_{i}")
+            demo.create_dataset("obs/state", data=t.obs[:-1])
+            demo.create_dataset("next_obs/state", data=t.obs[1:])
+            demo.create_dataset("actions", data=t.acts)
+            demo.create_dataset("rewards", data=np.zeros(len(t)))
+            demo.create_dataset("dones", data=(np.arange(len(t)) == len(t) - 1).astype(np.int64))
+            demo.attrs["num_samples"] = len(t)
+        data.attrs["total"] = sum(len(t) for t in trajs)
+        data.attrs["env_args"] = '{"env_name": "pick-place-v3", "type": 4, "env_kwargs": {}}'
+
+
+def _lerobot_folder(trajs, folder) -> None:  # type: ignore[no-untyped-def]
+    """Meta-World episodes as a LeRobot v3.0 dataset: one row per state with the action taken in it."""
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rows = [(i, k, t.obs[k], t.acts[k]) for i, t in enumerate(trajs) for k in range(len(t))]
+    table = pa.table({
+        "observation.state": pa.array([r[2].tolist() for r in rows], pa.list_(pa.float32(), 39)),
+        "action": pa.array([r[3].tolist() for r in rows], pa.list_(pa.float32(), 4)),
+        "timestamp": pa.array([r[1] / 80.0 for r in rows], pa.float32()),
+        "frame_index": pa.array([r[1] for r in rows], pa.int64()),
+        "episode_index": pa.array([r[0] for r in rows], pa.int64()),
+        "index": pa.array(list(range(len(rows))), pa.int64()),
+        "task_index": pa.array([0] * len(rows), pa.int64()),
+    })
+    (folder / "data" / "chunk-000").mkdir(parents=True)
+    (folder / "meta").mkdir()
+    pq.write_table(table, folder / "data" / "chunk-000" / "file-000.parquet")
+    scalar = {"shape": [1], "names": None}
+    features = {"observation.state": {"dtype": "float32", "shape": [39], "names": None},
+                "action": {"dtype": "float32", "shape": [4], "names": None},
+                "timestamp": {"dtype": "float32", **scalar},
+                **{k: {"dtype": "int64", **scalar} for k in ("frame_index", "episode_index", "index", "task_index")}}
+    (folder / "meta" / "info.json").write_text(json.dumps({"codebase_version": "v3.0", "fps": 80,
+                                                           "features": features}))
+
+
+@pytest.mark.slow
+@pytest.mark.mujoco
+def test_segmentations_export_to_robomimic_lerobot_and_csv(metaworld, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A VAE pre-trained on shipped Meta-World demonstrations segments the same episodes held in robomimic's and
+    LeRobot's layouts and writes its codes into copies of them, and as a table."""
+    import h5py
+    import pyarrow.parquet as pq
+
+    from digail.cli import main
+    from digail.data.minari_io import load_dataset
+
+    demos = "digail/metaworld-pick-place/expert-v0"
+    trajs = load_dataset(demos).trajs[:3]
+    _robomimic_file(trajs, tmp_path / "pp.hdf5")
+    _lerobot_folder(trajs, tmp_path / "pp_lerobot")
+    vae = tmp_path / "vae"
+    assert main(["pretrain", "--demos", demos, "--demos-episodes", "3", "--preset", "smoke", "--out", str(vae)]) == 0
+    assert main(["segment", str(vae), "--demos", str(tmp_path / "pp.hdf5"), "--export", "robomimic", "--names",
+                 "reach", "carry", "--out", str(tmp_path / "pp_annotated.hdf5")]) == 0
+    with h5py.File(tmp_path / "pp_annotated.hdf5", "r") as f:
+        for i, t in enumerate(trajs):
+            signals = f[f"data/demo_{i}/datagen_info/subtask_term_signals"]
+            assert set(signals) == {"reach", "carry"} and all(len(signals[k]) == len(t) for k in signals)
+    assert main(["segment", str(vae), "--demos", str(tmp_path / "pp_lerobot"), "--export", "lerobot", "--out",
+                 str(tmp_path / "pp_lerobot_annotated")]) == 0
+    frames = pq.read_table(tmp_path / "pp_lerobot_annotated" / "data" / "chunk-000" / "file-000.parquet")
+    assert frames.num_rows == sum(len(t) for t in trajs)
+    assert set(frames.column("subtask_index").to_pylist()) <= {0, 1}
+    assert main(["segment", str(vae), "--demos", demos, "--export", "csv", "--out", str(tmp_path / "seg.csv")]) == 0
+    lines = (tmp_path / "seg.csv").read_text().splitlines()
+    assert lines[0] == "episode,start,end,code,name" and len(lines) > len(trajs)
