@@ -2,6 +2,7 @@
 
     python benchmarks/metaworld_experts.py                   # every task, 20 episodes -> results/metaworld_experts.json
     python benchmarks/metaworld_experts.py --tasks pick-place-v3 --episodes 5 --out /tmp/mw.json
+    python benchmarks/metaworld_experts.py --markdown   # the docs' table of the shipped tasks from the JSON
 
 Each episode (reset with seed `seed + i`, random placements) runs the expert for up to `--limit` steps (500,
 Meta-World's own limit, not the digail env's shorter one) and records the first step at which `info["success"]`
@@ -77,6 +78,31 @@ def measure_task(task: str, episodes: int, seed: int, limit: int) -> dict[str, A
             "steps_per_second": steps / (time.perf_counter() - start)}
 
 
+SHIPPED = ("pick-place-v3", "assembly-v3", "stick-pull-v3", "shelf-place-v3", "basketball-v3", "disassemble-v3",
+           "peg-insert-side-v3", "box-close-v3", "hammer-v3")
+"""the tasks whose demonstrations digail ships (scripts/metaworld_datasets.sh)"""
+
+
+def markdown(result: dict[str, Any], tasks: tuple[str, ...] = SHIPPED) -> str:
+    """The table of the how-to: success, steps to success, phases and phase runs of `tasks`."""
+    from digail.data.minari_io import SHIPPED_ROOT
+
+    rows = {r["task"]: r for r in result["tasks"]}
+    # the shipped demonstrations end at the first success: their terminated episodes are the successes
+    shipped = {d["env"]: d for d in json.loads((SHIPPED_ROOT / "MANIFEST.json").read_text())["datasets"]}
+    lines = [f"| task | success ({result['tasks'][0]['episodes']} episodes) | steps to success: mean (max) | phases "
+             f"(seen) | phase runs per episode: raw / merged (max) | time limit | shipped: successes, mean length |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for task in tasks:
+        r, ship = rows[task], shipped[f"metaworld/{task}"]
+        steps = (f"{r['steps_to_success_mean']:.0f} ({r['steps_to_success_max']})"
+                 if r["steps_to_success_mean"] is not None else "-")
+        lines.append(f"| {task} | {r['success_rate']:.2f} | {steps} | {r['phases']} ({len(r['phases_seen'])}) | "
+                     f"{r['runs_mean']:.1f} / {r['merged_runs_mean']:.1f} ({r['merged_runs_max']}) | "
+                     f"{r['episode_steps']} | {ship['terminated']} / {ship['episodes']}, {ship['length_mean']:.0f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=sorted(EPISODE_STEPS), choices=sorted(EPISODE_STEPS))
@@ -84,7 +110,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=500)
     parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_experts.json")
+    parser.add_argument("--markdown", action="store_true", help="print the docs' table from --out and stop")
     args = parser.parse_args(argv)
+    if args.markdown:
+        print(markdown(json.loads(args.out.read_text())))
+        return
     rows = []
     for task in args.tasks:
         rows.append(measure_task(task, args.episodes, args.seed, args.limit))
