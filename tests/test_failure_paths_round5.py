@@ -253,6 +253,26 @@ for _pid, _fmt, _src, _out in [("export-csv-again", "csv", "src.hdf5", "seg.csv"
     probe(_pid, f"`digail segment`: a {_fmt} export over digail's own earlier one, with `--force`", None)(_again)
 
 
+def _deep_config(tmp: Path) -> None:
+    (tmp / "deep").mkdir()
+    (tmp / "deep" / "config.json").write_text(DEEP)
+
+
+probe("export-lerobot-over-deep-config", "`digail segment`: a LeRobot export over a folder whose config.json nests "
+      "lists 100,000 deep, with `--force`", "is not a folder digail made", setup=_deep_config)(
+    segment("--demos", "lr", "--export", "lerobot", "--out", "deep", "--force"))
+
+
+def _deep_metadata(tmp: Path) -> None:
+    shutil.copytree(tmp / "demos", tmp / "deepds")
+    (tmp / "deepds" / "data" / "metadata.json").write_text(DEEP)
+
+
+probe("export-from-deep-minari-metadata", "`digail segment --demos D --export csv` where D's metadata.json nests "
+      "lists 100,000 deep", "cannot read deepds/data/metadata.json", setup=_deep_metadata)(
+    segment("--demos", "deepds", "--export", "csv", "--out", "seg.csv"))
+
+
 def _fifo_in_lerobot(tmp: Path) -> None:
     (tmp / "lr" / "videos").mkdir()
     os.mkfifo(tmp / "lr" / "videos" / "cam.mp4")
@@ -347,6 +367,14 @@ def _flipped(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
+def _d4rl(path: Path, observations: object) -> None:
+    """A flat D4RL file of 12 steps whose `observations` is `observations` (a link)."""
+    with h5py.File(path, "w") as f:
+        f["actions"] = np.zeros((12, ACT_DIM), np.float32)
+        f["terminals"] = np.eye(12, dtype=bool)[-1]
+        f["observations"] = observations
+
+
 STR = h5py.string_dtype()
 READ_PROBES: list[tuple[str, str, Callable[[Path], object], str | None]] = [
     # id, what, how the source is made (src.hdf5 or a folder), expected phrase (None: imported)
@@ -394,6 +422,11 @@ READ_PROBES: list[tuple[str, str, Callable[[Path], object], str | None]] = [
     ("rm-declares-1e12", "a robomimic file declaring 10^12 rows of an observation",
      _edit_robomimic(_replace("data/demo_1/obs/a", ((10**12, 2), (4096, 2)))), "of memory available"),
     ("rm-fifo", "a FIFO named src.hdf5", lambda p: os.mkfifo(p), "is a FIFO"),
+    ("rm-d4rl-external-link", "a flat D4RL HDF5 file whose `observations` is an external link to another file",
+     lambda p: _d4rl(p, h5py.ExternalLink("other.hdf5", "/observations")), "an external link"),
+    ("rm-d4rl-soft-link", "a flat D4RL HDF5 file whose `observations` is a soft link to its `actions`",
+     lambda p: _d4rl(p, h5py.SoftLink("/actions")), "has a soft link at 'observations'"),
+    ("rm-npz-fifo", "a FIFO named demos.npz", lambda p: os.mkfifo(p.with_suffix(".npz")), "is a FIFO"),
     ("rm-good", "a good robomimic file", robomimic, None),
 ]
 
@@ -471,7 +504,8 @@ for _pid, _what, _make, _expect in READ_PROBES:
         make(tmp / "input" / ("src.hdf5" if pid.startswith("rm-") else "ds"))
 
     def _run_read(tmp: Path, pid: str = _pid) -> None:
-        cli(tmp, "import", "input/src.hdf5" if pid.startswith("rm-") else "input/ds", "--out", "out")
+        source = "input/ds" if not pid.startswith("rm-") else "input/src.npz" if "npz" in pid else "input/src.hdf5"
+        cli(tmp, "import", source, "--out", "out")
 
     probe(f"read-{_pid}", f"`digail import` {_what}", _expect, setup=_make_input)(_run_read)
 

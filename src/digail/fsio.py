@@ -113,7 +113,7 @@ def _json_object(path: Path) -> dict[str, Any] | None:
         if not path.is_file() or path.stat().st_size > 16 * 2**20:
             return None
         data = json.loads(path.read_bytes())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested beyond the parser's depth, not digail's
         return None
     return data if isinstance(data, dict) else None
 
