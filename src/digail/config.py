@@ -21,6 +21,7 @@ from digail.checks import check_at_least as check_at_least
 from digail.checks import check_codes as check_codes
 from digail.checks import check_seed as check_seed
 from digail.errors import UserError
+from digail.imitation_config import ImitationConfig
 
 
 @dataclass(frozen=True)
@@ -410,6 +411,8 @@ class TrainConfig:
     """PPO settings"""
     sac: SACConfig = field(default_factory=SACConfig)
     """soft actor-critic settings (`learner` sac)"""
+    imitation: ImitationConfig = field(default_factory=ImitationConfig)
+    """the imitation reward and the BC weight's schedule (`digail.imitation_config`)"""
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,

@@ -86,3 +86,25 @@ def anchor_loss(pi: SubtaskPolicy, anchor: SubtaskPolicy, batch: PPOBatch, batch
                 ) -> AnchorLoss:
     """The anchor term (`AnchorLoss`) as an aux loss for `ppo_update`."""
     return AnchorLoss(pi, anchor, batch, batch_size, gen)
+
+
+def qfiltered_bc_loss(pi: SubtaskPolicy, expert: ExpertData, eye: torch.Tensor, batch_size: int,
+                      gen: torch.Generator, critic: Callable[[torch.Tensor], torch.Tensor],
+                      to_env: Callable[[torch.Tensor], torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The BC / L2 term kept only where it still teaches (ROT's Q-filter, after Nair et al. 2018): on
+    `batch_size` random expert steps (s, c_E, a_E), the squared error of pi's mean counts where the critics value
+    the expert's action above the policy's, min_i Q_i(s, c_E, a_E) > min_i Q_i(s, c_E, pi(s, c_E)); elsewhere the
+    policy already does better by the critics' account and the term steps aside.
+
+    `critic` maps [s, one-hot c, executed a] rows to the twin critics' values (2, n); `to_env` maps sampled
+    actions to executed ones. Returns the loss (mean over all drawn steps, so its scale falls as the filter
+    closes) and the detached share of steps kept."""
+    idx = torch.randint(len(expert.obs_n), (batch_size,), generator=gen)
+    obs, code_1h, acts = expert.obs_n[idx], eye[expert.codes[idx]], expert.acts[idx]
+    mean = pi.mode(obs, code_1h)
+    with torch.no_grad():
+        obs_code = torch.cat([obs, code_1h], -1)
+        q_expert = critic(torch.cat([obs_code, to_env(acts)], -1)).min(0).values
+        q_policy = critic(torch.cat([obs_code, to_env(mean.detach())], -1)).min(0).values
+        keep = (q_expert > q_policy).to(mean.dtype)
+    return ((mean - acts).pow(2).sum(-1) * keep).mean(), keep.mean()

@@ -22,9 +22,9 @@ from torch import nn
 
 from digail.algos import fast
 from digail.algos.expert_data import expert_data
-from digail.algos.gail.discriminator import PenaltyStep, discriminator_update, obs_view
+from digail.algos.gail.discriminator import PenaltyStep, obs_view
 from digail.algos.learners import LEARNERS, Learner
-from digail.algos.optim import adam
+from digail.algos.rewards import REWARDS, Reward
 from digail.algos.rollout import CodeState, RolloutState
 from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
@@ -126,12 +126,11 @@ class GAIL:
         if self.disc_view is not None:
             self.disc_view.to(self.device)
         self._disc_obs_dim = obs_dim if self.disc_view is None else self.disc_view.dim
-        # with absorbing states D sees [obs, absorbing flag, action]
-        self.disc = Discriminator(self._disc_obs_dim + int(self._absorbing), act_in_dim, cfg.hidden).to(self.device)
-        self.disc_optimizer = adam(list(self.disc.parameters()), lr=cfg.disc_lr)
         with fast.pinned(self.fast_path):
-            self.penalty_step = PenaltyStep(self.disc, self.disc_optimizer)
-        """D's step with the gradient penalty on replayed pairs (the off-policy learners')"""
+            # D (a D-based reward's) draws its initial weights here, after the learner's nets, as it always has
+            self.rewarder: Reward = REWARDS[cfg.imitation.kind].build(self)
+            """the imitation reward (`--train.imitation.kind`, `digail.algos.rewards`): D and its updates, or an
+            optimal-transport match against the demonstrations"""
 
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
         """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
@@ -232,6 +231,31 @@ class GAIL:
 
     # ------------------------------------------------------------------------------------- discriminator
     @property
+    def disc(self) -> Discriminator | None:
+        """D of a D-based reward (None for a reward without one)"""
+        return self.rewarder.disc
+
+    @property
+    def disc_optimizer(self) -> torch.optim.Optimizer:
+        """D's Adam (a D-based reward's)"""
+        return self.rewarder.optimizer  # type: ignore[attr-defined]
+
+    @property
+    def penalty_step(self) -> PenaltyStep:
+        """D's plain off-policy step with the gradient penalty (a D-based reward's)"""
+        return self.rewarder.penalty_step  # type: ignore[attr-defined]
+
+    @property
+    def disc_in_dims(self) -> tuple[int, int]:
+        """(D's observation part with the absorbing flag, D's action part): with absorbing states D sees
+        [obs, absorbing flag, action]"""
+        return self._disc_obs_dim + int(self._absorbing), self._act_in_dim
+
+    def disc_features(self, obs_n: torch.Tensor) -> torch.Tensor:
+        """D's view of normalised observations (`--train.disc-obs`; all of them by default)."""
+        return obs_n if self.disc_view is None else self.disc_view(obs_n)
+
+    @property
     def absorbing(self) -> bool:
         """whether D also judges an absorbing state (DAC; the learner's choice): its input carries a flag"""
         return self._absorbing
@@ -259,21 +283,20 @@ class GAIL:
 
     def disc_logits(self, x: torch.Tensor) -> torch.Tensor:
         """D's logits (n,) for ready input rows x (n, .) (`disc_input`)."""
-        return self.penalty_step.logits(x)
+        return self.rewarder.logits(x)
 
     def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor, *,
                              compile: bool = False) -> dict[str, float]:
-        """`discriminator_update` on a rollout's (normalised obs, D-action) pairs against the expert's (`compile`:
-        D's loss through `torch.compile`)."""
-        return discriminator_update(self.disc, self.disc_optimizer, self.disc_input(obs_n, act_in),
-                                    self._expert_disc_in, updates=self.cfg.disc_updates,
-                                    minibatch_size=self.cfg.disc_minibatch_size, gen=self.gen, compile=compile,
-                                    grad_penalty=self.cfg.disc_grad_penalty)
+        """The reward's update on a rollout's (normalised obs, D-action) pairs against the expert's: D's passes of
+        `discriminator_update` by default (`compile`: D's loss through `torch.compile`), nothing for a reward
+        without D."""
+        return self.rewarder.update(obs_n, act_in, compile=compile)
 
     def discriminator_step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
                            grad_penalty: float) -> torch.Tensor:
-        """One step of D on ready agent and expert rows with the gradient penalty on `mix` (`PenaltyStep`)."""
-        return self.penalty_step(x_agent, x_expert, mix, grad_penalty)
+        """One step of D on ready agent and expert rows with the gradient penalty on `mix` (`PenaltyStep` by
+        default)."""
+        return self.rewarder.step(x_agent, x_expert, mix, grad_penalty)
 
     # -------------------------------------------------------------------------------------------- reward
     def disc_reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -281,16 +304,30 @@ class GAIL:
         return self.reward_fn(logits, batch)
 
     def reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """The policy's reward r = D's reward + lambda_1 * log q(c_t | s_t, c_{t-1}) (`batch["bonus"]`, the
-        transition's bonus, + lambda_1 log K with `bonus_code_entropy`), and D's part of it.
+        """The policy's reward r = D's reward of `logits` + the bonus (`with_bonus`), and D's part of it."""
+        return self.with_bonus(self.disc_reward(logits, batch), batch)
 
-        The one place the reward is written: every learner relabels its transitions with it."""
-        disc_rew = self.disc_reward(logits, batch)
+    def with_bonus(self, imitation: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(r, the imitation reward): r = the imitation reward + lambda_1 * log q(c_t | s_t, c_{t-1})
+        (`batch["bonus"]`, the transition's bonus, + lambda_1 log K with `bonus_code_entropy`).
+
+        The one place the reward is written: every learner's reward, from D or not, goes through it."""
+        disc_rew = imitation
         w = self.cfg.bonus_weight
         bonus = w * batch["bonus"]
         if self.cfg.bonus_code_entropy and self.K > 1:
             bonus = bonus + w * math.log(self.K)
         return disc_rew + bonus, disc_rew
+
+    def rollout_reward(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor, act_in: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """On-policy: the reward (T, N) of a rollout's steps (the imitation reward's, plus the bonus) and the
+        imitation reward's part; `obs_n`, `act_in` are its flat (T * N) pairs."""
+        return self.with_bonus(self.rewarder.rollout_rewards(batch, obs_n, act_in), batch)
+
+    def replay_reward(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Off-policy: the reward (B,) of replayed transitions at buffer positions `idx`, and its imitation part."""
+        return self.with_bonus(self.rewarder.replay_rewards(b, idx), b)
 
     # ---------------------------------------------------------------------------------------- iteration
     def iterate(self) -> dict[str, float]:
@@ -328,7 +365,8 @@ class GAIL:
                 last = self.iterate()
                 sps = (self.global_step - start_step) / max(time.perf_counter() - t_start, 1e-9)
                 bar.set_postfix(steps=self.global_step, sps=f"{sps:.0f}", ret=f"{last['rollout/ep_return']:.2f}",
-                                d_acc=f"{last['disc/accuracy']:.2f}", bonus=f"{last['rollout/bonus']:.2f}",
+                                d_acc=f"{last.get('disc/accuracy', math.nan):.2f}",
+                                bonus=f"{last['rollout/bonus']:.2f}",
                                 refresh=False)  # drawn by update(), on its schedule
                 bar.update(1)
                 if evaluate is not None and every > 0 and (self.iteration % every == 0 or self.iteration == total):
@@ -359,8 +397,7 @@ class GAIL:
             "global_step": self.global_step,
             "learner": self.cfg.learner,
             "model": self.model.state_dict(),
-            "disc": self.disc.state_dict(),
-            "disc_optimizer": self.disc_optimizer.state_dict(),
+            **self.rewarder.state_dict(),  # D's "disc" and "disc_optimizer", where checkpoints have kept them
             "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
             "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
@@ -385,8 +422,7 @@ class GAIL:
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])
-        self.disc.load_state_dict(state["disc"])
-        self.disc_optimizer.load_state_dict(state["disc_optimizer"])
+        self.rewarder.load_state_dict(state)
         set_rng_state(state["rng"], self.gen, self.np_rng)
         empty = torch.zeros(0, dtype=torch.float64)  # checkpoints written before these were kept
         for name in ("recent_returns", "recent_lengths", "recent_closed_returns"):

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from digail.algos.expert_data import ExpertData
+from digail.algos.rewards.base import Reward
 from digail.algos.rollout import RolloutState
 from digail.config import TrainConfig
 from digail.envs.vector import VectorEnv
@@ -54,14 +55,19 @@ class Host(Protocol):
     """the trainer's NumPy generator (rollout noise, codes): saved in checkpoints"""
     expert: ExpertData
     """the demonstrations as tensors (for a BC term)"""
-    disc: Discriminator
-    """D (the trainer updates it; a learner may evaluate it)"""
     iteration: int
     """completed training iterations (the trainer counts them)"""
     global_step: int
     """env steps so far; the learner adds the steps it takes"""
     rollout_state: RolloutState | None
     """where the envs stand (None: fresh episodes are due, `reset_envs`)"""
+    rewarder: Reward
+    """the imitation reward (`digail.algos.rewards`): its scalars, and the episodes an off-policy learner stores"""
+
+    @property
+    def disc(self) -> Discriminator | None:
+        """D of a D-based reward (the trainer updates it; a learner may evaluate it); None for a reward without D"""
+        ...
 
     def reset_envs(self) -> RolloutState: ...
     def env_actions(self, acts: np.ndarray) -> np.ndarray: ...
@@ -75,6 +81,9 @@ class Host(Protocol):
     def episode_scalars(self) -> dict[str, float]: ...
     def update_macro_policy(self, batch: dict[str, torch.Tensor]) -> dict[str, float]: ...
     def reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]: ...
+    def rollout_reward(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor, act_in: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]: ...
+    def replay_reward(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...
     def disc_reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor: ...
     def disc_logits(self, x: torch.Tensor) -> torch.Tensor: ...
     def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor: ...

@@ -18,6 +18,7 @@ from digail.algos.learners.base import Host, check_finite
 from digail.algos.optim import adam
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
 from digail.algos.rollout import collect_rollout
+from digail.errors import UserError
 from digail.nets.critic import ValueNet
 
 
@@ -38,6 +39,9 @@ class PPOLearner:
             self.value.zero_code_weights()
         self.optimizer = adam([{"params": list(model.pi.parameters()), "lr": cfg.ppo.effective_policy_lr},
                                {"params": list(self.value.parameters())}], lr=cfg.ppo.lr, eps=1e-5)
+        if cfg.imitation.bc_schedule == "qfilter":
+            raise UserError("--train.imitation.bc-schedule qfilter needs a critic of actions; use it with "
+                            "--train.learner sac, or --train.imitation.bc-schedule anneal with PPO.")
         self.total_iterations = cfg.iterations
         """what `anneal_lr` decays over (`GAIL.train(iterations=...)` sets it)"""
         # a frozen copy of the initial policy for the anchor term (saved in checkpoints: resuming keeps the anchor)
@@ -53,11 +57,14 @@ class PPOLearner:
         with h.frozen_codes():
             if h.rollout_state is None:
                 h.rollout_state = h.reset_envs()
+            # where each env's episode stands as the rollout starts (an episode-matching reward needs it)
+            offsets = h.rollout_state.ep_lengths.copy()
             T = h.cfg.ppo.steps_per_env
             batch = collect_rollout(h.envs, ac, h.rollout_state, T, h.np_rng, normalize=h.model.normalizer.numpy_fn(),
                                     choose_codes=h.choose_codes, start_episodes=h.start_episodes,
                                     episode_done=h.episode_done, env_actions=h.env_actions)
         h.global_step += T * h.envs.num_envs
+        batch["ep_offset"] = offsets
         return {k: torch.from_numpy(v).to(h.device) for k, v in batch.items()}
 
     def iterate(self) -> dict[str, float]:
@@ -73,7 +80,7 @@ class PPOLearner:
         stats = h.update_discriminator(flat_obs, act_in, compile=cfg.ppo.compile)
         stats.update(h.update_macro_policy(batch))
         with torch.no_grad():
-            rews, disc_rew = h.reward(h.disc.net(h.disc_input(flat_obs, act_in)).reshape(T, N), batch)
+            rews, disc_rew = h.rollout_reward(batch, flat_obs, act_in)
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
                                    batch["final_values"], batch["last_values"], cfg.ppo.gamma, cfg.ppo.gae_lambda)
         if cfg.ppo.anneal_lr:
@@ -85,7 +92,7 @@ class PPOLearner:
                              logp=batch["logp"].reshape(-1), adv=adv.reshape(-1), returns=returns.reshape(-1))
         pi = h.model.pi
         aux = {"bc": (lambda: bc_loss(pi, h.expert, h.eye, cfg.bc_batch_size, h.gen, discrete=h.discrete),
-                      cfg.bc_weight),
+                      self.bc_weight()),
                # kept (weight 0, never called) without an anchor, so that every run logs the same scalars
                "anchor": ((anchor_loss(pi, self.anchor_pi, ppo_batch, cfg.bc_batch_size, h.gen), cfg.anchor_weight)
                           if self.anchor_pi is not None else (lambda: torch.zeros(()), 0.0))}
@@ -97,10 +104,21 @@ class PPOLearner:
         out.update(stats)
         out.update({"rollout/disc_reward": float(disc_rew.mean()), "rollout/reward": float(rews.mean()),
                     "rollout/bonus": float(batch["bonus"].mean())})
+        out.update(h.rewarder.scalars())
+        if cfg.imitation.bc_schedule != "fixed":
+            out["losses/bc_weight"] = self.bc_weight()
         out.update(h.episode_scalars())
         out.update({"perf/sps": T * N / elapsed, "perf/rollout_sps": T * N / t_rollout,
                     "perf/global_step": float(h.global_step)})
         return out
+
+    def bc_weight(self) -> float:
+        """The BC term's weight this iteration: `--train.bc-weight`, or with the `anneal` schedule that decayed
+        linearly to 0 over the run (the policy is held near the demonstrations first, then left to the reward)."""
+        h = self.host
+        if h.cfg.imitation.bc_schedule == "anneal":
+            return h.cfg.bc_weight * max(0.0, 1.0 - h.iteration / max(self.total_iterations, 1))
+        return h.cfg.bc_weight
 
     # ------------------------------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from digail.algos.aux_losses import bc_loss
+from digail.algos.aux_losses import bc_loss, qfiltered_bc_loss
 from digail.algos.learners.base import Host, check_finite
 from digail.algos.replay import ReplayBuffer
 from digail.algos.sac import SACBatch, SACUpdate
@@ -51,8 +51,12 @@ class SACLearner:
         self.obs_dim, self.act_dim = obs_dim, act_dim
         pi = h.model.pi
         bc = None
+        self._bc_kept: list[torch.Tensor] = []
+        """the Q-filter's share of expert steps kept, per update of the iteration"""
         if h.cfg.bc_weight > 0:
             bc = (lambda: bc_loss(pi, h.expert, h.eye, h.cfg.bc_batch_size, h.gen, discrete=False), h.cfg.bc_weight)
+            if h.cfg.imitation.bc_schedule == "qfilter":
+                bc = (self._qfiltered_bc, h.cfg.bc_weight)
         space: Any = h.envs.probe.action_space
         clip = getattr(h.envs.probe.unwrapped, "canonical_action", None) is None  # `env_action_fn`'s rule
         bounds = (space.low, space.high) if clip else None
@@ -75,6 +79,21 @@ class SACLearner:
         self._t_env = 0.0
         self._normalize = h.model.normalizer.numpy_fn()
         """raw -> normalised observations in NumPy (refreshed per iteration: a checkpoint load replaces them)"""
+
+    def _qfiltered_bc(self) -> torch.Tensor:
+        h = self.host
+        loss, kept = qfiltered_bc_loss(h.model.pi, h.expert, h.eye, h.cfg.bc_batch_size, h.gen, self.sac.critic,
+                                       h.to_env_actions)
+        self._bc_kept.append(kept)
+        return loss
+
+    def bc_weight(self) -> float:
+        """The BC term's weight now: `--train.bc-weight`, or with the `anneal` schedule that decayed linearly to 0
+        over the run."""
+        h = self.host
+        if h.cfg.imitation.bc_schedule == "anneal":
+            return h.cfg.bc_weight * max(0.0, 1.0 - h.iteration / max(self.total_iterations, 1))
+        return h.cfg.bc_weight
 
     # ---------------------------------------------------------------------------------------------- acting
     def _mean_actions(self, obs_n: np.ndarray, codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,8 +136,12 @@ class SACLearner:
         else:
             next_codes, bonus = h.choose_codes(next_n, prev, cstate.t_ep, all_idx)
             stored_next, stored_codes = next_n, next_codes
+        positions = (self.buffer.pos + all_idx) % self.buffer.capacity
         self.buffer.add(obs=st.obs_n, codes=st.codes, acts=executed, next_obs=stored_next, next_codes=stored_codes,
                         terminated=terms, bonus=bonus, rews=rews)
+        if h.disc is None:  # an episode-matching reward scores each episode as it ends
+            h.rewarder.observe(positions, torch.from_numpy(st.obs_n).to(h.device), torch.from_numpy(st.codes),
+                               np.logical_or(terms, truncs))
         prev[:] = next_codes
         st.obs_n, st.codes = next_n, next_codes
         h.global_step += n
@@ -143,11 +166,13 @@ class SACLearner:
         self._v_abs = None
         return h.discriminator_step(x_agent, x_expert, mix, float(self.cfg.grad_penalty))
 
-    def rewards(self, b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The sampled transitions' reward relabelled with the current D (plus the bonus), D's part of it, and V_abs."""
+    def rewards(self, b: dict[str, torch.Tensor], idx: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The sampled transitions' reward relabelled with the current D (plus the bonus; a reward without D reads
+        its own score of the positions `idx`), the imitation reward's part of it, and V_abs."""
         h = self.host
         with torch.no_grad():
-            rews, disc_rew = h.reward(h.disc_logits(h.disc_input(b["obs"], b["acts"])), b)
+            rews, disc_rew = h.replay_reward(b, idx)
             if self._v_abs is None:
                 self._v_abs = torch.zeros((), device=h.device)
                 if h.absorbing:
@@ -158,8 +183,9 @@ class SACLearner:
     def update_policy(self) -> torch.Tensor:
         """One SAC update on a sampled batch; its stats and the batch's mean D reward."""
         h, B = self.host, self.cfg.batch_size
-        b = self.buffer.get(self.buffer.sample_indices(B, h.gen))
-        rews, disc_rew, v_abs = self.rewards(b)
+        idx = self.buffer.sample_indices(B, h.gen)
+        b = self.buffer.get(idx)
+        rews, disc_rew, v_abs = self.rewards(b, idx)
         batch = SACBatch(obs=b["obs"], code_1h=b["code_1h"], acts=b["acts"], next_obs=b["next_obs"],
                          next_code_1h=b["next_code_1h"], terminated=b["terminated"], rews=rews,
                          absorbing_value=v_abs)
@@ -178,7 +204,7 @@ class SACLearner:
         self._t_env += time.perf_counter() - t1
         if self.buffer.size < max(cfg.learning_starts, 1):
             return
-        if cfg.disc_every > 0:
+        if cfg.disc_every > 0 and self.host.disc is not None:
             self._disc_debt += n
             while self._disc_debt >= cfg.disc_every:
                 self._disc_debt -= cfg.disc_every
@@ -194,9 +220,12 @@ class SACLearner:
         t0 = time.perf_counter()
         n = h.envs.num_envs
         self._normalize = h.model.normalizer.numpy_fn()
-        self._sac_stats, self._disc_stats, self._t_env = [], [], 0.0
+        self._sac_stats, self._disc_stats, self._t_env, self._bc_kept = [], [], 0.0, []
+        if self.sac.bc is not None:
+            self.sac.bc = (self.sac.bc[0], self.bc_weight())
         with h.frozen_codes():  # q is frozen: one snapshot serves the whole iteration
             if h.rollout_state is None:
+                h.rewarder.flush()  # the episodes under way end here
                 h.rollout_state = h.reset_envs()
             for _ in range(cfg.steps_per_env):
                 self.step_and_update()
@@ -221,6 +250,11 @@ class SACLearner:
         recent = self.buffer.bonus[(self.buffer.pos - np.arange(1, min(steps, self.buffer.size) + 1))
                                    % self.buffer.capacity]
         out["rollout/bonus"] = float(recent.mean()) if len(recent) else float("nan")
+        out.update(h.rewarder.scalars())
+        if h.cfg.imitation.bc_schedule != "fixed":
+            out["losses/bc_weight"] = self.bc_weight()
+        if self._bc_kept:
+            out["losses/bc_kept"] = float(torch.stack(self._bc_kept).mean())
         out.update(h.episode_scalars())
         out.update({"perf/sps": steps / elapsed, "perf/rollout_sps": steps / max(t_env, 1e-9),
                     "perf/global_step": float(h.global_step), "sac/updates": float(len(sac_stats))})

@@ -1,0 +1,89 @@
+"""What teaches the policy from the demonstrations (`--train.imitation.*`): the imitation reward and the BC term's
+weight over training. A section of `TrainConfig` (`TrainConfig.imitation`); the rewards themselves are
+`digail.algos.rewards`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from digail.errors import UserError
+
+REWARD_KINDS = ("bce", "pu", "ot", "ot-subtask")
+"""the names `--train.imitation.kind` takes (`digail.algos.rewards.REWARDS` has one row for each)"""
+
+BC_SCHEDULES = ("fixed", "anneal", "qfilter")
+"""the names `--train.imitation.bc-schedule` takes"""
+
+
+def _check(ok: bool, field: str, rule: str, value: object) -> None:
+    if not ok:
+        raise UserError(f"--train.imitation.{field.replace('_', '-')} must be {rule}, got {value!r}.")
+
+
+@dataclass(frozen=True)
+class ImitationConfig:
+    """The imitation reward (from D or by optimal transport) and how the BC term's weight moves during training."""
+
+    kind: Literal["bce", "pu", "ot", "ot-subtask"] = "bce"
+    """the reward: `bce`, D trained by binary cross-entropy (GAIL's); `pu`, D trained as a positive-unlabeled
+    classifier (Xu and Denil 2019: the agent's steps are unlabeled, a share `pu_prior` of them expert-like);
+    `ot`, optimal transport between the agent's episode and the closest demonstrations on D's view (ROT, Haldar
+    et al. 2022; no D); `ot-subtask`, the same with an agent step under code c matched to demonstration steps q
+    labelled c"""
+    pu_prior: float = 0.5
+    """`pu`: eta, the share of the agent's steps taken as expert-like (the class prior of the positive class)"""
+    disc_noise: float = 0.0
+    """D-based rewards: std of Gaussian noise added to D's training inputs, agent and expert alike (goalGAIL's
+    0.15), in units of D's normalised inputs; 0: none"""
+    spectral_norm: bool = False
+    """D-based rewards: spectral normalisation of D's layers (a Lipschitz bound, like the gradient penalty)"""
+    disc_dropout: float = 0.0
+    """D-based rewards: dropout after each hidden layer of D during its updates (off when it scores); 0: none"""
+    disc_weight_decay: float = 0.0
+    """D-based rewards: L2 weight decay of D's Adam; 0: none"""
+    ot_top_k: int = 1
+    """`ot*`: how many of the closest demonstrations (lowest total transport cost) an episode's reward averages"""
+    ot_epsilon: float = 0.05
+    """`ot*`: entropic regularisation of the Sinkhorn iterations (the costs are cosine distances, in [0, 2])"""
+    ot_iterations: int = 50
+    """`ot*`: Sinkhorn iterations (log domain)"""
+    ot_scale: float = 1.0
+    """`ot*`: the reward of an agent step is minus this times its transport cost (the cost its unit of mass
+    pays), so it lies in [-2 ot_scale, 0] whatever the episode's length"""
+    ot_code_penalty: float = 1.0
+    """`ot-subtask`: cost added where the agent's code and the demonstration step's code differ (a mismatch the
+    marginals force still costs, so a sub-task the agent skips or overstays shows in its reward)"""
+    ot_time_weight: float = 0.0
+    """`ot*`: cost added per unit of |i / T_agent - j / T_demo|, the gap in episode time between matched steps (the
+    in-order variant, as TemporalOT's mask); 0: order-free"""
+    bc_schedule: Literal["fixed", "anneal", "qfilter"] = "fixed"
+    """the BC term's weight over training: `fixed` (`--train.bc-weight` throughout); `anneal`, decayed linearly to
+    0 over the run; `qfilter` (SAC), ROT's Q-filter: BC only on expert steps where the critics value the expert's
+    action above the policy's, min Q(s, c, a_E) > min Q(s, c, pi(s, c))"""
+
+    def __post_init__(self) -> None:
+        _check(self.kind in REWARD_KINDS, "kind", "one of " + ", ".join(REWARD_KINDS), self.kind)
+        _check(self.bc_schedule in BC_SCHEDULES, "bc_schedule", "one of " + ", ".join(BC_SCHEDULES),
+               self.bc_schedule)
+        _check(math.isfinite(self.pu_prior) and 0 < self.pu_prior < 1, "pu_prior", "between 0 and 1 (exclusive)",
+               self.pu_prior)
+        _check(math.isfinite(self.disc_dropout) and 0 <= self.disc_dropout < 1, "disc_dropout", "in [0, 1)",
+               self.disc_dropout)
+        for name in ("disc_noise", "disc_weight_decay", "ot_code_penalty", "ot_time_weight"):
+            value = getattr(self, name)
+            _check(math.isfinite(value) and value >= 0, name, "a finite number, not negative", value)
+        for name in ("ot_epsilon", "ot_scale"):
+            value = getattr(self, name)
+            _check(math.isfinite(value) and value > 0, name, "positive", value)
+        for name in ("ot_top_k", "ot_iterations"):
+            value = getattr(self, name)
+            _check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, name, "at least 1", value)
+
+    @property
+    def regularised(self) -> bool:
+        """whether D's updates differ from plain GAIL's (the PU loss or a regulariser): they then run on autograd"""
+        return (self.kind == "pu" or self.disc_noise > 0 or self.spectral_norm or self.disc_dropout > 0
+                or self.disc_weight_decay > 0)
