@@ -14,6 +14,11 @@
 #     -argmax     (digail-l2 only) every training env takes q's argmax code on its own states, as evaluation
 #                 does (--train.replay-fraction 0 --train.closed-loop-codes argmax), instead of replaying the
 #                 demonstrations' codes in half the envs and sampling q in the other half
+#     -pu, -noise, -sn, -ot, -ots, -otst   the imitation reward (--train.imitation.*): D trained as a
+#                 positive-unlabeled classifier (prior 0.5), D's inputs noised (sigma 0.15), D spectrally normalised,
+#                 optimal transport on D's view (no D), the same sub-task-aware (codes must match, else cost +1),
+#                 and that in order (time weight 1)
+#     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
 #     -1m         the same run trained on to 244 iterations (999,424 env steps, within the benchmark's 1M): the
@@ -62,7 +67,8 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-1m)?$'
+SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst)?(-anneal|-qf)?'
+SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
   echo "unknown method $METHOD" >&2; exit 2
@@ -80,6 +86,14 @@ ARGS=(); K=4
 case $METHOD in *-rel*) ARGS+=(--train.disc-obs relative) ;; esac
 case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
 case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
+case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
+case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
+case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
+case $METHOD in *-ot-*|*-ot) ARGS+=(--train.imitation.kind ot) ;; esac
+case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac
+case $METHOD in *-otst*) ARGS+=(--train.imitation.ot-time-weight 1.0) ;; esac
+case $METHOD in *-anneal*) ARGS+=(--train.imitation.bc-schedule anneal) ;; esac
+case $METHOD in *-qf*) ARGS+=(--train.imitation.bc-schedule qfilter) ;; esac
 case $METHOD in *-shuffle*) ARGS+=(--train.shuffle-codes) ;; esac
 case $METHOD in *-qtrain*) ARGS+=(--train.q-lr 3e-4) ;; esac
 case $METHOD in *-nobonus*) ARGS+=(--train.bonus-weight 0) ;; esac

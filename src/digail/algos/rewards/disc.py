@@ -40,7 +40,23 @@ def pu_loss(logits_agent: torch.Tensor, logits_expert: torch.Tensor, prior: floa
     return prior * pos + torch.clamp(neg_agent - prior * neg_expert, min=0.0)
 
 
-def regularised_net(in_dim: int, hidden: tuple[int, ...], cfg: ImitationConfig) -> nn.Sequential:
+class GenDropout(nn.Module):
+    """Dropout whose masks come from the trainer's generator (saved in checkpoints), so that a resumed run drops the
+    same units as the uninterrupted one; off in eval mode."""
+
+    def __init__(self, p: float, gen: torch.Generator) -> None:
+        super().__init__()
+        self.p, self.gen = p, gen
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training or self.p == 0:
+            return x
+        keep = torch.rand(x.shape, generator=self.gen).to(x) >= self.p
+        return x * keep / (1.0 - self.p)
+
+
+def regularised_net(in_dim: int, hidden: tuple[int, ...], cfg: ImitationConfig,
+                    gen: torch.Generator) -> nn.Sequential:
     """D's MLP with the configured dropout after each hidden layer and spectral normalisation of every layer."""
     from digail.nets.mlp import mlp
 
@@ -51,7 +67,7 @@ def regularised_net(in_dim: int, hidden: tuple[int, ...], cfg: ImitationConfig) 
             m = nn.utils.parametrizations.spectral_norm(m)
         layers.append(m)
         if isinstance(m, nn.ReLU) and cfg.disc_dropout > 0:
-            layers.append(nn.Dropout(cfg.disc_dropout))
+            layers.append(GenDropout(cfg.disc_dropout, gen))
     return nn.Sequential(*layers)
 
 
@@ -77,7 +93,7 @@ class DiscReward:
         self.regularised = self.cfg.regularised
         """whether D's updates run the loss and regularisers on autograd instead of GAIL's plain steps"""
         if self.regularised:
-            self.disc.net = regularised_net(obs_dim + act_dim, host.cfg.hidden, self.cfg).to(host.device)
+            self.disc.net = regularised_net(obs_dim + act_dim, host.cfg.hidden, self.cfg, host.gen).to(host.device)
         self.optimizer = adam(list(self.disc.parameters()), lr=host.cfg.disc_lr)
         if self.cfg.disc_weight_decay > 0:
             for group in self.optimizer.param_groups:
