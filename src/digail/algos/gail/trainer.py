@@ -13,7 +13,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -24,7 +24,6 @@ from digail.algos import fast
 from digail.algos.expert_data import expert_data
 from digail.algos.gail.discriminator import PenaltyStep, obs_view
 from digail.algos.learners import LEARNERS, Learner
-from digail.algos.rewards import REWARDS, Reward
 from digail.algos.rollout import CodeState, RolloutState
 from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
@@ -36,6 +35,9 @@ from digail.nets.critic import Discriminator, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
 from digail.utils import progress_bar, seed_everything
+
+if TYPE_CHECKING:
+    from digail.algos.rewards import Reward
 
 RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
 """(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
@@ -126,6 +128,8 @@ class GAIL:
         if self.disc_view is not None:
             self.disc_view.to(self.device)
         self._disc_obs_dim = obs_dim if self.disc_view is None else self.disc_view.dim
+        from digail.algos.rewards import REWARDS  # here: the D-based rewards build on this package's D
+
         with fast.pinned(self.fast_path):
             # D (a D-based reward's) draws its initial weights here, after the learner's nets, as it always has
             self.rewarder: Reward = REWARDS[cfg.imitation.kind].build(self)
