@@ -69,8 +69,9 @@ def ot_step_rewards(agent: torch.Tensor, agent_mask: torch.Tensor, demos: torch.
         agent: (S, L, F) the pieces' features, padded; `agent_mask` (S, L) bool marks real steps.
         demos: (M, Ld, F) the demonstrations' features, padded; `demo_mask` (S, M, Ld) bool marks the steps each
             piece is matched against (a whole demonstration, or the stretch of episode time a piece covers).
-        agent_codes, demo_codes: (S, L) and (M, Ld) int codes; with `code_penalty` > 0 a pair whose codes differ
+        agent_codes: (S, L) int codes of the agent's steps; with `code_penalty` > 0 a pair whose codes differ
             costs that much more.
+        demo_codes: (M, Ld) int codes of the demonstrations' steps.
         agent_times: (S, L) each step's time in its episode; with `time_weight` > 0 a pair costs that times
             |t_agent - t_demo| / (the demonstration's length, `demo_lengths` (M,), default Ld) more.
 
