@@ -166,11 +166,16 @@ class SACLearner:
         self._v_abs = None
         return h.discriminator_step(x_agent, x_expert, mix, float(self.cfg.grad_penalty))
 
-    def rewards(self, b: dict[str, torch.Tensor], idx: torch.Tensor
+    def rewards(self, b: dict[str, torch.Tensor], idx: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The sampled transitions' reward relabelled with the current D (plus the bonus; a reward without D reads
-        its own score of the positions `idx`), the imitation reward's part of it, and V_abs."""
+        its own score of the buffer positions `idx`, which it then needs), the imitation reward's part of it, and
+        V_abs."""
         h = self.host
+        if idx is None:
+            if h.disc is None:
+                raise ValueError("a reward without D reads its scores by buffer position: pass the batch's idx")
+            idx = torch.zeros(len(b["obs"]), dtype=torch.long)
         with torch.no_grad():
             rews, disc_rew = h.replay_reward(b, idx)
             if self._v_abs is None:
