@@ -15,8 +15,9 @@ It writes two files:
   velocities switched on as robomimic does), the `model_file` and `num_samples` attributes per demonstration,
   `data.attrs["total"]` and `data.attrs["env_args"]` (robomimic's `EnvRobosuite.serialize()`: env_name,
   env_version, type 1, env_kwargs). `dones` follows `dataset_states_to_obs.py`'s default `--done_mode 0` (1 where
-  the next state is a success). Observations are float32 and gzip-compressed (robomimic's `--compress`); states and
-  actions stay float64, as robosuite stores them.
+  the next state is a success). Observations are float32 (robomimic reads any float); states and actions stay
+  float64, as robosuite stores them; datasets are gzip-compressed with HDF5's shuffle filter (lossless, read by any
+  HDF5 >= 1.10 reader). With `--fixture` the `model_file` attribute is left out (see the README).
 - `OUT` with `.oracle.hdf5` in place of `.hdf5`: per demonstration, `data/demo_<i>/datagen_info/subtask_term_signals/
   <name>`, computed as MimicGen's `prepare_src_dataset.py` computes them (reset to `states[t]`, `sim.forward()`,
   then the env interface's `get_subtask_term_signals()`), plus `task_success` (`env._check_success()` at
@@ -59,7 +60,7 @@ AFTER_SUCCESS = 10
 def make_env(task: str, seed: int | None = None):
     """The robosuite env with the kwargs robomimic's EnvRobosuite uses for low-dimensional data; `seed` seeds
     robosuite's own generator (object placements), without which every run differs."""
-    kwargs = dict(seed=seed, 
+    kwargs = dict(seed=seed,
         robots="Panda", controller_configs=load_composite_controller_config(controller="BASIC"),
         has_renderer=False, has_offscreen_renderer=False, ignore_done=True, use_object_obs=True,
         use_camera_obs=False, camera_depths=False, reward_shaping=False, control_freq=20,

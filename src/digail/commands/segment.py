@@ -108,8 +108,11 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
         if args.export is not None and args.out is not None:
             with np.load(run / "codes.npz") as stored:
                 codes = [stored[k] for k in sorted(stored.files)]
+            notes: list[str] = []
             path = export_segmentation(args.export, args.out, episode_keys, codes, names, source=source,
-                                       force=args.force)
+                                       force=args.force, notes=notes)
+            for note in notes:
+                print(f"note: {note}.")
             print(f"wrote the segmentation as {args.export} annotations ({', '.join(names)}) to {path}")
     return metrics
 

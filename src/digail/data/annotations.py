@@ -182,7 +182,8 @@ def _digail_export(fmt: str, path: Path) -> bool:
 
 
 def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes: Sequence[np.ndarray],
-                        names: Sequence[str], *, source: str | None = None, force: bool = False) -> Path:
+                        names: Sequence[str], *, source: str | None = None, force: bool = False,
+                        notes: list[str] | None = None) -> Path:
     """Write the codes of each episode to `out` in `fmt` (see the module docstring); returns `out`.
 
     Args:
@@ -193,6 +194,8 @@ def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes:
         names: one name per code (`code_names`).
         source: the robomimic file or LeRobot folder to copy (for those two exports).
         force: replace an existing `out`.
+        notes: where an export that had to choose something (robomimic: the sub-tasks' order and boundaries for
+            MimicGen) appends one line saying what.
     """
     out = Path(out)
     check_export_target(fmt, out, force, [(source, "the input")] if source is not None else [])
@@ -206,9 +209,10 @@ def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes:
         if source is None or not Path(source).exists():
             raise UserError(f"--export {fmt} copies the {fmt} source, but {source} is no longer there; put it back "
                             "and segment again.")
-        write = write_subtask_signals if fmt == "robomimic" else write_subtask_index
         try:
-            return write(source, out, episode_keys, codes, names, force=force)
+            if fmt == "robomimic":
+                return write_subtask_signals(source, out, episode_keys, codes, names, force=force, notes=notes)
+            return write_subtask_index(source, out, episode_keys, codes, names, force=force)
         except FileNotFoundError as exc:  # the source moved away while it was copied
             raise UserError(f"{exc.filename or source} disappeared while the export was written; nothing was "
                             "written, put the source back and segment again.") from None

@@ -17,7 +17,9 @@ sub-task termination signals become oracle labels: the label of a step is how ma
 (each signal counts from its first 1 on); signals digail exported itself are not counted.
 
 Writing (`write_subtask_signals`): a copy of the file, with digail's segmentation added as termination signals in
-MimicGen's place; the input is never opened for writing.
+MimicGen's place; the input is never opened for writing. MimicGen needs, in every demonstration, one 0 -> 1 step
+per named sub-task in one order, which codes that recur or segments that differ in number do not give: the export
+fixes the order once and fits each demonstration's boundaries (`plan_subtasks`), and says what it chose.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import re
 import shutil
 import tempfile
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -271,25 +274,135 @@ def _oracle_signals(group: Any) -> list[str]:
     return sorted(k for k in group if k not in ours)
 
 
-def term_signals(codes: np.ndarray, n_steps: int, n_codes: int) -> np.ndarray:
-    """(n_codes, n_steps) int64 termination signals of one demonstration's codes, MimicGen's convention: code k's
-    signal is 0 until its first segment ends and 1 from the next step on; a code that never occurs, or whose first
-    segment runs to the end of the demonstration (the last sub-task), stays 0."""
-    codes = np.asarray(codes).reshape(-1)
+@dataclass(frozen=True)
+class SubtaskPlan:
+    """The sub-tasks an export names for MimicGen and each demonstration's boundaries between them.
+
+    MimicGen's parser takes the signals of a task spec in order and ends sub-task i at the first 0 -> 1 step of
+    its signal after sub-task i - 1 ended; every demonstration needs one such step per named sub-task, in the same
+    order. Codes that recur, or segments that differ in number between demonstrations, do not give that by
+    themselves, so the export decides the order once for the dataset and one boundary per sub-task per
+    demonstration (`plan_subtasks`).
+    """
+
+    order: tuple[int, ...]
+    """the codes taken as sub-tasks, in the demonstrated order (the last one ends with the demonstration)"""
+    boundaries: tuple[tuple[int, ...], ...]
+    """per demonstration, the first step of each sub-task after the first (len(order) - 1 strictly increasing
+    steps): the step where the signal of the sub-task before it turns 1"""
+    unused: tuple[int, ...]
+    """codes occurring in fewer than half of the demonstrations, written as all-zero signals"""
+    refitted: int
+    """demonstrations whose codes are not one run of each sub-task in `order` (a code recurs, is missing, comes
+    out of order or is an unused one), whose boundaries were fitted"""
+
+
+def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str] | None = None) -> SubtaskPlan:
+    """MimicGen sub-tasks and one boundary per sub-task for every demonstration, whatever the segmentation.
+
+    The sub-tasks are the codes that occur in at least half of the demonstrations (at least the most common code),
+    ordered by the median over demonstrations of where each first occurs (as a fraction of the demonstration; ties
+    by code number). Each demonstration's boundaries are the labelling into those sub-tasks, in that order, each
+    sub-task one contiguous run, that agrees with the most of its steps' codes (exact, by dynamic programming; ties
+    go to the earlier boundary). Every sub-task gets at least one step and the last at least two, since MimicGen's
+    parser puts the first step a signal is 1 into the sub-task that ended. A demonstration coded as one run of
+    each sub-task in order keeps its runs' ends, the boundaries `term_signals` gives it alone.
+
+    Args:
+        codes: one (T,) array of codes per demonstration.
+        n_codes: K, the number of codes (and of signals written).
+        keys: each demonstration's name, for the error (default: its position).
+
+    Raises:
+        UserError: a demonstration too short to hold every sub-task.
+    """
+    codes = [np.asarray(c).reshape(-1) for c in codes]
+    n = len(codes)
+    present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
+    used = [k for k in range(n_codes) if 2 * present[k] >= n and present[k] > 0] or [int(np.argmax(present))]
+    where = {k: float(np.median([np.flatnonzero(c == k)[0] / len(c) for c in codes if (c == k).any()]))
+             for k in used}
+    order = tuple(sorted(used, key=lambda k: (where[k], k)))
+    need = len(order) + 1
+    boundaries, refitted = [], 0
+    for i, c in enumerate(codes):
+        if len(c) < need:
+            name = keys[i] if keys is not None else f"demonstration {i}"
+            raise UserError(f"{name} has {len(c)} steps, too few for the {len(order)} sub-tasks the "
+                            f"segmentation names (MimicGen needs at least {need}); drop it or segment with fewer "
+                            "codes.")
+        cuts = _best_monotone_cuts(c, order)
+        runs = [int(c[0]), *[int(c[j]) for j in np.flatnonzero(np.diff(c)) + 1]]
+        refitted += runs != list(order)
+        boundaries.append(cuts)
+    unused = tuple(k for k in range(n_codes) if k not in order)
+    return SubtaskPlan(order=order, boundaries=tuple(boundaries), unused=unused, refitted=refitted)
+
+
+def _best_monotone_cuts(codes: np.ndarray, order: Sequence[int]) -> tuple[int, ...]:
+    """The start steps of sub-tasks 1 .. S-1 maximising the steps whose code is their sub-task's (see
+    `plan_subtasks`): f[i][b] is the best agreement of steps before b with sub-task i starting at b."""
+    t_len, s = len(codes), len(order)
+    agree = np.stack([np.concatenate([[0], np.cumsum(codes == k)]) for k in order])  # agree[i][t]: steps < t
+    minimum = [1] * (s - 1) + [2]
+    best = np.full((s, t_len + 1), -np.inf)
+    back = np.zeros((s, t_len + 1), dtype=np.int64)
+    best[0, 0] = 0.0
+    steps = np.arange(t_len + 1)
+    for i in range(1, s):  # sub-task i starts at b, sub-task i - 1 started at the best a <= b - minimum[i - 1]
+        vals = best[i - 1] - agree[i - 1]
+        run_max = np.maximum.accumulate(vals)
+        new_max = vals > np.concatenate([[-np.inf], run_max[:-1]])  # strict: ties keep the earlier start
+        run_arg = np.maximum.accumulate(np.where(new_max, steps, 0))
+        a = steps[minimum[i - 1]:] - minimum[i - 1]
+        best[i, minimum[i - 1]:] = agree[i - 1, minimum[i - 1]:] + run_max[a]
+        back[i, minimum[i - 1]:] = run_arg[a]
+    total = np.where(steps <= t_len - minimum[-1], best[s - 1] + agree[s - 1, t_len] - agree[s - 1], -np.inf)
+    b = int(np.argmax(total))  # argmax: the first of equal totals
+    cuts = []
+    for i in range(s - 1, 0, -1):
+        cuts.append(b)
+        b = int(back[i, b])
+    return tuple(reversed(cuts))
+
+
+def plan_signals(plan: SubtaskPlan, demo: int, n_steps: int, n_codes: int) -> np.ndarray:
+    """(n_codes, n_steps) int64 termination signals of one demonstration under `plan`, MimicGen's convention:
+    sub-task i's signal is 0 before the boundary that ends it and 1 from there on; the last sub-task's and the
+    unused codes' stay 0."""
     out = np.zeros((n_codes, n_steps), dtype=np.int64)
-    for k in range(n_codes):
-        where = np.flatnonzero(codes == k)
-        if not len(where):
-            continue
-        after = np.flatnonzero(codes[where[0]:] != k)
-        if len(after):
-            out[k, where[0] + after[0]:] = 1
+    for code, start in zip(plan.order[:-1], plan.boundaries[demo], strict=True):
+        out[code, start:] = 1
     return out
 
 
+def term_signals(codes: np.ndarray, n_steps: int, n_codes: int) -> np.ndarray:
+    """(n_codes, n_steps) int64 termination signals of one demonstration's codes on its own (`plan_subtasks` of
+    that one demonstration): for codes that run once each, code k's signal is 0 until its segment ends and 1 from
+    the next step on; a code that never occurs, or the last sub-task, stays 0."""
+    codes = np.asarray(codes).reshape(-1)
+    return plan_signals(plan_subtasks([codes[:n_steps]], n_codes), 0, n_steps, n_codes)
+
+
+def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
+    """The one line an export prints about `plan`: the order to give MimicGen's task spec and what was fitted."""
+    ordered = [names[k] for k in plan.order]
+    line = (f"MimicGen sub-tasks in the demonstrated order: {', '.join(ordered)} (task spec signals: "
+            f"{', '.join([*ordered[:-1], 'None'])})")
+    if plan.refitted:
+        line += (f"; {plan.refitted} of {len(plan.boundaries)} demonstrations have codes that recur, are missing or "
+                 "come out of that order, and got the one boundary per sub-task that agrees with most of their steps")
+    if plan.unused:
+        line += (f"; {', '.join(names[k] for k in plan.unused)} (in fewer than half of the demonstrations) "
+                 "written as all-zero")
+    return line
+
+
 def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Sequence[str],
-                          codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False) -> Path:
-    """Copy the robomimic file `source` to `out` with each demonstration's codes as MimicGen termination signals.
+                          codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False,
+                          notes: list[str] | None = None) -> Path:
+    """Copy the robomimic file `source` to `out` with each demonstration's codes as MimicGen termination signals:
+    one boundary per sub-task in every demonstration, in one order for all (`plan_subtasks`).
 
     Args:
         source: the robomimic file the demonstrations were read from (only read).
@@ -299,6 +412,7 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
             of a next state has one code fewer; its last step takes the code before it).
         names: one signal name per code (`datagen_info/subtask_term_signals/<name>`).
         force: replace an existing `out`.
+        notes: where to append the one line saying which sub-tasks, in which order, were written (`plan_line`).
 
     Raises:
         UserError: `out` is the source or exists without `force`, a name already in the file, codes that do not
@@ -321,25 +435,30 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
         os.chmod(tmp, 0o666 & ~umask())
         with h5py.File(tmp, "r+") as f:
             data = f["data"]
+            fitted = []
             for key, demo_codes in zip(episode_keys, codes, strict=True):
-                demo = data[key]
-                n = int(demo["actions"].shape[0])
+                n = int(data[key]["actions"].shape[0])
                 demo_codes = np.asarray(demo_codes).reshape(-1)
                 if len(demo_codes) == n - 1:  # the dropped last action takes the code before it
                     demo_codes = np.concatenate([demo_codes, demo_codes[-1:]])
                 if len(demo_codes) != n:
                     raise UserError(f"data/{key} of {source} has {n} steps but the segmentation has "
                                     f"{len(demo_codes)}; segment the demonstrations read from this file.")
-                group = demo.require_group(SIGNALS_PATH)
+                fitted.append(demo_codes)
+            plan = plan_subtasks(fitted, len(names), [f"data/{k} of {source}" for k in episode_keys])
+            for i, (key, demo_codes) in enumerate(zip(episode_keys, fitted, strict=True)):
+                group = data[key].require_group(SIGNALS_PATH)
                 clash = sorted(set(names) & set(group))
                 if clash:
                     raise UserError(f"data/{key} of {source} already has {SIGNALS_PATH}/{clash[0]}; choose other "
                                     "--names for the exported signals.")
-                for name, signal in zip(names, term_signals(demo_codes, n, len(names)), strict=True):
+                for name, signal in zip(names, plan_signals(plan, i, len(demo_codes), len(names)), strict=True):
                     group.create_dataset(name, data=signal)
                 earlier = [n for n in group if n not in names and n not in _oracle_signals(group)]
                 group.attrs["digail_signals"] = json.dumps(sorted([*earlier, *names]))
         os.replace(tmp, out)
+        if notes is not None:
+            notes.append(plan_line(plan, names))
     except BaseException:
         with signals_deferred(), contextlib.suppress(FileNotFoundError):
             tmp.unlink()

@@ -1,0 +1,120 @@
+"""The rule the robomimic export follows so that MimicGen's source-dataset parser accepts it whatever the
+segmentation: one boundary per named sub-task in every demonstration, in one order (digail.data.robomimic)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from digail.data.annotations import export_segmentation
+from digail.data.importers import read_demonstrations
+from digail.data.robomimic import SIGNALS_PATH, plan_line, plan_signals, plan_subtasks, term_signals
+from digail.errors import UserError
+
+FIXTURES = Path(__file__).resolve().parent / "data" / "formats"
+
+
+def mimicgen_ends(signals: dict[str, np.ndarray], spec: list[str | None], n_steps: int) -> list[int]:
+    """MimicGen's parse_source_dataset rule (NVlabs/mimicgen 72bd767), rewritten here: sub-task i ends one step
+    after the first 0 -> 1 of its signal at or after the previous sub-task's end; the last one at the end. Raises
+    AssertionError where MimicGen's parser does."""
+    ends, prev = [], 0
+    for name in spec:
+        if name is None:
+            end = n_steps
+        else:
+            diffs = signals[name][1:] - signals[name][:-1]
+            first = next((int(nz) + 1 for nz in diffs.nonzero()[0] if int(nz) + 1 >= prev), None)
+            assert first is not None, f"No valid subtask termination found for {name}"
+            end = first + 1
+        ends.append(end)
+        prev = end
+    for a, b in zip(ends, ends[1:], strict=False):  # the sanity check with zero offsets
+        assert a < b, f"sub-task ends {a} then {b}"
+    return ends
+
+
+def random_codes(rng: np.random.Generator, n_codes: int) -> list[np.ndarray]:
+    """Segmentations as a VAE gives them on bad days: codes that recur, flicker, are missing, out of order."""
+    demos = []
+    for _ in range(12):
+        length = int(rng.integers(6, 40))
+        runs = rng.integers(0, n_codes, size=int(rng.integers(1, 8)))
+        cuts = np.sort(rng.choice(np.arange(1, length), size=min(len(runs) - 1, length - 1), replace=False))
+        demos.append(np.repeat(runs[:len(cuts) + 1], np.diff(np.concatenate([[0], cuts, [length]]))))
+    return demos
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_every_demonstration_gets_one_boundary_per_subtask_mimicgen_parses(seed):
+    rng = np.random.default_rng(seed)
+    n_codes = int(rng.integers(2, 6))
+    codes = random_codes(rng, n_codes)
+    plan = plan_subtasks(codes, n_codes)
+    names = [f"s{k}" for k in range(n_codes)]
+    spec = [*[names[k] for k in plan.order[:-1]], None]
+    for i, c in enumerate(codes):
+        assert len(plan.boundaries[i]) == len(plan.order) - 1
+        signals = dict(zip(names, plan_signals(plan, i, len(c), n_codes), strict=True))
+        for k in plan.order[:-1]:  # one 0 -> 1 step each, monotone
+            assert signals[names[k]][0] == 0 and np.all(np.diff(signals[names[k]]) >= 0)
+        ends = mimicgen_ends(signals, spec, len(c))
+        assert ends == [b + 1 for b in plan.boundaries[i]] + [len(c)]
+
+
+def test_recurring_codes_get_the_boundary_agreeing_with_most_steps():
+    codes = [np.array([0, 0, 1, 0, 1, 1, 2, 2]),   # flicker: 2 and 4 agree equally, the earlier wins
+             np.array([0, 0, 0, 1, 1, 2, 2, 2, 1, 2]),  # a late relapse of 1 changes nothing
+             np.array([0, 0, 0, 0, 0, 2, 2, 2]),   # 1 missing: one step of it, at the earliest
+             np.array([0, 0, 0, 1, 1, 1, 2, 2])]   # as coded: its runs' ends
+    plan = plan_subtasks(codes, 3)
+    assert plan.order == (0, 1, 2) and plan.unused == ()
+    assert plan.boundaries == ((2, 6), (3, 5), (4, 5), (3, 6))
+    assert plan.refitted == 3
+
+
+def test_order_is_the_demonstrated_one_and_rare_codes_are_dropped():
+    # code 2 comes first in every demonstration, code 3 only in one
+    codes = [np.array([2, 2, 0, 0, 1, 1]), np.array([2, 0, 0, 0, 1, 1, 1]), np.array([2, 2, 2, 0, 3, 1])]
+    plan = plan_subtasks(codes, 4)
+    assert plan.order == (2, 0, 1) and plan.unused == (3,)
+    line = plan_line(plan, ["grasp", "place", "reach", "x"])
+    assert line.startswith("MimicGen sub-tasks in the demonstrated order: reach, grasp, place (task spec signals: "
+                           "reach, grasp, None)")
+    assert "1 of 3 demonstrations" in line and "x (in fewer than half" in line and "\n" not in line
+
+
+def test_codes_that_run_once_keep_their_ends():
+    codes = np.array([1, 1, 1, 0, 0, 2, 2, 2])
+    sig = term_signals(codes, len(codes), 4)
+    np.testing.assert_array_equal(sig[1], np.arange(8) >= 3)
+    np.testing.assert_array_equal(sig[0], np.arange(8) >= 5)
+    assert not sig[2].any() and not sig[3].any()
+
+
+def test_too_short_a_demonstration_is_one_sentence():
+    with pytest.raises(UserError) as exc:
+        plan_subtasks([np.array([0, 1, 2, 2]), np.array([0, 1, 2])], 3, keys=["demo_0", "demo_1"])
+    msg = str(exc.value)
+    assert msg.startswith("demo_1 has 3 steps") and "segment with fewer codes" in msg and "\n" not in msg
+
+
+def test_export_writes_the_plan_and_says_it(tmp_path):
+    source = FIXTURES / "robomimic_robosuite.hdf5"
+    im = read_demonstrations(source)
+    # recurring codes in one demonstration, the other two coded once each
+    codes = [np.where(np.arange(len(t)) < 5, 0, 1) for t in im.trajs]
+    codes[1] = codes[1].copy()
+    codes[1][8:10] = 0
+    notes: list[str] = []
+    out = export_segmentation("robomimic", tmp_path / "a.hdf5", im.episode_keys, codes, ["reach", "carry"],
+                              source=im.source, notes=notes)
+    assert len(notes) == 1 and notes[0].startswith("MimicGen sub-tasks in the demonstrated order: reach, carry")
+    assert "1 of 3 demonstrations" in notes[0]
+    with h5py.File(out, "r") as f:
+        for key in im.episode_keys:
+            signal = f[f"data/{key}/{SIGNALS_PATH}/reach"][()]
+            assert mimicgen_ends({"reach": signal}, ["reach", None], len(signal))[0] == 6
