@@ -12,7 +12,15 @@ has only subtask_term_signals, not the poses MimicGen's prepare_src_dataset.py a
 with placeholder eef_pose / target_pose / gripper_action / object_poses added (signals untouched); (4) compares the
 subtask indices MimicGen derives with digail's segments and writes $MG_CHECK_OUT/mimicgen.check.json (the committed
 record: tests/data/formats/mimicgen.check.json).
-No imports are stubbed: mimicgen/__init__.py catches the ImportError of robosuite itself.
+No imports are stubbed: mimicgen/__init__.py catches the ImportError of robosuite itself. Where
+`mimicgen.utils.file_utils` cannot be imported (its module-level imports pull robomimic's models, hence torchvision,
+whose CPU build PyPI does not carry), the two functions used are taken verbatim from that file's source and run
+with the names they use (h5py, numpy, tqdm, MimicGen's own DatagenInfo); the record says which way it ran.
+
+(5) It also parses, with the task spec the export announced in its one line, an export of codes that recur within
+demonstrations and give them different numbers of segments (`recurring-robomimic.hdf5`), and, given
+`--robosuite-export FILE` (passed on to step 1), a `digail segment --export robomimic` export of robosuite
+demonstrations: every demonstration must parse, into the boundaries digail's plan gave it (+1, MimicGen's rule).
 """
 import csv
 import json
@@ -33,10 +41,32 @@ HARNESS = OUT / "annotated-robomimic.with-placeholder-poses.hdf5"
 SEGMENTS = OUT / "segments.csv"
 
 # 1. digail export (digail's own venv)
-subprocess.run([str(MAIN / ".venv/bin/python"), str(MAIN / "scripts" / "check_mimicgen_export.py")], check=True,
+DIGAIL_PYTHON = os.environ.get("DIGAIL_PYTHON", str(MAIN / ".venv/bin/python"))
+subprocess.run([DIGAIL_PYTHON, str(MAIN / "scripts" / "check_mimicgen_export.py"), *sys.argv[1:]], check=True,
                cwd=MAIN, env={**os.environ, "PYTHONPATH": str(MAIN / "src")})
 
-import mimicgen.utils.file_utils as MG_FileUtils  # noqa: E402  (the source checkout is on PYTHONPATH, see above)
+try:
+    import mimicgen.utils.file_utils as MG_FileUtils  # noqa: E402  (the source checkout is on PYTHONPATH)
+    HOW = "imported mimicgen.utils.file_utils"
+except (ImportError, RuntimeError) as exc:
+    import types
+
+    from tqdm import tqdm  # noqa: E402
+
+    from mimicgen.datagen.datagen_info import DatagenInfo  # noqa: E402
+
+    text = (MG_SRC / "mimicgen/utils/file_utils.py").read_text()
+    namespace = {"h5py": h5py, "np": np, "tqdm": tqdm, "DatagenInfo": DatagenInfo}
+    for fn in ("get_all_demos_from_dataset", "parse_source_dataset"):
+        start = text.index(f"def {fn}(")
+        end = text.index("\ndef ", start + 1)
+        exec(compile(text[start:end], "mimicgen/utils/file_utils.py", "exec"), namespace)
+    MG_FileUtils = types.SimpleNamespace(**{k: namespace[k] for k in ("get_all_demos_from_dataset",
+                                                                     "parse_source_dataset")})
+    HOW = (f"mimicgen.utils.file_utils does not import here ({type(exc).__name__}: {exc}); its functions "
+           "get_all_demos_from_dataset and parse_source_dataset were run verbatim from its source with h5py, numpy, "
+           "tqdm and mimicgen.datagen.datagen_info.DatagenInfo")
+print(HOW)
 
 # digail's segments per demo, in order
 segs = {}
@@ -55,10 +85,45 @@ offsets = [(0, 0)] * len(term_signals)
 demo_keys = MG_FileUtils.get_all_demos_from_dataset(dataset_path=str(EXPORT))
 
 
-def parse(path, signals):
-    return MG_FileUtils.parse_source_dataset(dataset_path=str(path), demo_keys=demo_keys,
+def parse(path, signals, keys=None):
+    return MG_FileUtils.parse_source_dataset(dataset_path=str(path), demo_keys=keys or demo_keys,
                                              subtask_term_signals=list(signals),
-                                             subtask_term_offset_ranges=list(offsets))
+                                             subtask_term_offset_ranges=[(0, 0)] * len(signals))
+
+
+def harness(src, dst):
+    """A copy with placeholder poses (parse_source_dataset reads them unconditionally), signals untouched."""
+    shutil.copyfile(src, dst)
+    with h5py.File(dst, "r+") as f:
+        for key in f["data"]:
+            demo = f[f"data/{key}"]
+            T = demo["actions"].shape[0]
+            dg = demo["datagen_info"]
+            dg.create_dataset("eef_pose", data=np.tile(np.eye(4), (T, 1, 1)))
+            dg.create_dataset("target_pose", data=np.tile(np.eye(4), (T, 1, 1)))
+            dg.create_dataset("gripper_action", data=demo["actions"][:, -1:])
+            dg.create_group("object_poses")
+    return dst
+
+
+def check_plan(name, export, plan_file):
+    """Parse an export with the spec its plan announced; every demonstration's ends must be its boundaries + 1."""
+    plan = json.loads(plan_file.read_text())
+    path = harness(export, OUT / f"{name}.with-placeholder-poses.hdf5")
+    keys = MG_FileUtils.get_all_demos_from_dataset(dataset_path=str(path))
+    try:
+        _, indices, _, _ = parse(path, plan["spec"], keys)
+    except AssertionError as e:
+        return {"pass": False, "error": str(e), "spec": plan["spec"]}
+    got = {k: [int(x) for x in indices[i][:, 1]] for i, k in enumerate(keys)}
+    with h5py.File(path, "r") as f:
+        want = {k: [b + 1 for b in plan["boundaries"][k]] + [int(f[f"data/{k}/actions"].shape[0])] for k in keys}
+    ok = got == want
+    print(name, "PASS" if ok else "FAIL", "spec", plan["spec"], "| demos", len(keys))
+    return {"pass": bool(ok), "spec": plan["spec"], "demos": len(keys), "note": plan.get("note"),
+            "code_runs": plan.get("code_runs"), "mimicgen_subtask_ends": got if len(keys) <= 10 else
+            {k: got[k] for k in keys[:10]}, "expected_ends_from_digail_plan": want if len(keys) <= 10 else
+            {k: want[k] for k in keys[:10]}, "file": str(export)}
 
 
 # 2. the export as is
@@ -70,16 +135,7 @@ except KeyError as e:
 print("export as is:", raw)
 
 # 3. harness copy: placeholder poses, signals untouched
-shutil.copyfile(EXPORT, HARNESS)
-with h5py.File(HARNESS, "r+") as f:
-    for key in demo_keys:
-        demo = f[f"data/{key}"]
-        T = demo["actions"].shape[0]
-        dg = demo["datagen_info"]
-        dg.create_dataset("eef_pose", data=np.tile(np.eye(4), (T, 1, 1)))
-        dg.create_dataset("target_pose", data=np.tile(np.eye(4), (T, 1, 1)))
-        dg.create_dataset("gripper_action", data=demo["actions"][:, -1:])
-        dg.create_group("object_poses")
+harness(EXPORT, HARNESS)
 datagen_infos, subtask_indices, _, _ = parse(HARNESS, term_signals)
 # the fixture's oracle signal `grasp` (written as MimicGen's annotate_subtasks.py writes signals) for comparison
 _, grasp_indices, _, _ = parse(HARNESS, ["grasp", None])
@@ -125,10 +181,18 @@ result = {
     "export_as_is": raw,
     "demos": per_demo,
 }
+# 5. exports whose codes recur, and a robosuite export, parsed with the spec each announced
+plans = {"recurring_codes": check_plan("recurring", OUT / "recurring-robomimic.hdf5", OUT / "recurring.plan.json")}
+if (OUT / "robosuite.plan.json").exists() and "--robosuite-export" in sys.argv:
+    robosuite_file = Path(json.loads((OUT / "robosuite.plan.json").read_text())["file"])
+    plans["robosuite_export"] = check_plan("robosuite", robosuite_file, OUT / "robosuite.plan.json")
+result["plans"] = plans
+ok_all = ok_plus1 and all(p["pass"] for p in plans.values())
 record = {
     "mimicgen_commit": MG_COMMIT,
     "function": "mimicgen.utils.file_utils.parse_source_dataset (with get_all_demos_from_dataset for demo_keys)",
     "call": {"subtask_term_signals": term_signals, "subtask_term_offset_ranges": offsets},
+    "how_run": HOW,
     "stubs": "none (no import stubbed; mimicgen/__init__.py catches ImportError for robosuite, prints a warning). "
              "Harness: a copy of the export with placeholder datagen_info/eef_pose, target_pose (identity 4x4 per "
              "step), gripper_action (actions[:, -1:]) and an empty object_poses group, which parse_source_dataset "
@@ -140,5 +204,6 @@ record = {
     "result": result,
 }
 (OUT / "mimicgen.check.json").write_text(json.dumps(record, indent=1) + "\n")
-print("PASS" if ok_plus1 else "FAIL", "| literal equality of ends:", ok_equal)
-sys.exit(0 if ok_plus1 else 1)
+print("PASS" if ok_all else "FAIL", "| literal equality of ends:", ok_equal, "|",
+      {k: p["pass"] for k, p in plans.items()})
+sys.exit(0 if ok_all else 1)
