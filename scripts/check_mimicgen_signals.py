@@ -51,9 +51,8 @@ try:
 except (ImportError, RuntimeError) as exc:
     import types
 
-    from tqdm import tqdm  # noqa: E402
-
     from mimicgen.datagen.datagen_info import DatagenInfo  # noqa: E402
+    from tqdm import tqdm  # noqa: E402
 
     text = (MG_SRC / "mimicgen/utils/file_utils.py").read_text()
     namespace = {"h5py": h5py, "np": np, "tqdm": tqdm, "DatagenInfo": DatagenInfo}

@@ -46,7 +46,7 @@ def run(run_dir: Path, task: str, episodes: int, seed: int, horizon: int) -> dic
         raw = env.reset()
         prev = torch.zeros(1, model.codes)  # c_{-1}: the start input
         codes, ok = [], False
-        for t in range(horizon):
+        for _ in range(horizon):
             obs = torch.as_tensor(flatten(raw))[None]
             if obs.shape[1] != model.obs_dim:
                 raise SystemExit(f"{run_dir} takes {model.obs_dim} observation numbers, the env gives {obs.shape[1]}")
@@ -61,7 +61,7 @@ def run(run_dir: Path, task: str, episodes: int, seed: int, horizon: int) -> dic
                 ok = True
                 break
         successes.append(ok)
-        lengths.append(t + 1)
+        lengths.append(len(codes))
         switches.append(int(np.count_nonzero(np.diff(codes))))
     seconds = time.time() - t0
     return {"run": str(run_dir), "codes": model.codes, "task": task, "episodes": episodes, "seed": seed,
