@@ -51,10 +51,11 @@ try:
 except (ImportError, RuntimeError) as exc:
     import types
 
+    import mimicgen  # noqa: E402
     from mimicgen.datagen.datagen_info import DatagenInfo  # noqa: E402
     from tqdm import tqdm  # noqa: E402
 
-    text = (MG_SRC / "mimicgen/utils/file_utils.py").read_text()
+    text = (Path(mimicgen.__file__).parent / "utils" / "file_utils.py").read_text()
     namespace = {"h5py": h5py, "np": np, "tqdm": tqdm, "DatagenInfo": DatagenInfo}
     for fn in ("get_all_demos_from_dataset", "parse_source_dataset"):
         start = text.index(f"def {fn}(")
