@@ -1,6 +1,6 @@
 """Envs defined outside digail, in a fresh `digail` process each time (nothing registered in this one counts):
-named as `module:EnvId` on the command line, or found through the entry point the dataset recorded, also in the
-env worker processes and when a run folder is evaluated later."""
+named as `module:EnvId` on the command line, also in the env worker processes and when a run folder is evaluated
+later; the entry point a dataset or run folder records is used only when its module is named."""
 
 from __future__ import annotations
 
@@ -78,20 +78,25 @@ def _digail(folder: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 def test_env_named_with_its_module_and_through_the_dataset(folder: Path) -> None:
     r = _digail(folder, "pretrain", "--demos", "demos", "--codes", "2", "--preset", "smoke", "--out", "vae")
-    assert r.returncode == 0, r.stderr
-    # the id alone: the dataset's recorded entry point makes it, in this process and in the env workers
-    r = _digail(folder, "train", "--demos", "demos", "--vae", "vae", "--preset", "smoke", "--train.backend",
-                "subproc", *SMALL, "--out", "run1")
+    assert r.returncode == 0, r.stderr  # the data alone: nothing imported
+    # the id alone: the dataset's entry point names line_walk, a module no one named on the command line
+    r = _digail(folder, "train", "--demos", "demos", "--vae", "vae", "--preset", "smoke", *SMALL, "--out", "run0")
+    assert r.returncode == 2 and "pass --env line_walk:LineWalk-v0 to allow it" in r.stderr, r.stderr
+    assert not (folder / "run0").exists()
+    # module:EnvId: the module is imported, in this process and in the env workers, and the env is known by its id
+    r = _digail(folder, "train", "--env", "line_walk:LineWalk-v0", "--demos", "demos", "--vae", "vae", "--preset",
+                "smoke", "--train.backend", "subproc", *SMALL, "--out", "run1")
     assert r.returncode == 0, r.stderr
     config = json.loads((folder / "run1" / "config.json").read_text())
     assert config["env_id"] == "LineWalk-v0" and "line_walk:Walk" in config["env_spec"]
-    # module:EnvId: the module is imported and the env is known by its id, so the VAE and dataset checks pass
     r = _digail(folder, "train", "--env", "line_walk:LineWalk-v0", "--demos", "demos", "--vae", "vae", "--preset",
                 "smoke", "--train.backend", "sync", *SMALL, "--out", "run2")
     assert r.returncode == 0, r.stderr
     assert json.loads((folder / "run2" / "config.json").read_text())["env_id"] == "LineWalk-v0"
-    # a later command on the run folder alone makes the env from what config.json recorded
+    # a later command on the run folder: the env's module is named again (the folder's record is not enough)
     r = _digail(folder, "evaluate", "run1", "--episodes", "2")
+    assert r.returncode == 2 and "--env line_walk:LineWalk-v0" in r.stderr, r.stderr
+    r = _digail(folder, "evaluate", "run1", "--episodes", "2", "--env", "line_walk:LineWalk-v0")
     assert r.returncode == 0, r.stderr
     result = json.loads((folder / "run1" / "eval.json").read_text())
     assert result["episodes"] == 2 and np.isfinite(result["mean_return"])

@@ -12,12 +12,29 @@ The public API lives at the top level (`digail.pretrain`, `digail.segment`, `dig
 from __future__ import annotations
 
 import importlib
+import os
+import signal
+import sys
 from typing import TYPE_CHECKING, Any
 
-from digail.data.trajectory import Trajectory
-from digail.envs import register_envs as _register_envs
-from digail.errors import UserError
-from digail.version import __version__
+
+def _stopped_while_importing(signum: int, frame: Any) -> None:
+    sys.stderr.write("digail: stopped by SIGINT before it began; nothing was written.\n")
+    os._exit(128 + signum)
+
+
+# The `digail` command: Ctrl-C while the package itself still imports (its first second) ends the command with one
+# line instead of a traceback; `digail.cli.main` takes over from there. A Python session importing digail keeps
+# its own Ctrl-C.
+_EARLY = (os.path.basename(sys.argv[0] if sys.argv else "") == "digail"
+          and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+if _EARLY:
+    signal.signal(signal.SIGINT, _stopped_while_importing)
+
+from digail.data.trajectory import Trajectory  # noqa: E402  (after the Ctrl-C guard above)
+from digail.envs import register_envs as _register_envs  # noqa: E402  (after the Ctrl-C guard above)
+from digail.errors import UserError  # noqa: E402  (after the Ctrl-C guard above)
+from digail.version import __version__  # noqa: E402  (after the Ctrl-C guard above)
 
 if TYPE_CHECKING:  # what the lazy names below resolve to, for type checkers and editors
     from digail.algos.decode import segment
@@ -33,6 +50,8 @@ if TYPE_CHECKING:  # what the lazy names below resolve to, for type checkers and
     from digail.preset import get_preset
 
 _register_envs()
+if _EARLY:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # public name -> the module that defines it (imported when the name is first looked up)
 _PUBLIC: dict[str, str] = {

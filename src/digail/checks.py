@@ -21,8 +21,11 @@ SEED_MAX = 2**32 - 1
 """largest seed: NumPy's legacy seeding and many environments take 32-bit seeds"""
 
 
-def check_seed(seed: int, flag: str = "--seed", count: int = 1) -> None:
-    """A seed in 0..2**32-1; with `count` consecutive per-episode seeds, the last one too."""
+def check_seed(seed: int, flag: str = "--seed", count: int = 1, count_flag: str = "--episodes") -> None:
+    """A seed in 0..2**32-1; with `count` consecutive per-episode seeds (`count_flag`), the last one too."""
+    if isinstance(count, int) and count > SEED_MAX + 1:  # no seed could start them: say what is too many
+        raise UserError(f"{count_flag} must be at most {SEED_MAX + 1} (each episode has a seed of its own, and there "
+                        f"are no more), got {count}.")
     _require(isinstance(seed, int) and 0 <= seed <= SEED_MAX - max(count - 1, 0), flag,
              f"between 0 and {SEED_MAX - max(count - 1, 0)}" + (f" (episode i uses {flag.lstrip('-')} + i)"
                                                                   if count > 1 else ""), seed)

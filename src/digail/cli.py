@@ -8,6 +8,7 @@ printed as one sentence with exit status 2.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import os
 import signal
@@ -17,7 +18,7 @@ from types import ModuleType
 from typing import Any
 
 from digail.commands.parse import parse_and_run
-from digail.errors import UserError
+from digail.errors import TrainingError, UserError
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "demos": ("DemosArgs", "demos_command"),
@@ -115,6 +116,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `digail` console script; returns the exit status."""
     try:
         return _main(argv)
+    except KeyboardInterrupt:
+        # Ctrl-C while the command was still importing its libraries, before its own handler (`Interrupted`) was
+        # set: nothing has been read or written yet
+        args = list(sys.argv[1:] if argv is None else argv)
+        name = f" {args[0]}" if args and args[0] in COMMANDS else ""
+        print(f"digail{name}: stopped by SIGINT before it began; nothing was written.", file=sys.stderr)
+        return 128 + signal.SIGINT
     except BrokenPipeError:
         # the reader went away (`digail ... | head`): stop quietly, as a Unix tool killed by SIGPIPE does, and
         # point the standard streams at /dev/null so that the interpreter's final flush does not complain
@@ -144,11 +152,15 @@ def _main(argv: Sequence[str] | None) -> int:
     try:
         _check_utf8(rest)
         with _terminate_as_interrupt():
-            rest = _env_modules_imported(name, rest)
+            takes_env = any(f.name == "env" for f in dataclasses.fields(cls))
+            rest = _env_modules_imported(name, rest, takes_env)
             parse_and_run(cls, handler, defaults, rest, prog=f"digail {name}")
     except UserError as exc:
         print(f"digail {name}: error: {_one_sentence(exc)}", file=sys.stderr)
         return 2
+    except TrainingError as exc:  # training cannot go on (a NaN loss): one sentence, exit 1, the checkpoint kept
+        print(f"digail {name}: error: {_one_sentence(exc)}", file=sys.stderr)
+        return 1
     except SystemExit as exc:  # tyro / argparse: --help exits 0 (parse errors arrive as UserError above)
         return int(exc.code or 0) if isinstance(exc.code, int | None) else 2
     except Interrupted as exc:
@@ -178,17 +190,32 @@ def _check_utf8(argv: list[str]) -> None:
                             "another path) so that its name is UTF-8 text.") from None
 
 
-def _env_modules_imported(name: str, argv: list[str]) -> list[str]:
+def _env_modules_imported(name: str, argv: list[str], takes_env: bool = True) -> list[str]:
     """`argv` with each `module:EnvId` (the value of `--env`, or `digail run`'s first argument) replaced by
-    `EnvId` once its module is imported: the env is then known under its id alone, as datasets record it."""
+    `EnvId` once its module is imported: the env is then known under its id alone, as datasets record it.
+
+    A command on a run folder (`evaluate`, `report`, ...) has no `--env` of its own (`takes_env` False): there
+    `--env module:EnvId` only names the module that the run folder's env comes from, the one way a module the
+    folder records is ever imported, and leaves the command line."""
     from digail.user_envs import import_env_module
 
-    out = list(argv)
-    for i, tok in enumerate(out):
-        if tok.startswith("--env="):
-            out[i] = "--env=" + import_env_module(tok.split("=", 1)[1])
-        elif i > 0 and out[i - 1] == "--env" or name == "run" and i == 0 and not tok.startswith("-"):
-            out[i] = import_env_module(tok)
+    out: list[str] = []
+    skip = False
+    for i, tok in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        value = tok.split("=", 1)[1] if tok.startswith("--env=") else argv[i + 1] if (
+            tok == "--env" and i + 1 < len(argv)) else None
+        if value is not None and not takes_env and ":" in value:
+            import_env_module(value)
+            skip = tok == "--env"
+        elif tok.startswith("--env="):
+            out.append("--env=" + import_env_module(value or ""))
+        elif i > 0 and argv[i - 1] == "--env" or name == "run" and i == 0 and not tok.startswith("-"):
+            out.append(import_env_module(tok))
+        else:
+            out.append(tok)
     return out
 
 

@@ -138,12 +138,28 @@ def check_spec(spec: Any, jobs: list[Any]) -> None:
                     preset = ["--preset", grid.preset] if grid.preset and stage in ("pretrain", "train") else []
                     _dry_parse(stage, [*base, *preset, *flag_args(key, v)],
                                f"--set {key}={v}", f"`digail {stage}` takes no such value")
+            if key == "train.disc_obs":
+                for v in values:
+                    _check_view(v, f"--set {key}")
     seen: set[tuple[str, ...]] = set()
     for job in jobs:
         for stage in job.stages:
             if stage.name in STAGE_OF_PREFIX.values() and stage.argv not in seen:
                 seen.add(stage.argv)
                 _dry_parse(stage.name, list(stage.argv[1:]), f"trial {job.id}", "its command would fail")
+                argv = list(stage.argv)
+                for i, tok in enumerate(argv[:-1]):
+                    if tok == "--train.disc-obs":
+                        _check_view(argv[i + 1], f"trial {job.id}: --train.disc-obs")
+
+
+def _check_view(value: Any, flag: str) -> None:
+    """A D view of the user's (`module:function`) resolves here, before Ray starts, to a function of one argument
+    in a module of the user's (not the standard library): a trial would otherwise be the first to run it."""
+    if isinstance(value, str) and ":" in value:
+        from digail.user_envs import import_function
+
+        import_function(value, flag)
 
 
 def _default_demos(env: str) -> str:

@@ -11,7 +11,7 @@ import numpy as np
 
 from digail.config import FINAL_EVAL_SEED, TrainConfig, check_at_least, check_seed
 from digail.data.trajectory import Trajectory
-from digail.errors import UserError
+from digail.errors import TrainingError, UserError
 from digail.nets.vae import HierarchicalPolicy
 
 
@@ -84,9 +84,15 @@ def train_command(args: TrainArgs) -> Path:
     until = args.until
     if args.resume is not None:
         run_dir = Path(args.resume)
+        named_view = args.train.disc_obs
         args = resume_args(run_dir)
+        check_recorded_view(run_dir, args.train.disc_obs, named_view)
         if until is not None:
             args = replace(args, train=replace(args.train, iterations=until))
+    if ":" in args.train.disc_obs:  # the user's view: imported and checked before the data is read
+        from digail.user_envs import import_function
+
+        import_function(args.train.disc_obs, "--train.disc-obs")
     device = resolve_device(args.device)
     demos, env_id = load_demos(args.demos, args.env, episodes=args.demos_episodes, every=args.demos_subsample,
                                seed=args.seed)
@@ -117,9 +123,11 @@ def train_command(args: TrainArgs) -> Path:
                             device=device)
     config["fast_path"] = trainer.fast_path
     ckpt = run_dir / "checkpoint.pt"
+    made = False
     try:
         # the folder is this command's while it trains: a second writer is refused, --force included
         with run_dir_lock(run_dir) if args.resume is not None else fresh_dir(run_dir, args.force):
+            made = args.resume is None
             if args.resume is None:
                 write_run_config(run_dir, config)
             elif ckpt.exists():
@@ -133,6 +141,18 @@ def train_command(args: TrainArgs) -> Path:
             trainer.run_dir = run_dir
             trainer.train(evaluate=periodic_evaluation(env_id, cfg))
             trainer.save_checkpoint(ckpt)
+    except (UserError, TrainingError) as exc:
+        # bad input found only once training ran (a view of the user's failing on the agent's observations) or a
+        # NaN loss: a folder this command made that holds no checkpoint yet is nothing to resume, so it goes
+        if not made or ckpt.exists():
+            raise
+        from digail.fsio import remove_path
+
+        remove_path(run_dir)
+        if isinstance(exc, TrainingError):
+            raise TrainingError(str(exc).replace("the last good checkpoint is kept", f"no checkpoint was saved yet, "
+                                                 f"so {run_dir} is removed")) from None
+        raise
     finally:
         trainer.close()
     print(f"run folder: {run_dir}")
@@ -177,6 +197,15 @@ def resume_args(run_dir: Path) -> TrainArgs:
     vae = resolve_ref(run_dir, args.vae)
     return replace(args, demos=resolve_ref(run_dir, args.demos) or "", vae=None if vae is None else Path(vae),
                    out=run_dir, resume=run_dir, force=False)
+
+
+def check_recorded_view(run_dir: Path, recorded: str, named: str) -> None:
+    """A run folder's D view of the user's own (`module:function` in config.json) is code the folder names: it is
+    imported only when this command line names the same view, else refused before anything is imported."""
+    if recorded in ("all", "relative") or named == recorded:
+        return
+    raise UserError(f"{run_dir} was trained with D's view {recorded} (its config.json), code that digail runs only "
+                    f"when you name it; resume with `digail train --resume {run_dir} --train.disc-obs {recorded}`.")
 
 
 def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[HierarchicalPolicy], dict[str, float]] | None:

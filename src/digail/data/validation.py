@@ -97,8 +97,10 @@ def check_matches_env(dataset: Dataset, env_id: str, **env_kwargs: Any) -> None:
 
 
 def _cannot_make(exc: UserError) -> str:
-    """Why an env cannot be made, from `make_env`'s sentence: its first clause (no list of known ids)."""
-    return "cannot be made here (" + str(exc).split(";")[0].rstrip(".") + ")"
+    """Why an env cannot be made, from `make_env`'s sentence: its first clause (no list of known ids), or how to
+    allow it when a data file defines it in a module no one named."""
+    hint = str(exc).split("; ", 1)[1].rstrip(".") if "; a data file defines it" in str(exc) else ""
+    return "cannot be made here (" + (hint or str(exc).split(";")[0].rstrip(".")) + ")"
 
 
 def check_dataset_env(dataset: Dataset) -> str | None:

@@ -254,6 +254,10 @@ def _register_robotics() -> bool:
 
 
 def _known_ids_hint(env_id: str) -> str:
+    from digail.user_envs import unnamed_env_hint
+
+    if (hint := unnamed_env_hint(env_id)) is not None:
+        return hint
     known = sorted(gym.registry)
     close = difflib.get_close_matches(env_id, known, n=3, cutoff=0.6)
     if close:

@@ -159,7 +159,7 @@ def _worker(conn: Connection, shared: _Shared, env_id: str, kwargs: dict[str, An
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     envs: list[gym.Env] = []
     try:
-        register_recorded_env(spec)  # an env defined outside digail: the parent's registration did not travel
+        register_recorded_env(spec, trusted=True)  # the parent's registration (of a module named there) did not travel
         envs = [make_env(env_id, **kwargs) for _ in range(lo, hi)]
         conn.send(("ok", None))
         while True:

@@ -101,7 +101,24 @@ class ObsView(nn.Module):
         """F, the features D sees in place of the observation"""
 
     def forward(self, obs_n: torch.Tensor) -> torch.Tensor:
-        return self.out(self.fn(obs_n * self.std + self.mean))
+        name = getattr(self.fn, "__qualname__", repr(self.fn))
+        try:
+            feats = self.fn(obs_n * self.std + self.mean)
+        except (Exception, SystemExit) as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
+            raise UserError(f"D's view {name} fails on observations met during training ({type(exc).__name__}: "
+                            f"{str(exc).strip()[:120]}); it must map every observation the env gives.") from None
+        # the agent's observations are not the ones checked at the start: a view that changes width would be
+        # broadcast against the demonstrations' statistics, and NaN would reach D's loss as a "non-finite loss"
+        if not (isinstance(feats, torch.Tensor) and feats.shape == (obs_n.shape[0], self.dim)):
+            got = tuple(feats.shape) if isinstance(feats, torch.Tensor) else type(feats).__name__
+            raise UserError(f"D's view {name} returned {got} for {tuple(obs_n.shape)} observations during training "
+                            f"after {self.dim} features per step on the demonstrations at the start; it must give the "
+                            "same number of features for every observation.")
+        if not torch.isfinite(feats).all():
+            raise UserError(f"D's view {name} gives NaN or infinite features on observations met during training "
+                            "(the demonstrations' were finite at the start); make it finite for every observation the "
+                            "env can give.")
+        return self.out(feats.float())
 
 
 def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Tensor) -> torch.Tensor:
@@ -109,7 +126,7 @@ def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Ten
     name = getattr(fn, "__qualname__", repr(fn))
     try:
         feats = fn(obs)
-    except Exception as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
+    except (Exception, SystemExit) as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
         raise UserError(f"D's view {name} fails on the demonstrations' observations ({type(exc).__name__}: "
                         f"{str(exc).strip()[:120]}); it must map a float tensor (n, D) to features (n, F).") from None
     if not (isinstance(feats, torch.Tensor) and feats.dim() == 2 and feats.shape[0] == obs.shape[0]

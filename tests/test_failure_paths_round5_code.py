@@ -1,0 +1,339 @@
+"""Failure paths, fifth round (the code side): no code runs because a data file names it, D's views of the user's
+own fail in one sentence, a run whose view breaks leaves no folder without a checkpoint, and the messages that said
+the wrong thing.
+
+Each probe is what a user might try and what digail must give back: accepted, or refused with one sentence holding
+the expected phrase (exit status 2 from the CLI, no traceback). The probes that plant a module check that it never
+ran: the module writes a marker file beside itself when imported.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_failure_paths_round4 import CW, CW_DEMOS, Probe, cli, sweep_check
+
+import digail.user_envs
+from digail.errors import UserError
+
+PROBES: list[Probe] = []
+
+
+def probe(pid: str, what: str, expect: str | None) -> Callable[[Callable[[Path], object]], Callable[[Path], object]]:
+    def add(fn: Callable[[Path], object]) -> Callable[[Path], object]:
+        PROBES.append(Probe(pid, what, fn, expect))
+        return fn
+
+    return add
+
+
+RUN = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "runs" / "pendulum_vae_s2"
+"""a committed run folder (a Pendulum VAE)"""
+
+
+def plant(folder: Path, name: str, body: str = "") -> Path:
+    """A module `name`.py in `folder` that leaves `name`.ran beside itself when imported, then runs `body`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    marker = folder / f"{name}.ran"
+    (folder / f"{name}.py").write_text(f"open({str(marker)!r}, 'w').close()\n{body}")
+    return marker
+
+
+def ran(tmp: Path) -> list[str]:
+    """The planted modules that ran."""
+    return sorted(p.name for p in tmp.rglob("*.ran"))
+
+
+def _spec(env_id: str, entry: str) -> str:
+    from gymnasium.envs.registration import EnvSpec
+
+    return str(EnvSpec(id=env_id, entry_point=entry, max_episode_steps=20).to_json())
+
+
+def _dataset_naming(tmp: Path, env_id: str, entry: str) -> Path:
+    """A small Minari dataset (4 episodes of a 1-d walk) whose metadata names `env_id` made by `entry`."""
+    from digail.data.minari_write import write_dataset
+    from digail.data.trajectory import Trajectory
+
+    trajs = [Trajectory(obs=np.linspace(0, 1, 21, dtype=np.float32)[:, None] + k,
+                        acts=np.ones((20, 1), np.float32)) for k in range(4)]
+    import gymnasium as gym
+
+    space = gym.spaces.Box(-10.0, 10.0, (1,), np.float32)
+    path = write_dataset(trajs, tmp / "ds", env_id=None, dataset_id="walk/expert-v0", observation_space=space,
+                         action_space=gym.spaces.Box(-1.0, 1.0, (1,), np.float32))
+    meta_file = path / "data" / "metadata.json"
+    meta = json.loads(meta_file.read_text())
+    meta["env_spec"] = _spec(env_id, entry)
+    meta_file.write_text(json.dumps(meta))
+    return path
+
+
+# ------------------------------------------------------------------------------------------------ no code from data
+@probe("data-dataset-entry-point", "`digail pretrain --demos ds` on a Minari dataset whose env_spec names "
+       "`shuttle5a:Env`, with shuttle5a.py in the current folder", None)
+def _dataset_entry(tmp: Path) -> None:
+    plant(tmp, "shuttle5a", "import gymnasium as gym\ngym.register('Shuttle5a-v0', entry_point='shuttle5a:Env')\n")
+    _dataset_naming(tmp, "Shuttle5a-v0", "shuttle5a:Env")
+    cli(tmp, "pretrain", "--demos", "ds", "--codes", "2", "--preset", "smoke", "--vae.steps", "2",
+        "--vae.init-steps", "0", "--out", "vae")
+
+
+@probe("data-dataset-entry-point-train", "`digail train --demos ds` on the same dataset: the env it names is made "
+       "only when its module is named", "pass --env shuttle5b:Shuttle5b-v0 to allow it")
+def _dataset_entry_train(tmp: Path) -> None:
+    plant(tmp, "shuttle5b", "import gymnasium as gym\ngym.register('Shuttle5b-v0', entry_point='shuttle5b:Env')\n")
+    _dataset_naming(tmp, "Shuttle5b-v0", "shuttle5b:Env")
+    cli(tmp, "train", "--demos", "ds", "--preset", "smoke", "--out", "run-new")
+
+
+def _run_naming(tmp: Path, entry: str, env_id: str = "Shuttle5-v0") -> Path:
+    import shutil
+
+    run = tmp / "run"
+    shutil.copytree(RUN, run)
+    config = json.loads((run / "config.json").read_text())
+    config["env_spec"] = _spec(env_id, entry)
+    (run / "config.json").write_text(json.dumps(config))
+    return run
+
+
+@probe("data-run-folder-module", "`cd run && digail report .` where run/config.json's env_spec names "
+       "`shipped5:Env` and run/shipped5.py exists", None)
+def _run_module(tmp: Path) -> None:
+    run = _run_naming(tmp, "shipped5:Env")
+    plant(run, "shipped5")
+    cli(run, "report", ".")
+
+
+@probe("data-run-folder-evaluate", "`digail evaluate run` where run/config.json's env_spec names `shipped5e:Env` "
+       "(an env id digail does not know) and shipped5e.py is in the current folder (the run's model.pt names "
+       "Pendulum-v1, which it is evaluated in)", None)
+def _run_evaluate(tmp: Path) -> None:
+    run = _run_naming(tmp, "shipped5e:Env", "Shuttle5e-v0")
+    config = json.loads((run / "config.json").read_text())
+    config["env_id"] = "Shuttle5e-v0"
+    (run / "config.json").write_text(json.dumps(config))
+    plant(tmp, "shipped5e")
+    cli(tmp, "evaluate", "run", "--episodes", "1")
+
+
+def _resume_config(tmp: Path, view: str) -> None:
+    (tmp / "run").mkdir()
+    config = {"kind": "gail", "env_id": CW, "seed": 0, "train": {"disc_obs": view},
+              "args": {"env": CW, "demos": CW_DEMOS, "seed": 0, "method": "gail", "preset": "smoke",
+                       "train": {"disc_obs": view}}}
+    (tmp / "run" / "config.json").write_text(json.dumps(config))
+
+
+@probe("data-resume-disc-obs", "`digail train --resume run` where run/config.json's disc_obs names "
+       "`view5a:view` and view5a.py is in the current folder", "--train.disc-obs view5a:view")
+def _resume_view(tmp: Path) -> None:
+    plant(tmp, "view5a", "def view(x):\n    return x\n")
+    _resume_config(tmp, "view5a:view")
+    cli(tmp, "train", "--resume", "run")
+
+
+@probe("data-resume-other-disc-obs", "`digail train --resume run --train.disc-obs view5c:view` where config.json "
+       "records `view5b:view`", "--train.disc-obs view5b:view")
+def _resume_other_view(tmp: Path) -> None:
+    plant(tmp, "view5b", "def view(x):\n    return x\n")
+    plant(tmp, "view5c", "def view(x):\n    return x\n")
+    _resume_config(tmp, "view5b:view")
+    cli(tmp, "train", "--resume", "run", "--train.disc-obs", "view5c:view")
+
+
+def _in(tmp: Path, fn: Callable[[], object]) -> object:
+    import os
+
+    old = Path.cwd()
+    os.chdir(tmp)
+    try:
+        return fn()
+    finally:
+        os.chdir(old)
+
+
+for _pid, _value, _expect in [
+    ("sweep-disc-obs-os-system", "os:system", "Python's standard library"),
+    ("sweep-disc-obs-subprocess", "subprocess:getoutput", "Python's standard library"),
+    ("sweep-disc-obs-builtins", "builtins:exec", "Python's standard library"),
+    ("sweep-disc-obs-missing", "nowhere5:view", "cannot import module 'nowhere5'"),
+]:
+    probe(_pid, f"`digail sweep --set train.disc_obs={_value}`", _expect)(
+        lambda tmp, v=_value: _in(tmp, lambda: sweep_check((f"train.disc_obs={v}",))))
+
+
+@probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.disc_obs=view5d:THRESHOLD` (a number in the "
+       "user's module)", "is not a function of yours")
+def _sweep_number(tmp: Path) -> None:
+    plant(tmp, "view5d", "THRESHOLD = 3\n")
+    _in(tmp, lambda: sweep_check(("train.disc_obs=view5d:THRESHOLD",)))
+
+
+@probe("sweep-disc-obs-two-arguments", "`digail sweep --set train.disc_obs=view5e:view` where view takes two "
+       "arguments", "does not take one argument")
+def _sweep_two(tmp: Path) -> None:
+    plant(tmp, "view5e", "def view(x, y):\n    return x\n")
+    _in(tmp, lambda: sweep_check(("train.disc_obs=view5e:view",)))
+
+
+@probe("sweep-disc-obs-ok", "`digail sweep --set train.disc_obs=view5f:view` (a view of the user's)", None)
+def _sweep_ok(tmp: Path) -> None:
+    plant(tmp, "view5f", "def view(x):\n    return x[:, :1]\n")
+    _in(tmp, lambda: sweep_check(("train.disc_obs=view5f:view",)))
+
+
+# ------------------------------------------------------------------------------------------------ D's views
+SMOKE = ["--method", "gail", "--demos", CW_DEMOS, "--preset", "smoke", "--train.iterations", "1"]
+
+for _pid, _what, _body, _expect in [
+    ("view-syntax-error", "a module with a syntax error", "def view(x)\n    return x\n", "has a syntax error"),
+    ("view-raises-at-import", "a module that raises at import", "raise RuntimeError('no GPU here')\n",
+     "raised RuntimeError: no GPU here"),
+    ("view-exits-at-import", "a module that calls sys.exit() at import", "import sys\nsys.exit(3)\n",
+     "raised SystemExit"),
+    ("view-exits-when-called", "a view that calls sys.exit()", "import sys\ndef view(x):\n    sys.exit(0)\n",
+     "fails on the demonstrations' observations (SystemExit"),
+]:
+    def _view_module(tmp: Path, name: str = _pid.replace("-", "_"), body: str = _body) -> None:
+        plant(tmp, name, body)
+        cli(tmp, "train", *SMOKE, "--train.disc-obs", f"{name}:view", "--out", "run-new")
+
+    probe(_pid, f"`digail train --train.disc-obs m:view` with {_what}", _expect)(_view_module)
+
+for _pid, _value, _expect in [
+    ("view-relative-module", ".views:view", "not an absolute module name"),
+    ("view-sys-exit", "sys:exit", "Python's standard library"),
+    ("view-os-system", "os:system", "Python's standard library"),
+]:
+    probe(_pid, f"`digail train --train.disc-obs {_value}`", _expect)(
+        lambda tmp, v=_value: cli(tmp, "train", *SMOKE, "--train.disc-obs", v, "--out", "run-new"))
+
+
+@probe("view-nan-on-agent", "`digail train --train.disc-obs m:view` with a view that is finite on the "
+       "demonstrations and NaN on everything after (the run folder it made must not stay without a checkpoint)",
+       "gives NaN or infinite features on observations met during training")
+def _view_nan_later(tmp: Path) -> None:
+    plant(tmp, "view_nan5", "calls = [0]\ndef view(x):\n    calls[0] += 1\n"
+                            "    return x if calls[0] == 1 else x * float('nan')\n")
+    cli(tmp, "train", *SMOKE, "--train.disc-obs", "view_nan5:view", "--out", "run-new")
+
+
+@probe("view-width-changes", "`digail train --train.disc-obs m:view` with a view that gives 2 features on the "
+       "demonstrations and 1 after", "must give the same number of features for every observation")
+def _view_width_later(tmp: Path) -> None:
+    plant(tmp, "view_width5", "calls = [0]\ndef view(x):\n    calls[0] += 1\n"
+                              "    return x if calls[0] == 1 else x[:, :1]\n")
+    cli(tmp, "train", *SMOKE, "--train.disc-obs", "view_width5:view", "--out", "run-new")
+
+
+# ------------------------------------------------------------------------------------------------ messages
+@probe("compose-episodes-huge", "`digail compose RUN --episodes 1000000000000`",
+       "--episodes must be at most 4294967296")
+def _compose_huge(tmp: Path) -> None:
+    import shutil
+
+    shutil.copytree(RUN, tmp / "run")
+    cli(tmp, "compose", "run", "--episodes", "1000000000000")
+
+
+# ------------------------------------------------------------------------------------------------ the test
+def outcome(p: Probe, tmp: Path) -> str | None:
+    """The probe's sentence when refused, None when accepted; it starts with no module named by the user and leaves
+    the import path as it was (the probes plant modules)."""
+    state = (set(digail.user_envs._NAMED), dict(digail.user_envs._UNNAMED), list(sys.path))
+    digail.user_envs._NAMED.clear()
+    digail.user_envs._UNNAMED.clear()
+    try:
+        p.run(tmp)
+    except UserError as exc:
+        return " ".join(str(exc).split())
+    finally:
+        digail.user_envs._NAMED.clear()
+        digail.user_envs._NAMED.update(state[0])
+        digail.user_envs._UNNAMED.clear()
+        digail.user_envs._UNNAMED.update(state[1])
+        sys.path[:] = state[2]
+    return None
+
+
+@pytest.mark.parametrize("p", PROBES, ids=[p.id for p in PROBES])
+def test_probe(p: Probe, tmp_path: Path) -> None:
+    sentence = outcome(p, tmp_path)
+    if p.expect is None:
+        assert sentence is None, f"{p.id} was refused: {sentence}"
+    else:
+        assert sentence is not None, f"{p.id} was accepted"
+        assert p.expect in sentence, sentence
+        assert "\n" not in sentence and "Traceback" not in sentence
+    if p.id.startswith("data-"):
+        assert ran(tmp_path) == [], f"{p.id} ran a module a data file named"
+    for out in ("out", "run-new"):
+        assert not (tmp_path / out).exists(), f"{p.id} wrote {out}"
+
+
+# ------------------------------------------------------------------------------------------------ Ctrl-C, NaN loss
+def test_ctrl_c_while_the_command_still_imports_is_one_line(monkeypatch: pytest.MonkeyPatch,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """Ctrl-C in the first seconds of `digail train --resume RUN` (torch still importing) ends it cleanly."""
+    import digail.utils
+    from digail.cli import main
+
+    def interrupted(n: int) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(digail.utils, "set_torch_threads", interrupted)
+    assert main(["train", "--resume", "run"]) == 130
+    err = capsys.readouterr().err
+    assert err == "digail train: stopped by SIGINT before it began; nothing was written.\n", err
+
+
+def test_ctrl_c_while_the_package_imports_is_one_line(tmp_path: Path) -> None:
+    """The `digail` script interrupted while `import digail` runs (its first second): one line, status 130."""
+    import subprocess
+
+    code = ("import builtins, os, signal, sys\n"
+            "sys.argv[0] = '/usr/bin/digail'\n"
+            "real = builtins.__import__\n"
+            "def hook(name, *a, **k):\n"
+            "    if name == 'gymnasium' and 'gymnasium' not in sys.modules:\n"
+            "        os.kill(os.getpid(), signal.SIGINT)\n"
+            "    return real(name, *a, **k)\n"
+            "builtins.__import__ = hook\n"
+            "import digail\n"
+            "print('imported')\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 130 and "imported" not in done.stdout, (done.returncode, done.stderr[-2000:])
+    assert done.stderr == "digail: stopped by SIGINT before it began; nothing was written.\n", done.stderr[-2000:]
+
+
+def test_a_training_error_is_one_sentence(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Training that cannot go on (a NaN loss) ends with one sentence and status 1, not a traceback."""
+    import digail.commands.evaluate
+    from digail.cli import main
+    from digail.errors import TrainingError
+
+    def fails(args: object) -> None:
+        raise TrainingError("non-finite loss (policy) at iteration 3; the last good checkpoint is kept - lower the "
+                            "learning rate or check the demonstrations.")
+
+    monkeypatch.setattr(digail.commands.evaluate, "evaluate_command", fails)
+    assert main(["evaluate", "run"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("digail evaluate: error: non-finite loss"), err
+
+
+def test_the_reliability_page_lists_every_probe() -> None:
+    """docs/reference/errors.md publishes these probes in the fifth round's section: one row each."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "errors.md").read_text()
+    section = page.split("## Code named by data", 1)[1].split("\n## ", 1)[0]
+    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith(("| tried", "| ---"))]
+    assert len(rows) == len(PROBES)
+    missing = [p.id for p in PROBES if f"| {p.what.replace('|', chr(92) + '|')} |" not in section]
+    assert not missing, f"probes without a row in the reliability page: {missing}"
