@@ -3,6 +3,7 @@ in a temporary folder, and what it gets (accepted, or its refusal sentence) goes
 
     python scripts/probe_table.py             # the fourth round (tests/test_failure_paths_round4.py), "## Probes"
     python scripts/probe_table.py --round 5   # the fifth (tests/test_failure_paths_round5.py), "## Probes, fifth round"
+    python scripts/probe_table.py --round 5-code   # its code side (tests/test_failure_paths_round5_code.py)
 
 Each round's table goes between its section's opening paragraph (ending in the round's `START` sentence) and the
 next section or the API reference. A test in each module (`test_the_reliability_page_lists_every_probe`) checks
@@ -24,27 +25,34 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "reference" / "errors.md"
 CATEGORIES = {
-    4: [("set-", "Sweep overrides (`--set`)"), ("spec-", "Sweep spec files"), ("force-", "`--force`"),
+    "4": [("set-", "Sweep overrides (`--set`)"), ("spec-", "Sweep spec files"), ("force-", "`--force`"),
         ("import-", "Imported files"), ("subset-", "Demonstration subsets"), ("cli-", "Demonstration subsets"),
         ("replay-", "Replay buffers in checkpoints"), ("utf8-", "Paths that are not UTF-8"),
         ("lock-", "Lock files"), ("compose-cli", "Analysis commands on a run folder"),
         ("evaluate-", "Analysis commands on a run folder"), ("segment-", "Analysis commands on a run folder"),
         ("report-", "Analysis commands on a run folder"), ("compose-", "Composition schedules"),
         ("resume-", "Resume paths")],
-    5: [("export-", "Segmentation exports (`digail segment --export`)"),
+    "5": [("export-", "Segmentation exports (`digail segment --export`)"),
         ("keys-", "Observation keys (`digail segment`)"), ("read-rm-", "robomimic files"),
         ("read-lr-", "LeRobot datasets"), ("read-im-", "imitation datasets folders")],
+    "5-code": [("data-", "Code named by a dataset or a run folder"), ("sweep-", "Sweep values of `train.disc_obs`"),
+               ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("compose-", "Messages")],
 }
 """per round: probe id prefix -> the table's heading, in the page's order"""
-START = {4: "the paths are relative to the probe's folder.\n",
-         5: "the paths are relative to the probe's folder (a fresh copy of the run and its data).\n"}
+START = {"4": "the paths are relative to the probe's folder.\n",
+         "5": "the paths are relative to the probe's folder (a fresh copy of the run and its data).\n",
+         "5-code": "the planted modules check that they never ran.\n"}
 """the sentence that ends each round's opening paragraph"""
 END = "::: digail.errors"
 
 
-def _load(round_: int) -> Any:
+def _load(round_: str) -> Any:
     # the probes are a test module; it is loaded from its file rather than by putting tests/ on the import path
-    name = f"test_failure_paths_round{round_}"
+    name = f"test_failure_paths_round{round_.replace('-', '_')}"
+    if name in sys.modules:
+        return sys.modules[name]
+    if round_ != "4":  # the later rounds reuse the fourth's helpers, imported by its module name
+        _load("4")
     spec = importlib.util.spec_from_file_location(name, ROOT / "tests" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     probes = importlib.util.module_from_spec(spec)
@@ -53,10 +61,10 @@ def _load(round_: int) -> Any:
     return probes
 
 
-def table(round_: int = 4) -> str:
+def table(round_: str = "4") -> str:
     probes = _load(round_)
     base = None
-    if round_ == 5:  # the run folder and data every probe works on a copy of, made once
+    if round_ == "5":  # the run folder and data every probe works on a copy of, made once
         base = probes.make_base(Path(tempfile.mkdtemp(prefix="digail-probe-base-")))
     rows: dict[str, list[str]] = {}
     try:
@@ -85,7 +93,7 @@ def table(round_: int = 4) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--round", type=int, choices=sorted(START), default=4, dest="round_")
+    parser.add_argument("--round", choices=sorted(START), default="4", dest="round_")
     args = parser.parse_args()
     page = PAGE.read_text()
     start = page.index(START[args.round_]) + len(START[args.round_])
