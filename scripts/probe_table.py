@@ -36,7 +36,7 @@ CATEGORIES = {
         ("keys-", "Observation keys (`digail segment`)"), ("read-rm-", "robomimic files"),
         ("read-lr-", "LeRobot datasets"), ("read-im-", "imitation datasets folders")],
     "5-code": [("data-", "Code named by a dataset or a run folder"), ("sweep-", "Sweep values of `train.disc_obs`"),
-               ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("compose-", "Messages")],
+               ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("msg-", "Messages")],
 }
 """per round: probe id prefix -> the table's heading, in the page's order"""
 START = {"4": "the paths are relative to the probe's folder.\n",

@@ -234,13 +234,38 @@ def _view_width_later(tmp: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ messages
-@probe("compose-episodes-huge", "`digail compose RUN --episodes 1000000000000`",
+@probe("msg-compose-episodes-huge", "`digail compose RUN --episodes 1000000000000`",
        "--episodes must be at most 4294967296")
 def _compose_huge(tmp: Path) -> None:
     import shutil
 
     shutil.copytree(RUN, tmp / "run")
     cli(tmp, "compose", "run", "--episodes", "1000000000000")
+
+
+FORMATS = Path(__file__).resolve().parents[1] / "tests" / "data" / "formats"
+
+
+@probe("msg-lerobot-1e300", "`digail import` a LeRobot dataset whose float64 `observation.state` holds 1e300 "
+       "(finite, beyond float32)", "beyond float32's range")
+def _lerobot_huge(tmp: Path) -> None:
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    shutil.copytree(FORMATS / "lerobot", tmp / "lr")
+    frames = tmp / "lr" / "data" / "chunk-000" / "file-000.parquet"
+    table = pq.read_table(frames)
+    rows = table.column("observation.state").to_pylist()
+    rows[3] = [1e300] * len(rows[3])
+    column = pa.array(rows, type=pa.list_(pa.float64(), len(rows[3])))
+    table = table.set_column(table.schema.get_field_index("observation.state"), "observation.state", column)
+    pq.write_table(table.replace_schema_metadata(None), frames)
+    info = json.loads((tmp / "lr" / "meta" / "info.json").read_text())
+    info["features"]["observation.state"]["dtype"] = "float64"
+    (tmp / "lr" / "meta" / "info.json").write_text(json.dumps(info))
+    cli(tmp, "import", "lr", "--out", "out")
 
 
 # ------------------------------------------------------------------------------------------------ the test
