@@ -148,6 +148,30 @@ def _resume_other_view(tmp: Path) -> None:
     cli(tmp, "train", "--resume", "run", "--train.disc-obs", "view5c:view")
 
 
+@probe("data-resume-env-module", "`digail train --resume run` where run/config.json's env id is "
+       "`shipped5g:Shuttle5g-v0` (Gymnasium imports an id's module part) and shipped5g.py is in the current folder",
+       "pass --env shipped5g:Shuttle5g-v0 to allow it")
+def _resume_env_module(tmp: Path) -> None:
+    plant(tmp, "shipped5g")
+    (tmp / "run").mkdir()
+    env = "shipped5g:Shuttle5g-v0"
+    (tmp / "run" / "config.json").write_text(json.dumps({
+        "kind": "gail", "env_id": env, "seed": 0,
+        "args": {"env": env, "demos": CW_DEMOS, "seed": 0, "method": "gail", "preset": "smoke"}}))
+    cli(tmp, "train", "--resume", "run")
+
+
+@probe("data-report-env-module", "`digail report run` where run/config.json's env id is `shipped5h:Shuttle5h-v0` and "
+       "shipped5h.py is in the current folder", None)
+def _report_env_module(tmp: Path) -> None:
+    run = _run_naming(tmp, "shipped5h:Env", "Shuttle5h-v0")
+    config = json.loads((run / "config.json").read_text())
+    config["env_id"] = "shipped5h:Shuttle5h-v0"
+    (run / "config.json").write_text(json.dumps(config))
+    plant(tmp, "shipped5h")
+    cli(tmp, "report", "run")
+
+
 def _in(tmp: Path, fn: Callable[[], object]) -> object:
     import os
 

@@ -47,6 +47,19 @@ def unnamed_env_hint(env_id: str) -> str | None:
             f"--env {module}:{env_id} to allow it")
 
 
+def check_no_module(env_id: str) -> str:
+    """`env_id` as Gymnasium may be given it: an id with a `module:` part (which `gym.make` and `gym.spec` would
+    import) only when the user named that module on this command line, and then without it; one sentence otherwise
+    (such an id came from a dataset or a run folder, which never decide what code runs)."""
+    module, sep, name = str(env_id).partition(":")
+    if not sep:
+        return env_id
+    if module in _NAMED and name:
+        return name
+    raise UserError(f"environment id {env_id!r} names module {module!r}, which digail imports only when you name it; "
+                    f"pass --env {env_id} to allow it.")
+
+
 def _check_module_name(module: str, what: str) -> None:
     """Refuse a module name Python cannot import absolutely (relative, empty parts) in one sentence."""
     if not module or any(not part.isidentifier() for part in module.split(".")):
@@ -159,6 +172,8 @@ def recorded_spec(env_id: str | None) -> str | None:
     """The Gymnasium spec (JSON) of a registered env defined outside digail, Gymnasium and Gymnasium-Robotics:
     what a run folder or an env worker process needs to make it again (None for the others)."""
     with contextlib.suppress(Exception):  # an unknown id or a spec with a callable entry point: nothing to record
+        if ":" in (env_id or ""):  # an id that would make Gymnasium import a module: never recorded
+            return None
         spec = gym.spec(env_id or "")
         entry = spec.entry_point
         if isinstance(entry, str) and ":" in entry and entry.split(".")[0].split(":")[0] not in _KNOWN_PACKAGES:

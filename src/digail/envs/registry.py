@@ -22,6 +22,7 @@ from digail.envs.metaworld import env_id as metaworld_id
 from digail.errors import UserError
 from digail.paper import paper_return
 from digail.preset import Preset, resolve_preset
+from digail.user_envs import check_no_module, unnamed_env_hint
 from digail.utils import mujoco_gl_error, one_line
 
 
@@ -215,6 +216,7 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     digail's own envs are registered by importing `digail`; robotics ids (e.g. FetchPickAndPlace-v4) are
     registered on demand by importing `gymnasium_robotics` when it is installed.
     """
+    env_id = check_no_module(env_id)  # Gymnasium would import an id's `module:` part
     register_envs()
     for attempt in range(2):
         try:
@@ -254,8 +256,6 @@ def _register_robotics() -> bool:
 
 
 def _known_ids_hint(env_id: str) -> str:
-    from digail.user_envs import unnamed_env_hint
-
     if (hint := unnamed_env_hint(env_id)) is not None:
         return hint
     known = sorted(gym.registry)
@@ -270,6 +270,7 @@ def check_env_id(env_id: str) -> None:
     built: cheap enough to check many ids before long work starts)."""
     if env_id in ENV_SPECS:
         return
+    env_id = check_no_module(env_id)  # Gymnasium would import an id's `module:` part
     register_envs()
     for attempt in range(2):
         try:
