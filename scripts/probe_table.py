@@ -34,7 +34,8 @@ CATEGORIES = {
         ("resume-", "Resume paths")],
     "5": [("export-", "Segmentation exports (`digail segment --export`)"),
         ("keys-", "Observation keys (`digail segment`)"), ("read-rm-", "robomimic files"),
-        ("read-lr-", "LeRobot datasets"), ("read-im-", "imitation datasets folders")],
+        ("read-lr-", "LeRobot datasets"), ("read-im-", "imitation datasets folders"),
+        ("import-", "Import outputs (`digail import --out`)")],
     "5-code": [("data-", "Code named by a dataset or a run folder"), ("sweep-", "Sweep values of `train.disc_obs`"),
                ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("msg-", "Messages")],
 }

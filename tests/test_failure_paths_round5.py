@@ -16,6 +16,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 from collections.abc import Callable
@@ -213,8 +214,10 @@ for _pid, _argv, _what, _expect in [
      "a csv export onto a link to nothing, without `--force`", "is a symbolic link"),
     ("export-csv-over-fifo", ["--demos", "src.hdf5", "--export", "csv", "--out", "fifo", "--force"],
      "a csv export onto a FIFO, with `--force`", "is a FIFO"),
-    ("export-csv-over-device", ["--demos", "src.hdf5", "--export", "csv", "--out", "/dev/null", "--force"],
-     "a csv export onto the device `/dev/null`, with `--force`", "is a character device"),
+    # a socket stands for the devices: a probe must never aim at a real device (as root, a regression would replace
+    # /dev/null with a file)
+    ("export-csv-over-socket", ["--demos", "src.hdf5", "--export", "csv", "--out", "sock", "--force"],
+     "a csv export onto a Unix socket (as onto a device), with `--force`", "is a socket"),
     ("export-csv-to-folder", ["--demos", "src.hdf5", "--export", "csv", "--out", "sub"],
      "a csv export to an existing folder", "is a folder, but --export csv writes a file"),
     ("export-csv-to-folder-force", ["--demos", "src.hdf5", "--export", "csv", "--out", "sub", "--force"],
@@ -233,10 +236,20 @@ for _pid, _argv, _what, _expect in [
     probe(_pid, f"`digail segment`: {_what}", _expect)(segment(*_argv))
 
 
+@probe("export-device-check", "the export check of `--out /dev/null --force` (the check alone, which writes nothing)",
+       "is a character device")
+def _device(tmp: Path) -> None:
+    from digail.data.annotations import check_export_target
+
+    check_export_target("csv", Path("/dev/null"), force=True)
+
+
 def _setup_targets(tmp: Path) -> None:
     (tmp / "link").symlink_to(tmp / "notes.txt")
     (tmp / "dangling").symlink_to(tmp / "nowhere")
     os.mkfifo(tmp / "fifo")
+    with socket.socket(socket.AF_UNIX) as sock:  # the file stays once the socket is closed
+        sock.bind(str(tmp / "sock"))
     (tmp / "home").mkdir()
     (tmp / "home" / ".bashrc").write_text("export PATH=$PATH\n")
     robomimic(tmp / "other.hdf5")
@@ -508,6 +521,23 @@ for _pid, _what, _make, _expect in READ_PROBES:
         cli(tmp, "import", source, "--out", "out")
 
     probe(f"read-{_pid}", f"`digail import` {_what}", _expect, setup=_make_input)(_run_read)
+
+
+# ------------------------------------------------------------------------------------------------ import outputs
+def _marked_with_source(tmp: Path) -> None:
+    (tmp / "mine").mkdir()
+    (tmp / "mine" / ".digail").write_text("\n")
+    robomimic(tmp / "mine" / "src.hdf5")
+
+
+for _pid, _argv, _what, _expect, _setup in [
+    ("import-into-source", ["import", "lr", "--out", "lr/imported"], "`digail import lr --out lr/imported`, inside the "
+     "LeRobot folder it reads", "is inside the input", None),
+    ("import-over-folder-holding-source", ["import", "mine/src.hdf5", "--out", "mine", "--force"],
+     "`digail import mine/src.hdf5 --out mine --force`, where mine is a folder digail made", "holds the input",
+     _marked_with_source),
+]:
+    probe(_pid, _what, _expect, setup=_setup)(lambda tmp, a=tuple(_argv): cli(tmp, *a))
 
 
 # ------------------------------------------------------------------------------------------------ the tests

@@ -10,7 +10,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -142,6 +142,20 @@ def check_replaceable(path: Path, flag: str = "--out") -> None:
     if not digail_made(real):
         raise UserError(f"{path} is not a folder digail made (no {MARKER} file, run config or dataset record in "
                         f"it), and --force replaces only those; move its files away or choose another {flag}.")
+
+
+def check_clear_of(out: Path, protected: Sequence[tuple[str | os.PathLike[str], str]], flag: str = "--out") -> None:
+    """Refuse, in one sentence, an output that is, lies inside or holds one of the `protected` (path, what it is)
+    pairs (links resolved): what a command reads, or a run's files, is never written over."""
+    real = Path(os.path.realpath(out))
+    for path, what in protected:
+        other = Path(os.path.realpath(path))
+        relation = ("is" if real == other else "is inside" if other in real.parents else
+                    "holds" if real in other.parents else None)
+        if relation is not None:
+            named = "" if relation == "is" else f", {path}"
+            raise UserError(f"{flag} {out} {relation} {what}{named}; digail never writes over what it reads or a "
+                            f"run's files, choose another {flag}.")
 
 
 def umask() -> int:

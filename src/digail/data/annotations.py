@@ -30,7 +30,7 @@ import numpy as np
 
 from digail.data.input_files import check_tree, file_kind
 from digail.errors import UserError
-from digail.fsio import atomic_write_bytes, check_not_locked, check_replaceable, check_writable
+from digail.fsio import atomic_write_bytes, check_clear_of, check_not_locked, check_replaceable, check_writable
 
 EXPORTS = ("robomimic", "lerobot", "csv", "json")
 """where `export_segmentation` writes"""
@@ -106,15 +106,7 @@ def check_export_target(fmt: str, out: Path, force: bool,
     without `force`, and with it anything but digail's own output (`check_replaceable` for the LeRobot folder, an
     export of the same kind for a file); a place that cannot be written."""
     out = Path(out)
-    real = Path(os.path.realpath(out))
-    for path, what in protected:
-        other = Path(os.path.realpath(path))
-        relation = ("is" if real == other else "is inside" if other in real.parents else
-                    "holds" if real in other.parents else None)
-        if relation is not None:
-            named = "" if relation == "is" else f", {path}"
-            raise UserError(f"--out {out} {relation} {what}{named}; an export never writes over what digail reads or "
-                            "a run's files, choose another --out.")
+    check_clear_of(out, protected)
     try:
         st = os.lstat(out)
     except FileNotFoundError:

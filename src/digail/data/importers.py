@@ -351,7 +351,7 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
     from minari.dataset.minari_dataset import parse_dataset_id
 
     from digail.data.minari_io import minari_root
-    from digail.fsio import check_new_dir
+    from digail.fsio import check_clear_of, check_new_dir
 
     dataset_id = dataset_id or default_import_id(None if isinstance(source, Mapping) else os.fspath(source))
     try:  # before the id becomes a folder below the Minari root
@@ -359,6 +359,8 @@ def import_demonstrations(source: str | os.PathLike[str] | Mapping[str, Any], ou
     except ValueError as exc:
         raise UserError(f"invalid Minari dataset id {dataset_id!r}; use the form namespace/name-v0.") from exc
     path = Path(out) if out is not None else minari_root() / dataset_id
+    if not isinstance(source, Mapping):  # the dataset never replaces, or lands inside, what it is read from
+        check_clear_of(path, [(source, "the input")])
     check_new_dir(path, force)  # before reading a possibly large file
     imported = prepare_import(source, env_id=env_id, fmt=fmt, obs_keys=obs_keys)
     return write_imported(imported, path, dataset_id=dataset_id, force=force), imported
