@@ -490,7 +490,23 @@ def _imitation(folder: Path, state: object = None, text: str | None = None) -> N
         (folder / "state.json").write_text(text)
 
 
+def _imitation_ragged(folder: Path) -> None:
+    """The fixture folder with the first trajectory's second observation one value short."""
+    _imitation(folder)
+    arrow = folder / "data-00000-of-00001.arrow"
+    with pa.OSFile(str(arrow), "rb") as source:  # read into memory: the file is written again below
+        table = pa.ipc.open_stream(source).read_all()
+    rows = table.column("obs").to_pylist()
+    rows[0][1] = rows[0][1][:-1]
+    table = table.set_column(0, table.schema.field("obs"), pa.array(rows, table.schema.field("obs").type))
+    with pa.OSFile(str(arrow.with_suffix(".new")), "wb") as sink, pa.ipc.new_stream(sink, table.schema) as writer:
+        writer.write_table(table)
+    arrow.with_suffix(".new").replace(arrow)
+
+
 READ_PROBES += [
+    ("im-ragged-obs", "an imitation trajectory whose observations are rows of different lengths", _imitation_ragged,
+     "'obs' rows of different lengths"),
     ("im-state-parent", "an imitation `state.json` naming `../secret.arrow` (a good Arrow file beside the folder)",
      lambda p: (_imitation(p, {"_data_files": [{"filename": "../secret.arrow"}]}),
                 shutil.copy(IMITATION_DIR / "data-00000-of-00001.arrow", p.parent / "secret.arrow")),
