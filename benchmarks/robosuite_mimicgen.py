@@ -83,9 +83,9 @@ def read_export(path: Path) -> tuple[list[str], dict[str, dict[str, np.ndarray]]
 
 
 def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, figure: Path | None,
-          json_out: Path | None, commands: list[str]) -> dict:
+          json_out: Path | None, commands: list[str], gripper_dim: int | None = 6) -> dict:
     keys, signals, spec = read_export(exported)
-    ours, truth, lengths = [], [], []
+    ours, truth, lengths, closes = [], [], [], []
     with h5py.File(oracle, "r") as g, h5py.File(exported, "r") as f:
         producer = json.loads(g.attrs["producer"])
         oracle_raw = {}
@@ -96,6 +96,8 @@ def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, fi
             oracle_raw[key] = raw
             truth.append(mimicgen_ends({oracle_signal: raw}, [oracle_signal, None], n)[0])
             ours.append(mimicgen_ends(signals[key], spec, n)[:-1])  # raises where MimicGen's parser would
+            if gripper_dim is not None:  # the first step the gripper is commanded closed (robosuite: +1 closes)
+                closes.append(int(np.flatnonzero(f[f"data/{key}/actions"][:, gripper_dim] > 0)[0]))
     ours_arr = np.array(ours)  # (demos, exported boundaries)
     truth_arr = np.array(truth)
     errors = ours_arr - truth_arr[:, None]
@@ -117,6 +119,12 @@ def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, fi
         "max_abs_error": float(np.max(abs_err)),
         "target_met": bool(np.median(abs_err) <= 5 and np.mean(abs_err <= 10) >= 0.9),
         "mimicgen_parser_rule_accepts_export": True,
+        "trace": None if not closes else {
+            "what": "steps from the first step the gripper is commanded closed (actions[:, 6] > 0) to the first step "
+                    "the oracle signal is 1, and to the first step digail's chosen exported signal is 1",
+            "oracle_minus_close_command": _spread(truth_arr - 1 - np.array(closes)),
+            "digail_minus_close_command": _spread(ours_arr[:, chosen] - 1 - np.array(closes))
+            if chosen is not None else None},
         "per_demo": {k: {"steps": n, "mimicgen_end": int(t), "digail_ends": [int(x) for x in o],
                          "error": int(e)} for k, n, t, o, e in zip(keys, lengths, truth, ours, err, strict=True)},
         "commands": commands,
@@ -134,6 +142,11 @@ def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, fi
         plot(figure, keys, oracle_raw, codes, truth, [o[chosen] if chosen is not None else None for o in ours],
              f"{producer['task']}: MimicGen's `{oracle_signal}` (upper) above digail's codes (lower)")
     return result
+
+
+def _spread(values: np.ndarray) -> dict:
+    return {"median": float(np.median(values)), "min": int(np.min(values)), "max": int(np.max(values)),
+            "counts": {int(v): int(c) for v, c in zip(*np.unique(values, return_counts=True), strict=True)}}
 
 
 def plot(path: Path, keys: list[str], oracle_raw: dict, codes: list[np.ndarray], truth: list[int],
@@ -179,8 +192,9 @@ def main() -> None:
     s.add_argument("--json", type=Path)
     s.add_argument("--command", action="append", default=[], help="a command that made the export (recorded)")
     args = parser.parse_args()
+    own = [a for i, a in enumerate(sys.argv) if a != "--command" and (i == 0 or sys.argv[i - 1] != "--command")]
     score(args.exported, args.oracle, args.oracle_signal, args.run, args.figure, args.json,
-          [*args.command, " ".join(["python", *sys.argv])])
+          [*args.command, " ".join(["python", *own])])
 
 
 if __name__ == "__main__":
