@@ -256,7 +256,11 @@ def test_cli_segment_exports(robomimic_vae, capsys):
     # from the imported dataset: the source file is found through the dataset's record
     assert main(["segment", str(root / "vae"), "--demos", str(root / "demos"), "--export", "robomimic", "--names",
                  "a", "b", "--out", str(root / "annotated.hdf5")]) == 0
-    assert "wrote the segmentation as robomimic annotations (a, b)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "wrote the segmentation as robomimic annotations (a, b)" in out
+    # one line says which sub-tasks, in which order, MimicGen's task spec should name
+    order = "note: MimicGen sub-tasks in the demonstrated order: "
+    assert len([ln for ln in out.splitlines() if ln.startswith(order)]) == 1
     with h5py.File(root / "annotated.hdf5", "r") as f:
         for key in ("demo_0", "demo_1", "demo_2"):
             group = f[f"data/{key}/datagen_info/subtask_term_signals"]
