@@ -100,6 +100,9 @@ def test_too_short_a_demonstration_is_one_sentence():
         plan_subtasks([np.array([0, 1, 2, 2]), np.array([0, 1, 2])], 3, keys=["demo_0", "demo_1"])
     msg = str(exc.value)
     assert msg.startswith("demo_1 has 3 steps") and "segment with fewer codes" in msg and "\n" not in msg
+    # one sub-task has nothing to cut: a one-step demonstration is fine
+    plan = plan_subtasks([np.array([0]), np.array([0, 0])], 2)
+    assert plan.order == (0,) and plan.boundaries == ((), ()) and plan.unused == (1,)
 
 
 def test_export_writes_the_plan_and_says_it(tmp_path):

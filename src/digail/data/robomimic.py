@@ -306,7 +306,7 @@ def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str]
     sub-task one contiguous run, that agrees with the most of its steps' codes (exact, by dynamic programming; ties
     go to the earlier boundary). Every sub-task gets at least one step and the last at least two, since MimicGen's
     parser puts the first step a signal is 1 into the sub-task that ended. A demonstration coded as one run of
-    each sub-task in order keeps its runs' ends, the boundaries `term_signals` gives it alone.
+    each sub-task in order (the last run at least two steps) keeps its runs' ends, as `term_signals` gives them.
 
     Args:
         codes: one (T,) array of codes per demonstration.
@@ -323,7 +323,7 @@ def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str]
     where = {k: float(np.median([np.flatnonzero(c == k)[0] / len(c) for c in codes if (c == k).any()]))
              for k in used}
     order = tuple(sorted(used, key=lambda k: (where[k], k)))
-    need = len(order) + 1
+    need = len(order) + 1 if len(order) > 1 else 1  # one sub-task: nothing to cut
     boundaries, refitted = [], 0
     for i, c in enumerate(codes):
         if len(c) < need:
