@@ -12,6 +12,8 @@ Per (task, method, seed), from the first `--demos` episodes of the task's shippe
     digail-l2, flatbc-l2  (with --iterations N) Directed-Info GAIL + L2 from bc's VAE, GAIL + L2 from flatbc's
             policy (one code: no bonus), the task's preset (PPO, batch 4096 over 8 envs, the step-cost reward):
             digail train --demos D --demos-episodes N --vae R/TASK/bc_sS --bc-weight 1.0 --train.iterations I ...
+            (a run of fewer iterations is continued: digail train --resume RUN --until I). The first 10 iterations
+            train the value function only (`--train.value-warmup`): the policy moves from iteration 11 on.
 
 then `digail evaluate RUN --episodes E` on fresh placements (the evaluation seeds, 10000 on); the row keeps the
 success rate, the mean episode length and the commands. Both pre-trainings use the task's preset (metaworld: the
@@ -55,8 +57,13 @@ def one(task: str, method: str, seed: int, args: argparse.Namespace) -> dict[str
         start = root / f"{'bc' if method == 'digail-l2' else 'flatbc'}_s{seed}"
         if not (start / "model.pt").is_file():
             raise SystemExit(f"{method} starts from {start}; run {start.name.split('_')[0]} first")
-        commands.append(["train", *common, "--vae", str(start), "--bc-weight", "1.0", "--train.iterations",
-                         str(args.iterations), "--train.checkpoint-every", "5", "--out", str(folder), "--force"])
+        done = json.loads((folder / "config.json").read_text())["train"]["iterations"] \
+            if (folder / "config.json").is_file() else 0
+        if 0 < done < args.iterations:  # a shorter run is trained on (the same numbers as one started with more)
+            commands.append(["train", "--resume", str(folder), "--until", str(args.iterations)])
+        else:
+            commands.append(["train", *common, "--vae", str(start), "--bc-weight", "1.0", "--train.iterations",
+                             str(args.iterations), "--train.checkpoint-every", "5", "--out", str(folder), "--force"])
     commands.append(["evaluate", str(folder), "--episodes", str(args.episodes)])
     t0 = time.perf_counter()
     for cmd in commands:
