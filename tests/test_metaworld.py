@@ -274,6 +274,21 @@ def test_a_frame_renders_headless(metaworld) -> None:  # type: ignore[no-untyped
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8 and frame.std() > 5
 
 
+@pytest.mark.slow
+@pytest.mark.mujoco
+def test_digail_video_records_a_task(metaworld, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import imageio.v3 as iio
+
+    from digail.cli import main
+
+    vae = tmp_path / "vae"
+    assert main(["pretrain", "--demos", "digail/metaworld-hammer/expert-v0", "--demos-episodes", "3", "--preset",
+                 "smoke", "--out", str(vae)]) == 0
+    assert main(["video", str(vae), "--max-steps", "12"]) == 0
+    frames = iio.imread(vae / "videos" / "closed_loop.mp4")
+    assert frames.shape[0] >= 12 and frames.shape[3] == 3 and frames.std() > 5
+
+
 def _robomimic_file(trajs, path) -> None:  # type: ignore[no-untyped-def]
     """Meta-World episodes in robomimic's layout: the 39 numbers as obs/state, the actions, one done per demo."""
     import h5py
