@@ -4,7 +4,8 @@
 
 prints the segmentation table (the Meta-World rows of segmentation.json with their auto-K choice from
 segmentation_codes_metaworld.json), the cross-task table (metaworld_shared.json) and the few-demonstration screen
-(metaworld_fewdemo.json).
+(metaworld_fewdemo.json: one seed a cell as success rate and mean episode length, several as the median success
+rate and each seed's).
 """
 
 from __future__ import annotations
@@ -69,8 +70,14 @@ def fewdemo() -> str:
     for m in methods:
         cells = []
         for t in tasks:
-            got = [r for r in rows if r["task"] == t and r["method"] == m]
-            cells.append(f"{got[0]['success_rate']:.2f} ({got[0]['mean_length']:.0f} steps)" if got else "-")
+            got = sorted((r for r in rows if r["task"] == t and r["method"] == m), key=lambda r: r["seed"])
+            if not got:
+                cells.append("-")
+            elif len(got) == 1:
+                cells.append(f"{got[0]['success_rate']:.2f} ({got[0]['mean_length']:.0f} steps)")
+            else:  # the median over seeds, then each seed's
+                rates = [r["success_rate"] for r in got]
+                cells.append(f"{np.median(rates):.2f} ({' / '.join(f'{v:.2f}' for v in rates)})")
         if any(c != "-" for c in cells):
             lines.append(f"| {names[m]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
