@@ -4,6 +4,7 @@ in a temporary folder, and what it gets (accepted, or its refusal sentence) goes
     python scripts/probe_table.py             # the fourth round (tests/test_failure_paths_round4.py), "## Probes"
     python scripts/probe_table.py --round 5   # the fifth (tests/test_failure_paths_round5.py), "## Probes, fifth round"
     python scripts/probe_table.py --round 5-code   # its code side (tests/test_failure_paths_round5_code.py)
+    python scripts/probe_table.py --round 6   # the sixth (tests/test_failure_paths_round6.py), "## Probes, sixth round"
 
 Each round's table goes between its section's opening paragraph (ending in the round's `START` sentence) and the
 next section or the API reference. A test in each module (`test_the_reliability_page_lists_every_probe`) checks
@@ -36,13 +37,17 @@ CATEGORIES = {
         ("keys-", "Observation keys (`digail segment`)"), ("read-rm-", "robomimic files"),
         ("read-lr-", "LeRobot datasets"), ("read-im-", "imitation datasets folders"),
         ("import-", "Import outputs (`digail import --out`)")],
+    "6": [("mw-", "Meta-World env ids and commands"), ("preset-", "Presets"),
+          ("mwds-", "Meta-World datasets"), ("reward-", "Imitation-reward settings (`--train.imitation.*`)"),
+          ("rs-", "robosuite-made robomimic files"), ("again-", "The fifth round's classes again")],
     "5-code": [("data-", "Code named by a dataset or a run folder"), ("sweep-", "Sweep values of `train.disc_obs`"),
                ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("msg-", "Messages")],
 }
 """per round: probe id prefix -> the table's heading, in the page's order"""
 START = {"4": "the paths are relative to the probe's folder.\n",
          "5": "the paths are relative to the probe's folder (a fresh copy of the run and its data).\n",
-         "5-code": "the planted modules check that they never ran.\n"}
+         "5-code": "the planted modules check that they never ran.\n",
+         "6": "a probe's folder keeps no output it was refused.\n"}
 """the sentence that ends each round's opening paragraph"""
 END = "::: digail.errors"
 
@@ -52,8 +57,10 @@ def _load(round_: str) -> Any:
     name = f"test_failure_paths_round{round_.replace('-', '_')}"
     if name in sys.modules:
         return sys.modules[name]
-    if round_ != "4":  # the later rounds reuse the fourth's helpers, imported by its module name
+    if round_ != "4":  # the later rounds reuse the fourth's helpers (the sixth the fifth's too), imported by name
         _load("4")
+    if round_ == "6":
+        _load("5-code")
     spec = importlib.util.spec_from_file_location(name, ROOT / "tests" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     probes = importlib.util.module_from_spec(spec)

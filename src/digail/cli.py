@@ -190,6 +190,10 @@ def _check_utf8(argv: list[str]) -> None:
                             "another path) so that its name is UTF-8 text.") from None
 
 
+POSITIONAL_ENV = ("run", "demos", "expert")
+"""commands whose first argument is the env id (`module:EnvId` imports its module, as `--env` does)"""
+
+
 def _env_modules_imported(name: str, argv: list[str], takes_env: bool = True) -> list[str]:
     """`argv` with each `module:EnvId` (the value of `--env`, or `digail run`'s first argument) replaced by
     `EnvId` once its module is imported: the env is then known under its id alone, as datasets record it.
@@ -212,7 +216,7 @@ def _env_modules_imported(name: str, argv: list[str], takes_env: bool = True) ->
             skip = tok == "--env"
         elif tok.startswith("--env="):
             out.append("--env=" + import_env_module(value or ""))
-        elif i > 0 and argv[i - 1] == "--env" or name == "run" and i == 0 and not tok.startswith("-"):
+        elif i > 0 and argv[i - 1] == "--env" or name in POSITIONAL_ENV and i == 0 and not tok.startswith("-"):
             out.append(import_env_module(tok))
         else:
             out.append(tok)

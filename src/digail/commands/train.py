@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -244,6 +245,9 @@ def load_demos(demos: str, env: str = "", *, episodes: int | None = None, every:
     if not env_id:
         raise UserError(f"the dataset {demos} does not name its environment; pass --env.")
     check_matches_env(ds, env_id)
+    if env and ds.env_id and env != ds.env_id:  # same spaces, another env: allowed (a variant), but said
+        print(f"note: {demos} was recorded in {ds.env_id}; training in {env}, whose spaces are the same.",
+              file=sys.stderr)
     from digail.data.subset import select_demos
 
     return select_demos(list(ds.trajs), episodes, every, seed), env_id

@@ -181,3 +181,13 @@ def h5_array(ds: Any, where: str, name: str) -> np.ndarray:
         raise
     except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
         raise UserError(f"cannot read '{name}' from {where} ({one_line(exc)}); the file is damaged.") from None
+
+
+def as_float32(arr: np.ndarray, where: str, key: str) -> np.ndarray:
+    """An array as float32, digail's type for observations: finite values beyond its range are refused as what
+    they are (stored as float32 they would become inf and be reported as "NaN or inf")."""
+    if (np.issubdtype(arr.dtype, np.floating) and arr.dtype.itemsize > 4 and arr.size
+            and np.abs(np.where(np.isfinite(arr), arr, 0)).max() > np.finfo(np.float32).max):
+        raise UserError(f"{where} has values in {key!r} beyond float32's range (about 3.4e38 in size), which is how "
+                        "digail stores demonstrations; rescale them before importing.")
+    return arr.astype(np.float32)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.data.input_files import check_tree, inside, read_json
+from digail.data.input_files import as_float32, check_tree, inside, read_json
 from digail.errors import UserError
 from digail.fsio import atomic_dir
 from digail.utils import one_line
@@ -79,15 +79,6 @@ def data_files(path: Path) -> list[Path]:
     # each a regular file inside the dataset (a FIFO would block the reader for ever, a link could lead anywhere)
     return [inside(path, str(f.relative_to(path)), str(path), "frame file") for f in files]
 
-
-def _float32(arr: np.ndarray, where: str, key: str) -> np.ndarray:
-    """A column as float32, digail's type for observations: finite values beyond its range are refused as what they
-    are (stored as float32 they would become inf and be reported as "NaN or inf")."""
-    if (np.issubdtype(arr.dtype, np.floating) and arr.dtype.itemsize > 4 and arr.size
-            and np.nanmax(np.abs(np.where(np.isfinite(arr), arr, 0))) > np.finfo(np.float32).max):
-        raise UserError(f"{where} has values in {key!r} beyond float32's range (about 3.4e38 in size), which is how "
-                        "digail stores demonstrations; rescale them before importing.")
-    return arr.astype(np.float32)
 
 
 def _column(table: Any, name: str, where: str) -> np.ndarray:
@@ -183,7 +174,7 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     episode = _column(table, "episode_index", where).reshape(-1).astype(np.int64)
     frame = _column(table, "frame_index", where).reshape(-1).astype(np.int64)
     order = np.lexsort((frame, episode))
-    obs = np.concatenate([_float32(_column(table, k, where).reshape(table.num_rows, -1), where, k)
+    obs = np.concatenate([as_float32(_column(table, k, where).reshape(table.num_rows, -1), where, k)
                           for k in chosen], axis=1)[order]
     acts = _column(table, "action", where).reshape(table.num_rows, -1)[order]
     rews = _column(table, "next.reward", where).reshape(-1)[order] if "next.reward" in table.column_names else None

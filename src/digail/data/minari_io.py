@@ -252,6 +252,9 @@ def _episode_to_traj(where: str, obs: np.ndarray, ep: Any, obs_space: gym.Space,
     if not np.all(np.isfinite(obs)):
         raise UserError(f"{where} has NaN or inf values in its observations; re-record the dataset or drop "
                         "that episode.")
+    if obs.dtype.itemsize > 4 and obs.size and np.abs(obs).max() > np.finfo(np.float32).max:
+        raise UserError(f"{where} has observations beyond float32's range (about 3.4e38 in size), which is how "
+                        "digail holds demonstrations; rescale them or drop that episode.")
     acts = check_actions(where, acts, act_space)
     rews = np.asarray(ep.rewards, dtype=np.float32).reshape(-1)
     if rews.shape != (n_steps,):

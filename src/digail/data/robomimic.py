@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.data.input_files import check_h5_links, h5_array, regular_file
+from digail.data.input_files import as_float32, check_h5_links, h5_array, regular_file
 from digail.errors import UserError
 from digail.fsio import check_writable, signals_deferred, umask
 from digail.utils import one_line
@@ -88,7 +88,7 @@ def _flat(group: Any, keys: Sequence[str], where: str) -> np.ndarray:
         arr = h5_array(group[key], where, key)  # checked: numeric, real, stored in the file, within memory
         if arr.ndim == 0:
             raise UserError(f"{where} has '{key}' as a single number; it needs one row per step.")
-        parts.append(arr.reshape(len(arr), -1).astype(np.float32))
+        parts.append(as_float32(arr.reshape(len(arr), -1), where, key))
     lengths = {len(p) for p in parts}
     if len(lengths) != 1:
         raise UserError(f"{where} has observation keys of different lengths ({sorted(lengths)} rows); every key "

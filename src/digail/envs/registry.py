@@ -8,6 +8,7 @@ import contextlib
 import difflib
 import functools
 import io
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -220,7 +221,10 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     register_envs()
     for attempt in range(2):
         try:
-            return gym.make(env_id, **kwargs)
+            _check_versioned(env_id)
+            with warnings.catch_warnings():  # Gymnasium's own notice of an old version: the error says it in one line
+                warnings.simplefilter("ignore", DeprecationWarning)
+                return gym.make(env_id, **kwargs)
         except (gym.error.NameNotFound, gym.error.NamespaceNotFound, gym.error.VersionNotFound) as exc:
             if attempt == 0 and _register_robotics():
                 continue
@@ -237,6 +241,23 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
                 raise gl from exc
             raise
     raise AssertionError("unreachable")
+
+
+def _check_versioned(env_id: str) -> None:
+    """Refuse an id Gymnasium resolves to another one (no version: its latest), which datasets, run folders and
+    expert lookups would then name differently from the env that ran."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        try:
+            spec = gym.spec(env_id)
+        except gym.error.Error:
+            versions = [k for k in gym.registry if k.rpartition("-v")[0] == env_id and k.rpartition("-v")[2].isdigit()]
+            if versions:  # `gym.make` would quietly take the latest
+                latest = max(versions, key=lambda k: int(k.rpartition("-v")[2]))
+                raise UserError(f"environment id {env_id!r} names no version; pass {latest!r}.") from None
+            raise
+    if spec.id != env_id:
+        raise UserError(f"environment id {env_id!r} names no version; pass {spec.id!r}.")
 
 
 def _register_robotics() -> bool:
@@ -274,7 +295,7 @@ def check_env_id(env_id: str) -> None:
     register_envs()
     for attempt in range(2):
         try:
-            gym.spec(env_id)
+            _check_versioned(env_id)
             return
         except gym.error.Error:
             if attempt == 0 and _register_robotics():

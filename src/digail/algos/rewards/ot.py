@@ -126,6 +126,10 @@ class OTReward:
     def __init__(self, host: RewardHost) -> None:
         self.host, self.cfg = host, host.cfg.imitation
         self.subtask = self.cfg.kind == "ot-subtask"
+        if self.subtask and host.K < 2:
+            raise UserError("--train.imitation.kind ot-subtask matches the agent's sub-task codes with the "
+                            "demonstrations' and this policy has one code; use --train.imitation.kind ot, or "
+                            "--method digail with a VAE of several codes.")
         if host.absorbing:
             raise UserError(f"--train.imitation.kind {self.cfg.kind} has no discriminator to score absorbing states; "
                             "drop --train.sac.absorbing or use --train.imitation.kind bce.")
