@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from digail.data.input_files import check_h5_links, regular_file
+from digail.data.input_files import check_declared, check_h5_links, regular_file
 from digail.errors import UserError
 from digail.utils import one_line
 
@@ -183,21 +183,6 @@ class _LazyNpz:
             # NotImplementedError: an unknown compression method; RuntimeError: an encrypted member
             raise UserError(f"{damaged} ({one_line(exc)}); the file is damaged or cut short.") from None
         return arr if dtype is None else arr.astype(dtype)
-
-
-def check_declared(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype[Any], stored: int | None) -> None:
-    """Refuse, before reading it, an array whose header declares more bytes than the file stores for it (`stored`;
-    None when compression hides it) or than this machine's memory holds."""
-    from digail.utils import available_memory, human_bytes
-
-    declared = int(np.prod(shape, dtype=object)) * int(dtype.itemsize)
-    if stored is not None and declared > stored:
-        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)} but stores "
-                        f"only {human_bytes(max(stored, 0))} of it; the file is damaged or cut short.")
-    free = available_memory()
-    if free is not None and declared > free:
-        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)}, more than "
-                        f"the {human_bytes(free)} of memory available; import it on a larger machine or in parts.")
 
 
 class _LazyH5:

@@ -146,13 +146,26 @@ def check_h5_links(h5: Any, where: str) -> None:
                     "copy the linked data in (h5py's `copy`) or remove the link.")
 
 
+def check_declared(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype[Any], stored: int | None) -> None:
+    """Refuse, before reading it, an array whose header declares more bytes than the file stores for it (`stored`;
+    None when compression hides it) or than this machine's memory holds."""
+    from digail.utils import available_memory, human_bytes
+
+    declared = int(np.prod(shape, dtype=object)) * int(dtype.itemsize)
+    if stored is not None and declared > stored:
+        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)} but stores "
+                        f"only {human_bytes(max(stored, 0))} of it; the file is damaged or cut short.")
+    free = available_memory()
+    if free is not None and declared > free:
+        raise UserError(f"{where} declares '{key}' as a {tuple(shape)} array of {human_bytes(declared)}, more than "
+                        f"the {human_bytes(free)} of memory available; import it on a larger machine or in parts.")
+
+
 def h5_array(ds: Any, where: str, name: str) -> np.ndarray:
     """The numeric HDF5 dataset `ds` read whole, after its storage is checked: stored in this file, numeric and
     real, and every byte it declares written (a chunked dataset's chunks allocated; a contiguous one's storage)
     and within the memory available."""
     import h5py
-
-    from digail.data.array_files import check_declared
 
     if not isinstance(ds, h5py.Dataset):
         raise UserError(f"{where} has '{name}' as a group where an array belongs; the file is damaged or not of "
