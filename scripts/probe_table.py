@@ -90,6 +90,7 @@ def table(round_: str = "4") -> str:
                 text = re.sub(r"; allowed: vae\.\* and train\.\*.*", "; allowed: vae.\\*, train.\\* and a short list "
                               "of stage settings", text)
                 text = "refused: " + (text if len(text) <= 170 else text[:167].rstrip() + "…").replace("|", "\\|")
+                text = text.replace("[", "\\[").replace("]", "\\]")  # a sentence's brackets are no Markdown link
             rows.setdefault(heading, []).append(f"| {p.what.replace('|', chr(92) + '|')} | {text} |")
     finally:
         if base is not None:
