@@ -235,9 +235,10 @@ for _pid, _what, _edit, _argv, _expect in [
         "env_spec", "{not json")), PRETRAIN, "cannot read the Minari dataset"),
     ("mwds-env-spec-module", "env_spec naming an entry point `evil6:Env` (evil6.py beside it)",
      lambda ds: (_meta(ds, lambda m: m.__setitem__("env_spec", m["env_spec"].replace(
-         "metaworld/pick-place-v3", "Evil6-v0"))), plant(ds.parent, "evil6")),
+         "metaworld/pick-place-v3", "Evil6-v0").replace("digail.envs.metaworld:MetaWorldEnv", "evil6:Env"))),
+                 plant(ds.parent, "evil6")),
      ("train", "--method", "gail", "--demos", "DS", "--preset", "smoke", "--train.iterations", "1", "--out",
-      "run-new"), "cannot be made here"),
+      "run-new"), "pass --env evil6:Evil6-v0 to allow it"),
     ("mwds-labels-partial", "subtask labels removed from episode 1 only",
      lambda ds: _h5(ds, lambda f: f.__delitem__("episode_1/infos/subtask") if "episode_1/infos/subtask" in f else
                     None), PRETRAIN, "labels"),
