@@ -193,6 +193,19 @@ for _pid, _value, _expect in [
         lambda tmp, v=_value: _in(tmp, lambda: sweep_check((f"train.disc_obs={v}",))))
 
 
+@probe("sweep-env-module", "`digail sweep` whose spec's envs name `walk5s:Walk5s-v0` (the user's module, "
+       "which registers the env) with demonstrations recorded in it", None)
+def _sweep_env_module(tmp: Path) -> None:
+    plant(tmp, "walk5s", "import gymnasium as gym\nimport numpy as np\n"
+                         "class Env(gym.Env):\n"
+                         "    observation_space = gym.spaces.Box(-10.0, 10.0, (1,), np.float32)\n"
+                         "    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)\n"
+                         "gym.register('Walk5s-v0', entry_point='walk5s:Env', max_episode_steps=20)\n")
+    _dataset_naming(tmp, "Walk5s-v0", "walk5s:Env")
+    spec = '[[grid]]\nenvs = ["walk5s:Walk5s-v0"]\nmethods = ["gail"]\ndemos = "ds"\n'
+    _in(tmp, lambda: sweep_check(spec=spec, tmp=tmp))
+
+
 @probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.disc_obs=view5d:THRESHOLD` (a number in the "
        "user's module)", "is not a function of yours")
 def _sweep_number(tmp: Path) -> None:

@@ -173,8 +173,10 @@ def _check_env(env: str, demos: str, *, from_grid: bool) -> None:
     it."""
     from digail.data.minari_io import dataset_env_id, resolve_dataset
     from digail.envs.registry import check_env_id
+    from digail.user_envs import import_env_module
 
-    check_env_id(env)
+    env_id = import_env_module(env)  # `module:EnvId` on the sweep's command line or in its spec: the user's to name
+    check_env_id(env_id)
     how = "fix the spec's demos" if from_grid else f"record them with `digail demos {env}` or set demos"
     try:
         resolve_dataset(demos)
@@ -184,7 +186,7 @@ def _check_env(env: str, demos: str, *, from_grid: bool) -> None:
         recorded = dataset_env_id(demos)
     except UserError:
         return  # data that records no env: the stages run it in the env the sweep names
-    if recorded != env:
+    if recorded != env_id:
         raise UserError(f"env {env}: the demonstrations {demos!r} were recorded in {recorded}; give that env or "
                         "other demos.")
 
