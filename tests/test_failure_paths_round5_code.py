@@ -399,3 +399,22 @@ def test_the_reliability_page_lists_every_probe() -> None:
     assert len(rows) == len(PROBES)
     missing = [p.id for p in PROBES if f"| {p.what.replace('|', chr(92) + '|')} |" not in section]
     assert not missing, f"probes without a row in the reliability page: {missing}"
+
+
+def test_an_id_with_a_module_part_needs_the_module_named_or_imported(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """An env id `module:EnvId` from data reaches Gymnasium (whose `gym.make` would import the module) only when the
+    command line named the module or it is imported already (a Python caller's own import): no new code runs."""
+    import importlib
+
+    from digail.user_envs import check_no_module
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    plant(tmp_path, "mine5p")
+    plant(tmp_path, "other5p")
+    with pytest.raises(UserError, match="pass --env other5p:Other-v0 to allow it"):
+        check_no_module("other5p:Other-v0")
+    importlib.import_module("mine5p")
+    assert check_no_module("mine5p:Mine-v0") == "Mine-v0"
+    assert check_no_module("Plain-v0") == "Plain-v0"
+    assert ran(tmp_path) == ["mine5p.ran"]

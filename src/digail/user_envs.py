@@ -54,10 +54,10 @@ def check_no_module(env_id: str) -> str:
     module, sep, name = str(env_id).partition(":")
     if not sep:
         return env_id
-    if module in _NAMED and name:
+    if name and (module in _NAMED or module in sys.modules):  # named, or imported already: no new code runs
         return name
     raise UserError(f"environment id {env_id!r} names module {module!r}, which digail imports only when you name it; "
-                    f"pass --env {env_id} to allow it.")
+                    f"pass --env {env_id} to allow it (in Python, import the module first).")
 
 
 def _check_module_name(module: str, what: str) -> None:
