@@ -15,6 +15,7 @@ import importlib
 import os
 import signal
 import sys
+import threading
 from typing import TYPE_CHECKING, Any
 
 
@@ -27,6 +28,7 @@ def _stopped_while_importing(signum: int, frame: Any) -> None:
 # line instead of a traceback; `digail.cli.main` takes over from there. A Python session importing digail keeps
 # its own Ctrl-C.
 _EARLY = (os.path.basename(sys.argv[0] if sys.argv else "") == "digail"
+          and threading.current_thread() is threading.main_thread()  # where signal handlers may be set
           and signal.getsignal(signal.SIGINT) is signal.default_int_handler)
 if _EARLY:
     signal.signal(signal.SIGINT, _stopped_while_importing)
