@@ -382,6 +382,47 @@ for _pid, _what, _edit, _argv, _expect in [
     probe(_pid, f"`digail {' '.join(_argv)}` on a copy of the robosuite-made {_task} file with {_what}",
           _expect)(_rs_probe)
 
+_VAE_CACHE: list[Path] = []
+
+
+def _stack_vae(tmp: Path) -> None:
+    """A copy of the robosuite Stack file as rs.hdf5 and a small VAE trained on it (made once, copied per probe)."""
+    if not _VAE_CACHE:
+        import atexit
+        import tempfile
+
+        base = Path(tempfile.mkdtemp(prefix="digail-round6-vae-"))
+        atexit.register(shutil.rmtree, base, True)
+        shutil.copy(ROBOSUITE / "stack.hdf5", base / "rs.hdf5")
+        cli(base, "import", "rs.hdf5", "--out", "ds")
+        cli(base, "pretrain", "--demos", "ds", "--codes", "2", "--preset", "smoke", "--vae.steps", "20",
+            "--vae.init-steps", "0", "--out", "vae")
+        _VAE_CACHE.append(base)
+    shutil.copy(_VAE_CACHE[0] / "rs.hdf5", tmp / "rs.hdf5")
+    shutil.copytree(_VAE_CACHE[0] / "vae", tmp / "stackvae")
+
+
+for _pid, _argv, _expect in [
+    ("rs-export-ok", ["--export", "robomimic", "--names", "reach", "place", "--out", "annotated.hdf5"], None),
+    ("rs-export-names-slash", ["--export", "robomimic", "--names", "a/b", "c", "--out", "annotated.hdf5"],
+     "--names must be distinct"),
+    ("rs-export-names-count", ["--export", "robomimic", "--names", "reach", "--out", "annotated.hdf5"],
+     "one name per code"),
+    ("rs-export-over-source", ["--export", "robomimic", "--out", "rs.hdf5", "--force"], "rs.hdf5"),
+    ("rs-export-csv-into-vae", ["--export", "csv", "--out", "stackvae/model.pt", "--force"], "model.pt"),
+]:
+    def _rs_export(tmp: Path, argv: tuple[str, ...] = tuple(_argv)) -> None:
+        _stack_vae(tmp)
+        before = (tmp / "rs.hdf5").read_bytes()
+        try:
+            cli(tmp, "segment", "stackvae", "--demos", "rs.hdf5", *argv)
+        finally:
+            assert (tmp / "rs.hdf5").read_bytes() == before, "the source changed"
+
+    probe(_pid, f"`digail segment VAE --demos rs.hdf5 {' '.join(_argv)}` with a VAE of the robosuite-made Stack file",
+          _expect)(_rs_export)
+
+
 # ------------------------------------------------------------------------------------------------ the fifth's classes
 for _pid, _value, _expect in [
     ("again-view-stdlib-shutil", "shutil:rmtree", "Python's standard library"),
