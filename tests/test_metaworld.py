@@ -367,3 +367,28 @@ def test_segmentations_export_to_robomimic_lerobot_and_csv(metaworld, tmp_path) 
     assert main(["segment", str(vae), "--demos", demos, "--export", "csv", "--out", str(tmp_path / "seg.csv")]) == 0
     lines = (tmp_path / "seg.csv").read_text().splitlines()
     assert lines[0] == "episode,start,end,code,name" and len(lines) > len(trajs)
+
+
+@pytest.mark.slow
+@pytest.mark.mujoco
+def test_every_task_runs_its_expert_with_phase_labels(metaworld) -> None:  # type: ignore[no-untyped-def]
+    """Each of the 50 tasks is made through the registry, reset, and stepped by its expert, every label one of its
+    expert's phases; between them the experts' labels take more than one value (the tracer reads real branches)."""
+    from digail.envs.metaworld import phase_counts
+    from digail.experts import expert_for
+
+    counts, moved = phase_counts(), 0
+    for task in EPISODE_STEPS:
+        env = _make(task)
+        policy, kind = expert_for(env_id(task))
+        obs, info = env.reset(seed=0)
+        labels = [info["subtask"]]
+        for _ in range(40):
+            obs, _, terminated, truncated, info = env.step(policy(env, obs))
+            labels.append(info["subtask"])
+            if terminated or truncated:
+                break
+        env.close()
+        assert kind == "scripted" and all(0 <= lb < counts[task] for lb in labels), task
+        moved += len(set(labels)) > 1
+    assert moved >= 40, moved  # 45 of 50 here (two have one phase, three stay in their first 40 steps)
