@@ -62,15 +62,18 @@ def shared() -> str:
 
 def fewdemo() -> str:
     rows = json.loads((RESULTS / "metaworld_fewdemo.json").read_text())["rows"]
-    methods = ["bc", "flatbc", "digail-l2", "flatbc-l2"]
     names = {"bc": "BC, the VAE's policy (K = phases)", "flatbc": "flat BC (K = 1)",
              "digail-l2": "Directed-Info GAIL + L2 from BC", "flatbc-l2": "GAIL + L2 from flat BC"}
+    # the adversarial methods once per training length (`iterations`, PPO iterations of 4096 env steps)
+    methods = [("bc", None), ("flatbc", None)] + sorted(
+        {(r["method"], r["iterations"]) for r in rows if r["method"].endswith("-l2")}, key=lambda m: (m[1], m[0]))
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     lines = ["| method | " + " | ".join(tasks) + " |", "| --- |" + " --- |" * len(tasks)]
-    for m in methods:
+    for m, iterations in methods:
         cells = []
         for t in tasks:
-            got = sorted((r for r in rows if r["task"] == t and r["method"] == m), key=lambda r: r["seed"])
+            got = sorted((r for r in rows if r["task"] == t and r["method"] == m
+                          and r.get("iterations") == iterations), key=lambda r: r["seed"])
             if not got:
                 cells.append("-")
             elif len(got) == 1:
@@ -79,7 +82,9 @@ def fewdemo() -> str:
                 rates = [r["success_rate"] for r in got]
                 cells.append(f"{np.median(rates):.2f} ({' / '.join(f'{v:.2f}' for v in rates)})")
         if any(c != "-" for c in cells):
-            lines.append(f"| {names[m]} | " + " | ".join(cells) + " |")
+            steps = f", {iterations} iterations ({round(iterations * 4096 / 1000)}k env steps)" if iterations else ""
+            label = names[m] + steps
+            lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
