@@ -4,12 +4,11 @@ that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (the reward v
     python benchmarks/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
         --out benchmarks/results/fetch_rewards.json --page docs/results.md
 
-Per run (`runs/fetchfew/d<N>/digail-l2-rel-argmax*_s<seed>`): the 100-episode evaluation at the end (success,
-grasp, lift), the periodic success (20 episodes every 5 iterations) at each evaluation, and over training whether
-the reward still teaches: D's expert accuracy and the imitation reward per agent step (`rollout/disc_reward`)
-over the first and the last 5 iterations, and the spread of that reward over the agent's steps is what the OT rows
-show as `reward/ot_episode`. The table goes between `<!-- fetch_rewards:start -->` and `<!-- fetch_rewards:end -->`
-in the page.
+Per run (`runs/fetchfew/d<N>/digail-l2-rel-argmax*_s<seed>`): the 100-episode evaluations after 30 iterations
+(122,880 env steps: the run's eval.json, or the eval.iteration-30.json a longer run keeps) and after 50 (204,800),
+the best periodic success (20 episodes every 5 iterations), and whether the reward still teaches: D's expert
+accuracy and the imitation reward per agent step (`rollout/disc_reward`) over iterations 1-5 and 26-30. The table
+goes between `<!-- fetch_rewards:start -->` and `<!-- fetch_rewards:end -->` in the page.
 """
 
 from __future__ import annotations
@@ -39,9 +38,22 @@ LABELS = {
 """suffix after `digail-l2-rel-argmax` -> what the row changes"""
 
 
-def _column(rows: list[dict[str, str]], key: str, part: slice) -> float | None:
-    values = [float(r[key]) for r in rows if r.get(key)][part]
+def _column(rows: list[dict[str, str]], key: str, first: int, last: int) -> float | None:
+    """The mean of a metrics.csv column over iterations first..last (None: not logged there)."""
+    values = [float(r[key]) for r in rows if r.get(key) and first <= float(r["iteration"]) <= last]
     return float(np.mean(values)) if values else None
+
+
+def _evaluation(run: Path, iterations: int) -> dict[str, Any] | None:
+    """The run's 100-episode evaluation after `iterations` iterations, if it made one."""
+    config = json.loads((run / "config.json").read_text()) if (run / "config.json").is_file() else {}
+    for path in (run / f"eval.iteration-{iterations}.json", run / "eval.json"):
+        if path.name == "eval.json" and config.get("train", {}).get("iterations") != iterations:
+            continue
+        if path.is_file():
+            m = json.loads(path.read_text())
+            return {k: m[k] for k in ("episodes", "success_rate", "grasp_rate", "lift_rate", "dense_return")}
+    return None
 
 
 def collect(root: Path, demos: int, seed: int) -> list[dict[str, Any]]:
@@ -59,19 +71,15 @@ def collect(root: Path, demos: int, seed: int) -> list[dict[str, Any]]:
             "command": _command(run, "benchmarks/fetch_fewdemo.sh"), "curve": curve,
             "env_steps": max((float(r["step"]) for r in rows), default=0.0),
             "train_minutes": _train_minutes(run),
-            "disc_acc_expert_first5": _column(rows, "disc/acc_expert", slice(0, 5)),
-            "disc_acc_expert_last5": _column(rows, "disc/acc_expert", slice(-5, None)),
-            "reward_per_step_first5": _column(rows, "rollout/disc_reward", slice(0, 5)),
-            "reward_per_step_last5": _column(rows, "rollout/disc_reward", slice(-5, None)),
+            "disc_acc_expert_it1_5": _column(rows, "disc/acc_expert", 1, 5),
+            "disc_acc_expert_it26_30": _column(rows, "disc/acc_expert", 26, 30),
+            "reward_per_step_it1_5": _column(rows, "rollout/disc_reward", 1, 5),
+            "reward_per_step_it26_30": _column(rows, "rollout/disc_reward", 26, 30),
+            "reward_per_step_it46_50": _column(rows, "rollout/disc_reward", 46, 50),
             "periodic_success_max": max((s for _, s in curve), default=None),
+            "eval_30": _evaluation(run, 30), "eval_50": _evaluation(run, 50),
         }
-        ev = run / "eval.json"
-        if ev.is_file():
-            m = json.loads(ev.read_text())
-            rec.update(status="done", episodes=m["episodes"], success_rate=m["success_rate"],
-                       grasp_rate=m["grasp_rate"], lift_rate=m["lift_rate"], dense_return=m["dense_return"])
-        else:
-            rec.update(status="running")
+        rec["status"] = "done" if (run / "eval.json").is_file() else "running"
         out.append(rec)
     return out
 
@@ -81,18 +89,18 @@ def _f(x: float | None, digits: int = 2) -> str:
 
 
 def markdown(records: list[dict[str, Any]]) -> str:
-    head = ("| reward | success (100 episodes) | grasp | lift | periodic success, best of the run | "
-            "D's expert accuracy, first / last 5 iterations | reward per agent step, first / last 5 iterations | "
-            "env steps |\n"
-            "| --- | --- | --- | --- | --- | --- | --- | --- |\n")
+    head = ("| reward | success at 123k / 205k env steps (100 episodes) | grasp at 123k / 205k | periodic success, "
+            "best | D's expert accuracy, iterations 1-5 / 26-30 | reward per agent step, iterations 1-5 / 26-30 "
+            "| env steps |\n| --- | --- | --- | --- | --- | --- | --- |\n")
     lines = []
     for r in records:
-        done = r["status"] == "done"
-        acc = ("no D" if r["disc_acc_expert_last5"] is None
-               else f"{_f(r['disc_acc_expert_first5'])} / {_f(r['disc_acc_expert_last5'])}")
-        lines.append(f"| {r['label']} | {_f(r.get('success_rate')) if done else 'running'} | "
-                     f"{_f(r.get('grasp_rate'))} | {_f(r.get('lift_rate'))} | {_f(r['periodic_success_max'])} | "
-                     f"{acc} | {_f(r['reward_per_step_first5'], 3)} / {_f(r['reward_per_step_last5'], 3)} | "
+        e30, e50 = r["eval_30"] or {}, r["eval_50"] or {}
+        acc = ("no D" if r["disc_acc_expert_it1_5"] is None
+               else f"{_f(r['disc_acc_expert_it1_5'])} / {_f(r['disc_acc_expert_it26_30'])}")
+        later = "running" if r["status"] == "running" and not e50 else _f(e50.get("success_rate"))
+        lines.append(f"| {r['label']} | {_f(e30.get('success_rate'))} / {later} | "
+                     f"{_f(e30.get('grasp_rate'))} / {_f(e50.get('grasp_rate'))} | {_f(r['periodic_success_max'])} | "
+                     f"{acc} | {_f(r['reward_per_step_it1_5'], 3)} / {_f(r['reward_per_step_it26_30'], 3)} | "
                      f"{r['env_steps'] / 1000:.0f}k |")
     return head + "\n".join(lines) + "\n"
 

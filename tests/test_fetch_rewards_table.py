@@ -20,25 +20,34 @@ def _run(root: Path, name: str, acc: list[float] | None, rewards: list[float], s
         lines.append(f"{4096 * (i + 1)},{i + 1},{0.25 if i == 3 else ''},{a},{r},2048")
     (run / "metrics.csv").write_text("\n".join(lines) + "\n")
     (run / "config.json").write_text(json.dumps({"train": {"iterations": len(rewards)}}))
+    if len(rewards) == 50:  # a run continued from 30 iterations keeps that evaluation
+        (run / "eval.iteration-30.json").write_text(json.dumps({"episodes": 100, "success_rate": 0.04,
+                                                                "grasp_rate": 0.7, "lift_rate": 0.6,
+                                                                "dense_return": -12.0}))
     if success is not None:
         (run / "eval.json").write_text(json.dumps({"episodes": 100, "success_rate": success, "grasp_rate": 0.9,
                                                    "lift_rate": 0.8, "dense_return": -9.0}))
 
 
 def test_screen_rows_say_whether_the_reward_still_teaches(tmp_path: Path) -> None:
-    ones = [0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.0, 1.0, 1.0, 1.0]
-    _run(tmp_path / "d4", "digail-l2-rel-argmax_s0", ones, [0.3] * 5 + [0.01] * 5, 0.12)
-    _run(tmp_path / "d4", "digail-l2-rel-argmax-ots_s0", None, [-1.2] * 5 + [-0.8] * 5, None)
-    _run(tmp_path / "d4", "digail-l2-rel-argmax-sac_s0", ones, [0.1] * 10, 0.0)  # not a screened reward: left out
+    acc = [0.5, 0.6, 0.7, 0.8, 0.9] + [1.0] * 45
+    _run(tmp_path / "d4", "digail-l2-rel-argmax_s0", acc, [0.3] * 5 + [0.02] * 20 + [0.01] * 25, 0.12)
+    _run(tmp_path / "d4", "digail-l2-rel-argmax-ots_s0", None, [-1.2] * 25 + [-0.8] * 5, 0.06)
+    _run(tmp_path / "d4", "digail-l2-rel-argmax-pu_s0", acc[:12], [0.2] * 12, None)  # still training
+    _run(tmp_path / "d4", "digail-l2-rel-argmax-sac_s0", acc, [0.1] * 50, 0.0)  # not a screened reward: left out
     records = fetch_rewards.collect(tmp_path, 4, 0)
     by = {r["method"]: r for r in records}
-    assert set(by) == {"digail-l2-rel-argmax", "digail-l2-rel-argmax-ots"}
-    base, ots = by["digail-l2-rel-argmax"], by["digail-l2-rel-argmax-ots"]
-    assert base["disc_acc_expert_first5"] == 0.7 and base["disc_acc_expert_last5"] == 1.0
-    assert base["reward_per_step_first5"] == 0.3 and base["reward_per_step_last5"] == 0.01
-    assert base["periodic_success_max"] == 0.25 and base["success_rate"] == 0.12
-    assert base["command"] == "benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax 0 10"
-    assert ots["status"] == "running" and ots["disc_acc_expert_last5"] is None
+    assert set(by) == {"digail-l2-rel-argmax", "digail-l2-rel-argmax-ots", "digail-l2-rel-argmax-pu"}
+    base, ots, pu = by["digail-l2-rel-argmax"], by["digail-l2-rel-argmax-ots"], by["digail-l2-rel-argmax-pu"]
+    assert base["disc_acc_expert_it1_5"] == 0.7 and base["disc_acc_expert_it26_30"] == 1.0
+    assert base["reward_per_step_it1_5"] == 0.3 and base["reward_per_step_it26_30"] == 0.01
+    assert base["eval_30"]["success_rate"] == 0.04 and base["eval_50"]["success_rate"] == 0.12
+    assert base["periodic_success_max"] == 0.25
+    assert base["command"] == "benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax 0 50"
+    assert ots["eval_30"]["success_rate"] == 0.06 and ots["eval_50"] is None and ots["disc_acc_expert_it1_5"] is None
+    assert pu["status"] == "running" and pu["eval_30"] is None
     table = fetch_rewards.markdown(records)
-    assert "| today's best: D by binary cross-entropy (GAIL's) | 0.12 | 0.90 | 0.80 | 0.25 | 0.70 / 1.00 |" in table
-    assert "| sub-task-aware optimal transport (no D) | running |" in table and "| no D | -1.200 / -0.800 |" in table
+    base_row = "| today's best: D by binary cross-entropy (GAIL's) | 0.04 / 0.12 | 0.70 / 0.90 | 0.25 | 0.70 / 1.00 |"
+    assert base_row in table
+    assert "| sub-task-aware optimal transport (no D) | 0.06 / - |" in table and "| no D | -1.200 / -0.800 |" in table
+    assert "| D positive-unlabeled (prior 0.5) | - / running |" in table
