@@ -276,3 +276,21 @@ def test_anneal_decays_the_bc_weight_to_zero(circle_demos):
         assert weights == pytest.approx([2.0, 1.5, 1.0, 0.5])
     finally:
         trainer.close()
+
+
+@pytest.mark.parametrize("imitation", [ImitationConfig(kind="pu", disc_noise=0.1, spectral_norm=True, disc_dropout=0.1),
+                                       ImitationConfig(kind="ot-subtask")])
+def test_sac_runs_each_reward_with_plain_gail(imitation):
+    """Off-policy, one code: the regularised PU step updates D; the transport reward trains with no D at all."""
+    t = _pendulum_trainer(imitation)
+    try:
+        before = None if t.disc is None else [p.detach().clone() for p in t.disc.parameters()]
+        out = t.iterate()
+        assert math.isfinite(out["losses/critic"])
+        if before is None:
+            assert math.isnan(out["disc/loss"])  # no D: its scalars stay placeholders
+        else:
+            assert math.isfinite(out["disc/loss"]) and 0.0 <= out["disc/acc_expert"] <= 1.0
+            assert any(not torch.equal(a, b) for a, b in zip(before, t.disc.parameters(), strict=True))
+    finally:
+        t.close()
