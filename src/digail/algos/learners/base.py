@@ -1,11 +1,11 @@
 """The interface between the adversarial trainer and a policy learner.
 
 The trainer (`digail.algos.gail.GAIL`, extended by `DirectedInfoGAIL`) owns what every learner shares: the
-demonstrations, the discriminator D and its update, the macro-policy's codes (q frozen) and the reward
-r = D's reward + lambda_1 * log q. A learner (PPO, SAC) owns how the policy pi(a | s, c) is trained: it steps the
-envs through the trainer's hooks, keeps its own networks, optimisers and buffers, and updates pi. It sees the
-trainer only through `Host`, the typed list of what a learner may use, and the trainer sees a learner only through
-`Learner`.
+demonstrations, the imitation reward (`digail.algos.rewards`: D and its update by default), the macro-policy's
+codes (q frozen) and the reward r = the imitation reward + lambda_1 * log q. A learner (PPO, SAC) owns how the
+policy pi(a | s, c) is trained: it steps the envs through the trainer's hooks, keeps its own networks,
+optimisers and buffers, and updates pi. It sees the trainer only through `Host`, the typed list of what a learner
+may use, and the trainer sees a learner only through `Learner`.
 
 Adding a learner is one module in `digail.algos.learners` with a class that satisfies `Learner` (constructed from a
 `Host`) and one `LearnerEntry` in `digail.algos.learners.LEARNERS`; its settings are a dataclass field of
