@@ -95,7 +95,7 @@ def markdown(records: list[dict[str, Any]]) -> str:
     lines = []
     for r in records:
         e30, e50 = r["eval_30"] or {}, r["eval_50"] or {}
-        acc = ("no D" if r["disc_acc_expert_it1_5"] is None
+        acc = ("no D" if "-ot" in r["method"]
                else f"{_f(r['disc_acc_expert_it1_5'])} / {_f(r['disc_acc_expert_it26_30'])}")
         later = "running" if r["status"] == "running" and not e50 else _f(e50.get("success_rate"))
         lines.append(f"| {r['label']} | {_f(e30.get('success_rate'))} / {later} | "
