@@ -132,6 +132,19 @@ for _pid, _argv, _expect in [
 
     probe(_pid, f"`digail {' '.join(_argv)}`", _expect)(_mw_cmd)
 
+def _make(**kwargs: object) -> None:
+    from digail.envs import make_env
+
+    make_env(MW, **kwargs).close()
+
+
+probe("mw-option-variation", f"`make_env('{MW}', variation='mt10')` (Python)", "variation must be random or mt1")(
+    lambda tmp: _make(variation="mt10"))
+probe("mw-option-task", f"`make_env('{MW}', task='pick-place-v9')` (Python)", "unknown Meta-World task")(
+    lambda tmp: _make(task="pick-place-v9"))
+probe("mw-option-mt1", f"`make_env('{MW}', variation='mt1', mt1_seed=3)` (Python)", None)(
+    lambda tmp: _make(variation="mt1", mt1_seed=3))
+
 probe("mw-train-env-mismatch", f"`digail train --env metaworld/hammer-v3 --demos {MW_DEMOS}` (recorded in "
       "pick-place; the same spaces: trained, with a note)", None)(
     lambda tmp: mw_train(tmp, "--env", "metaworld/hammer-v3"))
