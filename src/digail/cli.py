@@ -195,8 +195,9 @@ POSITIONAL_ENV = ("run", "demos", "expert")
 
 
 def _env_modules_imported(name: str, argv: list[str], takes_env: bool = True) -> list[str]:
-    """`argv` with each `module:EnvId` (the value of `--env`, or `digail run`'s first argument) replaced by
-    `EnvId` once its module is imported: the env is then known under its id alone, as datasets record it.
+    """`argv` with each `module:EnvId` (the value of `--env`, or the first argument of `run`, `demos` and
+    `expert`) replaced by `EnvId` once its module is imported: the env is then known under its id alone, as
+    datasets record it.
 
     A command on a run folder (`evaluate`, `report`, ...) has no `--env` of its own (`takes_env` False): there
     `--env module:EnvId` only names the module that the run folder's env comes from, the one way a module the
