@@ -358,6 +358,7 @@ def test_ctrl_c_while_the_command_still_imports_is_one_line(monkeypatch: pytest.
 
 def test_ctrl_c_while_the_package_imports_is_one_line(tmp_path: Path) -> None:
     """The `digail` script interrupted while `import digail` runs (its first second): one line, status 130."""
+    import signal
     import subprocess
 
     code = ("import builtins, os, signal, sys\n"
@@ -370,7 +371,10 @@ def test_ctrl_c_while_the_package_imports_is_one_line(tmp_path: Path) -> None:
             "builtins.__import__ = hook\n"
             "import digail\n"
             "print('imported')\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    # the child starts with Ctrl-C at its default, as from a terminal: a test session run in the background (a
+    # non-interactive shell's `cmd &`) ignores SIGINT, and an ignored SIGINT is inherited and stays ignored
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert done.returncode == 130 and "imported" not in done.stdout, (done.returncode, done.stderr[-2000:])
     assert done.stderr == "digail: stopped by SIGINT before it began; nothing was written.\n", done.stderr[-2000:]
 

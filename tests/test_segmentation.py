@@ -180,6 +180,8 @@ def fake_minari(monkeypatch: pytest.MonkeyPatch, trajs: list[Trajectory], env_id
     """Replace the Minari reader with one that returns `trajs` for any dataset name."""
     module = types.ModuleType("digail.data.minari_io")
     module.load_dataset = lambda ref: _FakeDataset(trajs, env_id, "toy/two-phase-v0")  # type: ignore[attr-defined]
+    # the dataset's folder and metadata, read before the dataset: a folder named as the dataset, with no record
+    module.dataset_metadata = lambda ref: (Path(str(ref)), {})  # type: ignore[attr-defined]
     monkeypatch.setitem(sys.modules, "digail.data.minari_io", module)
 
 
