@@ -28,6 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from test_failure_paths_round4 import cli
 
 from digail.cli import main
 from digail.errors import UserError
@@ -64,25 +65,6 @@ def probe(pid: str, what: str, expect: str | None, setup: Callable[[Path], objec
         return fn
 
     return add
-
-
-def cli(tmp: Path, *argv: str) -> None:
-    """Run `digail argv` in `tmp`; a refusal becomes the UserError of its one line."""
-    err = io.StringIO()
-    old = Path.cwd()
-    os.chdir(tmp)
-    try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            code = main(list(argv))
-    finally:
-        os.chdir(old)
-    text = err.getvalue()
-    assert "Traceback" not in text, text
-    if code == 0:
-        return
-    lines = [ln for ln in text.splitlines() if ln.strip() and "is deprecated" not in ln]
-    assert code == 2 and len(lines) == 1 and ": error: " in lines[0], (code, text)
-    raise UserError(lines[0].split(": error: ", 1)[1])
 
 
 # ------------------------------------------------------------------------------------------------ fixtures
