@@ -20,9 +20,8 @@ import h5py
 import numpy as np
 import pytest
 from test_failure_paths_round4 import CW, CW_DEMOS, Probe, sweep_check
-from test_failure_paths_round5_code import plant, ran
+from test_failure_paths_round5_code import outcome, plant, ran
 
-import digail.user_envs
 from digail.errors import UserError
 
 pytest.importorskip("metaworld")
@@ -483,25 +482,6 @@ def _mw_resume(tmp: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ the test
-def outcome(p: Probe, tmp: Path) -> str | None:
-    """The probe's sentence when refused, None when accepted; no module named by the user at its start, and the
-    import path as it was afterwards."""
-    state = (set(digail.user_envs._NAMED), dict(digail.user_envs._UNNAMED), list(sys.path))
-    digail.user_envs._NAMED.clear()
-    digail.user_envs._UNNAMED.clear()
-    try:
-        p.run(tmp)
-    except UserError as exc:
-        return " ".join(str(exc).split())
-    finally:
-        digail.user_envs._NAMED.clear()
-        digail.user_envs._NAMED.update(state[0])
-        digail.user_envs._UNNAMED.clear()
-        digail.user_envs._UNNAMED.update(state[1])
-        sys.path[:] = state[2]
-    return None
-
-
 @pytest.mark.parametrize("p", PROBES, ids=[p.id for p in PROBES])
 def test_probe(p: Probe, tmp_path: Path) -> None:
     sentence = outcome(p, tmp_path)
