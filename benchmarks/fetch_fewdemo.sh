@@ -26,6 +26,8 @@
 #                 with `digail train --resume --until 244`, the same numbers as a run started with 244
 #     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
 #                 penalty, as DAC); ITERATIONS default 400 (400k env steps), a 20-episode evaluation every 20
+#     -sacfast    the same on the cheaper schedule of benchmarks/sac_fetch_speed.py: one update every 4 env steps
+#                 (--train.sac.utd 0.25), D every 4 on a minibatch of 1024
 #   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac, digail-l2-rel-argmax-1m
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint, and one
 # made with fewer than ITERATIONS is continued to ITERATIONS (`digail train --resume RUN --until ITERATIONS`).
@@ -33,7 +35,7 @@
 # 409,600 env steps), a 20-episode evaluation every 5 iterations (the learning curve), then 100 episodes.
 set -euo pipefail
 N=$1; METHOD=$2; S=$3
-case $METHOD in *-sac) ITERS=${4:-400}; EVERY=20 ;; *) ITERS=${4:-100}; EVERY=5 ;; esac
+case $METHOD in *-sac|*-sacfast) ITERS=${4:-400}; EVERY=20 ;; *) ITERS=${4:-100}; EVERY=5 ;; esac
 D=digail/fetchpickandplace/expert-v0
 ROOT=runs/fetchfew/d$N
 mkdir -p "$ROOT"
@@ -68,7 +70,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
 }
 
 SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst)?(-anneal|-qf)?'
-SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-1m)?$'
+SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
   echo "unknown method $METHOD" >&2; exit 2
@@ -99,6 +101,8 @@ case $METHOD in *-qtrain*) ARGS+=(--train.q-lr 3e-4) ;; esac
 case $METHOD in *-nobonus*) ARGS+=(--train.bonus-weight 0) ;; esac
 case $METHOD in *-k2*) K=2 ;; *-k8*) K=8 ;; esac
 case $METHOD in *-sac) ARGS+=(--train.learner sac) ;; esac
+case $METHOD in *-sacfast) ARGS+=(--train.learner sac --train.sac.utd 0.25 --train.sac.disc-every 4
+                                  --train.disc-minibatch-size 1024) ;; esac
 case $METHOD in
   bc) vae 4 ;;
   flatbc) vae 1 ;;

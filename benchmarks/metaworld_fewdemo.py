@@ -14,6 +14,8 @@ Per (task, method, seed), from the first `--demos` episodes of the task's shippe
             digail train --demos D --demos-episodes N --vae R/TASK/bc_sS --bc-weight 1.0 --train.iterations I ...
             (a run of fewer iterations is continued: digail train --resume RUN --until I). The first 10 iterations
             train the value function only (`--train.value-warmup`): the policy moves from iteration 11 on.
+    digail-l2-noise, flatbc-l2-noise  the same with D's inputs noised (`--train.imitation.disc-noise 0.15`), the
+            few-demonstration Fetch screen's highest reward at 205k env steps (docs/howto/few-demos-reward.md)
 
 then `digail evaluate RUN --episodes E` on fresh placements (the evaluation seeds, 10000 on); the row keeps the
 success rate, the mean episode length and the commands. Both pre-trainings use the task's preset (metaworld: the
@@ -23,6 +25,7 @@ default VAE).
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import shlex
 import sys
@@ -54,33 +57,58 @@ def one(task: str, method: str, seed: int, args: argparse.Namespace) -> dict[str
         codes = phase_counts()[f"{task}-v3"] if method == "bc" else 1
         commands.append(["pretrain", *common, "--codes", str(codes), "--out", str(folder), "--force"])
     else:
-        start = root / f"{'bc' if method == 'digail-l2' else 'flatbc'}_s{seed}"
+        start = root / f"{'bc' if method.startswith('digail-l2') else 'flatbc'}_s{seed}"
         if not (start / "model.pt").is_file():
             raise SystemExit(f"{method} starts from {start}; run {start.name.split('_')[0]} first")
         done = json.loads((folder / "config.json").read_text())["train"]["iterations"] \
             if (folder / "config.json").is_file() else 0
         if 0 < done < args.iterations:  # a shorter run is trained on (the same numbers as one started with more)
             commands.append(["train", "--resume", str(folder), "--until", str(args.iterations)])
+        elif done == args.iterations and (folder / "eval.json").is_file():
+            return row(task, method, seed, folder, args, ["(done earlier)"], 0.0)
+        elif done == args.iterations:  # killed: on from its last checkpoint
+            commands.append(["train", "--resume", str(folder)])
         else:
+            extra = ["--train.imitation.disc-noise", "0.15"] if method.endswith("-noise") else []
             commands.append(["train", *common, "--vae", str(start), "--bc-weight", "1.0", "--train.iterations",
-                             str(args.iterations), "--train.checkpoint-every", "5", "--out", str(folder), "--force"])
+                             str(args.iterations), "--train.checkpoint-every", "5", *extra, "--out", str(folder),
+                             "--force"])
     commands.append(["evaluate", str(folder), "--episodes", str(args.episodes)])
     t0 = time.perf_counter()
     for cmd in commands:
         run(cmd)
+    return row(task, method, seed, folder, args, ["digail " + shlex.join(c) for c in commands],
+               time.perf_counter() - t0)
+
+
+def row(task: str, method: str, seed: int, folder: Path, args: argparse.Namespace, commands: list[str],
+        seconds: float) -> dict[str, Any]:
     ev = json.loads((folder / "eval.json").read_text())
+    trained = method not in ("bc", "flatbc")
     return {"task": task, "method": method, "seed": seed, "demos": args.demos, "episodes": ev["episodes"],
+            "iterations": args.iterations if trained else None,
+            "env_steps": args.iterations * 4096 if trained else None,
             "success_rate": ev.get("success_rate"), "mean_length": ev.get("mean_length"),
             "expert_success_rate": (ev.get("expert") or {}).get("success_rate"),
-            "minutes": round((time.perf_counter() - t0) / 60, 1),
-            "commands": ["digail " + shlex.join(c) for c in commands]}
+            "minutes": round(seconds / 60, 1), "commands": commands,
+            **({"per_iteration": per_iteration(folder / "metrics.csv")} if trained else {})}
+
+
+def per_iteration(metrics: Path) -> dict[str, list[float | None]]:
+    """D's accuracy on expert steps and the imitation reward per agent step, each training iteration: whether
+    the reward still teaches (a D that always wins leaves a reward that no longer ranks the agent's steps)."""
+    with metrics.open() as f:
+        records = list(csv.DictReader(f))
+    columns = {"disc_acc_expert": "disc/acc_expert", "disc_reward": "rollout/disc_reward", "sps": "perf/sps"}
+    return {name: [round(float(r[c]), 4) if r.get(c) not in (None, "") else None for r in records]
+            for name, c in columns.items()}
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=list(TASKS))
     parser.add_argument("--methods", nargs="+", default=["bc", "flatbc"],
-                        choices=["bc", "flatbc", "digail-l2", "flatbc-l2"])
+                        choices=["bc", "flatbc", "digail-l2", "flatbc-l2", "digail-l2-noise", "flatbc-l2-noise"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--demos", type=int, default=10)
     parser.add_argument("--episodes", type=int, default=100)
@@ -96,8 +124,9 @@ def main(argv: list[str] | None = None) -> None:
         for method in args.methods:
             for seed in args.seeds:
                 row = {**one(task, method, seed, args), "benchmark_command": command}
-                result["rows"] = [r for r in result["rows"] if (r["task"], r["method"], r["seed"])
-                                  != (task, method, seed)] + [row]
+                key = (task, method, seed, row["iterations"])
+                result["rows"] = [r for r in result["rows"] if (r["task"], r["method"], r["seed"],
+                                                                r.get("iterations")) != key] + [row]
                 print(f"== {task} {method} seed {seed}: success {row['success_rate']:.2f} "
                       f"length {row['mean_length']:.0f} ({row['minutes']} min)", flush=True)
                 args.out.parent.mkdir(parents=True, exist_ok=True)

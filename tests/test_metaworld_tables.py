@@ -1,0 +1,59 @@
+"""The Meta-World few-demonstration tables and rows as the benchmark writes and the results page prints them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+from conftest import repo_module
+
+tables = repo_module("benchmarks/metaworld_tables.py")
+fewdemo = repo_module("benchmarks/metaworld_fewdemo.py")
+
+
+def _row(task: str, method: str, seed: int, success: float, iterations: int | None = None) -> dict:
+    return {"task": task, "method": method, "seed": seed, "success_rate": success, "mean_length": 90.0,
+            "iterations": iterations}
+
+
+def test_tables_give_the_seeds_median_and_mark_a_lead_of_two_tenths(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    rows = [_row("hammer", "bc", s, v) for s, v in enumerate((1.0, 0.98, 1.0))]
+    rows += [_row("hammer", "flatbc", s, v) for s, v in enumerate((0.97, 0.5, 0.96))]
+    rows += [_row("box-close", "bc", s, v) for s, v in enumerate((0.6, 0.65, 0.8))]
+    rows += [_row("box-close", "flatbc", s, v) for s, v in enumerate((0.19, 0.48, 0.54))]
+    rows += [_row("box-close", "digail-l2", s, v, 61) for s, v in enumerate((0.7, 0.72, 0.9))]
+    rows += [_row("box-close", "flatbc-l2", s, v, 61) for s, v in enumerate((0.3, 0.64, 0.4))]
+    rows += [_row("box-close", "digail-l2-noise", 0, 0.5, 61)]
+    rows += [_row("hammer", "digail-l2", s, v, 30) for s, v in enumerate((1.0, 1.0, 0.99))]
+    (tmp_path / "metaworld_fewdemo.json").write_text(json.dumps({"rows": rows}))
+    monkeypatch.setattr(tables, "RESULTS", tmp_path)
+    text = tables.fewdemo()
+    # tasks in the how-to's order; the BC table's lead is BC's median less flat BC's
+    assert text.index("| box-close | 4 |") < text.index("| hammer | 4 |")
+    assert "| box-close | 4 | 0.65 (0.60 / 0.65 / 0.80) | 0.48 (0.19 / 0.48 / 0.54) | +0.17 |" in text
+    assert "| hammer | 4 | 1.00 (1.00 / 0.98 / 1.00) | 0.96 (0.97 / 0.50 / 0.96) | +0.04 |" in text
+    # one table per training length, each holding only the tasks trained that long
+    thirty, sixty_one = text.split("30 PPO iterations (122,880 env steps):")[1].split("61 PPO iterations")
+    assert "| hammer | 1.00 (1.00 / 1.00 / 0.99) | - | - | - |" in thirty and "box-close" not in thirty
+    assert "| box-close | 0.72 (0.70 / 0.72 / 0.90) | 0.40 (0.30 / 0.64 / 0.40) | 0.50 (one seed) | **+0.32** |" \
+        in sixty_one
+
+
+def test_rows_carry_the_budget_and_what_d_paid_per_iteration(tmp_path: Path) -> None:
+    run = tmp_path / "hammer" / "digail-l2_s1"
+    run.mkdir(parents=True)
+    (run / "eval.json").write_text(json.dumps({"episodes": 100, "success_rate": 0.97, "mean_length": 70.0}))
+    (run / "metrics.csv").write_text("step,iteration,disc/acc_expert,rollout/disc_reward,perf/sps\n"
+                                     "4096,1,0.5,-0.77,2100\n8192,2,,-0.9,2000\n")
+    (run / "config.json").write_text(json.dumps({"train": {"iterations": 2}}))
+    (tmp_path / "hammer" / "bc_s1").mkdir()
+    (tmp_path / "hammer" / "bc_s1" / "model.pt").write_bytes(b"")  # the start it was trained from
+    args = argparse.Namespace(runs=tmp_path, demos=10, episodes=100, iterations=2)
+    row = fewdemo.one("hammer", "digail-l2", 1, args)  # trained as long as asked and evaluated: not run again
+    assert row["commands"] == ["(done earlier)"] and row["iterations"] == 2 and row["env_steps"] == 8192
+    assert row["success_rate"] == 0.97
+    assert row["per_iteration"] == {"disc_acc_expert": [0.5, None], "disc_reward": [-0.77, -0.9],
+                                    "sps": [2100.0, 2000.0]}
