@@ -115,10 +115,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--iterations", type=int, default=10, help="training iterations of the -l2 methods")
     parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_fewdemo"))
     parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_fewdemo.json")
+    parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
+                        help="run nothing: add the rows of these files (calls that ran side by side) to --out")
     args = parser.parse_args(argv)
     result: dict[str, Any] = {"rows": []}
     if args.out.exists():  # rows of earlier calls that this one does not rerun are kept
         result = json.loads(args.out.read_text())
+    if args.merge:
+        for path in args.merge:
+            for new in json.loads(path.read_text())["rows"]:
+                key = (new["task"], new["method"], new["seed"], new.get("iterations"))
+                result["rows"] = [r for r in result["rows"]
+                                  if (r["task"], r["method"], r["seed"], r.get("iterations")) != key] + [new]
+        args.out.write_text(json.dumps(result, indent=1) + "\n")
+        return
     command = "python benchmarks/metaworld_fewdemo.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     for task in args.tasks:
         for method in args.methods:
