@@ -1,8 +1,9 @@
 """Publish the Meta-World few-demonstration runs: the median seed's run folders and a video per task.
 
-    MUJOCO_GL=egl python benchmarks/metaworld_publish.py --runs runs/mwfew --iterations 61
+    MUJOCO_GL=egl python benchmarks/metaworld_publish.py --runs runs/mwfew [--tasks box-close ...]
 
-For every task and adversarial method in `results/metaworld_fewdemo.json` trained `--iterations` long, the seed
+For every task and adversarial method in `results/metaworld_fewdemo.json`, at the longest training with three
+seeds (the run folders hold their last training only), the seed
 whose success is the median of the three (the lower seed on a tie) is copied (model, config, evaluation, metrics;
 no checkpoint) to `results/runs/metaworld_<task>_<method>_s<seed>`, where tests/test_committed_runs.py evaluates
 it again. Each such task gets a video of its Directed-Info GAIL run (`digail video`, the first evaluation episode,
@@ -39,18 +40,19 @@ def video(run: Path, name: str) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_fewdemo"))
-    parser.add_argument("--iterations", type=int, required=True)
+    parser.add_argument("--tasks", nargs="+", help="only these tasks (default: every task in the JSON)")
     parser.add_argument("--methods", nargs="+", default=["digail-l2", "flatbc-l2"])
     args = parser.parse_args()
     rows = json.loads((RESULTS / "metaworld_fewdemo.json").read_text())["rows"]
-    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    tasks = args.tasks or list(dict.fromkeys(r["task"] for r in rows))
     for task in tasks:
         trained = False
         for method in args.methods:
-            got = [r for r in rows if r["task"] == task and r["method"] == method
-                   and r.get("iterations") == args.iterations]
-            if len(got) < 3:
+            mine = [r for r in rows if r["task"] == task and r["method"] == method and r.get("iterations")]
+            budgets = [n for n in {r["iterations"] for r in mine} if sum(r["iterations"] == n for r in mine) >= 3]
+            if not budgets:
                 continue
+            got = [r for r in mine if r["iterations"] == max(budgets)]
             trained = True
             seed = median_seed(got)
             source = args.runs / task / f"{method}_s{seed}"

@@ -142,7 +142,7 @@ def figure(path: Path) -> None:
                                                      and r["method"] == method and r["iterations"] == it])))
             if len(points) > 1:
                 x, y = zip(*points, strict=True)
-                ax_s.plot(x, y, "o-", color=color, label=label, ls="--" if method.endswith("noise") else "-")
+                ax_s.plot(x, y, marker="o", color=color, label=label, ls="--" if method.endswith("noise") else "-")
             longest = [r for r in trained if r["task"] == task and r["method"] == method
                        and r["iterations"] == (its[-1] if its else None) and r.get("per_iteration")]
             for ax, key in ((ax_d, "disc_acc_expert"), (ax_r, "disc_reward")):
