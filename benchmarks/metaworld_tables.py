@@ -79,7 +79,7 @@ def _cell(rows: list[dict], task: str, method: str, iterations: int | None) -> t
 def _lead(a: float | None, b: float | None) -> str:
     if a is None or b is None:
         return "-"
-    lead = a - b
+    lead = round(a - b, 2)  # success rates are hundredths: 0.86 - 0.66 is a lead of 0.20, not 0.1999...
     return f"**{lead:+.2f}**" if lead >= 0.2 else f"{lead:+.2f}"
 
 

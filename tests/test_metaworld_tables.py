@@ -57,3 +57,8 @@ def test_rows_carry_the_budget_and_what_d_paid_per_iteration(tmp_path: Path) -> 
     assert row["success_rate"] == 0.97
     assert row["per_iteration"] == {"disc_acc_expert": [0.5, None], "disc_reward": [-0.77, -0.9],
                                     "sps": [2100.0, 2000.0]}
+
+
+def test_a_lead_of_exactly_two_tenths_counts_despite_float_rounding() -> None:
+    assert 0.86 - 0.66 < 0.2  # what binary floats make of it
+    assert tables._lead(0.86, 0.66) == "**+0.20**" and tables._lead(0.85, 0.66) == "+0.19"
