@@ -18,6 +18,8 @@
 #                 positive-unlabeled classifier (prior 0.5), D's inputs noised (sigma 0.15), D spectrally normalised,
 #                 optimal transport on D's view (no D), the same sub-task-aware (codes must match, else cost +1),
 #                 and that in order (time weight 1)
+#     -ote, -otse the transport of -ot / -ots with the Euclidean cost on Fetch's placing view (positions, heights
+#                 and fingers; no velocities) in place of the cosine on the relative view
 #     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
@@ -69,7 +71,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst)?(-anneal|-qf)?'
+SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -85,13 +87,16 @@ if [[ $METHOD == *-1m ]]; then  # the 100-iteration run first, then a copy of it
   exit 0
 fi
 ARGS=(); K=4
-case $METHOD in *-rel*) ARGS+=(--train.disc-obs relative) ;; esac
+case $METHOD in
+  *-ote*|*-otse*) ARGS+=(--train.disc-obs digail.envs.fetch:placing_view --train.imitation.ot-cost euclidean) ;;
+  *-rel*) ARGS+=(--train.disc-obs relative) ;;
+esac
 case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
 case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
 case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
 case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
-case $METHOD in *-ot-*|*-ot) ARGS+=(--train.imitation.kind ot) ;; esac
+case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote) ARGS+=(--train.imitation.kind ot) ;; esac
 case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac
 case $METHOD in *-otst*) ARGS+=(--train.imitation.ot-time-weight 1.0) ;; esac
 case $METHOD in *-anneal*) ARGS+=(--train.imitation.bc-schedule anneal) ;; esac

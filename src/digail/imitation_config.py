@@ -14,6 +14,9 @@ from digail.errors import UserError
 REWARD_KINDS = ("bce", "pu", "ot", "ot-subtask")
 """the names `--train.imitation.kind` takes (`digail.algos.rewards.REWARDS` has one row for each)"""
 
+OT_COSTS = ("cosine", "euclidean")
+"""the names `--train.imitation.ot-cost` takes (`digail.algos.rewards.ot.COSTS` has one row for each)"""
+
 BC_SCHEDULES = ("fixed", "anneal", "qfilter")
 """the names `--train.imitation.bc-schedule` takes"""
 
@@ -46,13 +49,17 @@ class ImitationConfig:
     """D-based rewards: L2 weight decay of D's Adam; 0: none"""
     ot_top_k: int = 1
     """`ot*`: how many of the closest demonstrations (lowest total transport cost) an episode's reward averages"""
+    ot_cost: Literal["cosine", "euclidean"] = "cosine"
+    """`ot*`: the distance between an agent step's features and a demonstration step's: `cosine` (ROT's: 1 - cos,
+    in [0, 2]), or `euclidean`, the root-mean-square difference per feature in units of the demonstrations' spread
+    (D's view is standardised on them), which grows with how far a step is from a demonstration's"""
     ot_epsilon: float = 0.05
-    """`ot*`: entropic regularisation of the Sinkhorn iterations (the costs are cosine distances, in [0, 2])"""
+    """`ot*`: entropic regularisation of the Sinkhorn iterations, in the cost's units"""
     ot_iterations: int = 50
     """`ot*`: Sinkhorn iterations (log domain)"""
     ot_scale: float = 1.0
     """`ot*`: the reward of an agent step is minus this times its transport cost (the cost its unit of mass
-    pays), so it lies in [-2 ot_scale, 0] whatever the episode's length"""
+    pays), so with the cosine it lies in [-2 ot_scale, 0] whatever the episode's length"""
     ot_code_penalty: float = 1.0
     """`ot-subtask`: cost added where the agent's code and the demonstration step's code differ (a mismatch the
     marginals force still costs, so a sub-task the agent skips or overstays shows in its reward)"""
@@ -66,6 +73,7 @@ class ImitationConfig:
 
     def __post_init__(self) -> None:
         _check(self.kind in REWARD_KINDS, "kind", "one of " + ", ".join(REWARD_KINDS), self.kind)
+        _check(self.ot_cost in OT_COSTS, "ot_cost", "one of " + ", ".join(OT_COSTS), self.ot_cost)
         _check(self.bc_schedule in BC_SCHEDULES, "bc_schedule", "one of " + ", ".join(BC_SCHEDULES),
                self.bc_schedule)
         _check(math.isfinite(self.pu_prior) and 0 < self.pu_prior < 1, "pu_prior", "between 0 and 1 (exclusive)",

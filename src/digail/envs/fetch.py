@@ -125,6 +125,15 @@ def relative_view(obs: Any) -> Any:
     return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:25]], -1)
 
 
+def placing_view(obs: Any) -> Any:
+    """The relative view without rotation and velocities (n, 10): the object from the gripper, the goal from the
+    object, the heights of gripper and object, and the fingers - where things are, so that a transport cost between
+    steps is not dominated by how fast they move. For `--train.disc-obs digail.envs.fetch:placing_view`."""
+    import torch
+
+    return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11]], -1)
+
+
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
     """`concat(observation, desired_goal)` as float64 (layout in the module docstring)."""
     return np.concatenate([np.asarray(obs["observation"], dtype=np.float64),

@@ -2,12 +2,12 @@
 no discriminator to saturate.
 
 For each demonstration, an entropic transport plan (Sinkhorn, log domain) between the episode's steps and the
-demonstration's, uniform mass on each side, on the cosine distance of D's view of the observations
-(`--train.disc-obs`). An agent step's reward is minus `ot_scale` times the cost its mass pays, averaged over the
-`ot_top_k` demonstrations the episode is cheapest to move onto. `ot-subtask` adds `ot_code_penalty` where the
-agent's code and the code q gave the demonstration step differ, so a step under sub-task c is matched to the
-demonstration's steps of sub-task c wherever the marginals allow. `ot_time_weight` adds a cost for matching steps
-far apart in episode time (the in-order variant).
+demonstration's, uniform mass on each side, on the cosine distance (or, with `ot_cost`, the Euclidean) of D's view of
+the observations (`--train.disc-obs`). An agent step's reward is minus `ot_scale` times the cost its mass pays,
+averaged over the `ot_top_k` demonstrations the episode is cheapest to move onto. `ot-subtask` adds `ot_code_penalty`
+where the agent's code and the code q gave the demonstration step differ, so a step under sub-task c is matched to the
+demonstration's steps of sub-task c wherever the marginals allow. `ot_time_weight` adds a cost for matching steps far
+apart in episode time (the in-order variant).
 
 Pieces of episodes (a PPO rollout cuts episodes at its ends; an off-policy run restarts its envs at checkpoints)
 are matched against the demonstrations' steps over the same stretch of episode time, which is exact for
@@ -57,8 +57,19 @@ def cosine_cost(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return 1.0 - xn @ yn.transpose(-1, -2)
 
 
+def euclidean_cost(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """The root-mean-square difference per feature of every pair, |x_i - y_j| / sqrt(F): x (..., n, F), y (..., m,
+    F) -> (..., n, m). On standardised features it is in units of the demonstrations' spread, and unlike the cosine
+    it grows with how far a step is from a demonstration's, not with the angle between them."""
+    return torch.cdist(x, y).div(math.sqrt(x.shape[-1]))
+
+
+COSTS = {"cosine": cosine_cost, "euclidean": euclidean_cost}
+"""the names `--train.imitation.ot-cost` takes"""
+
+
 def ot_step_rewards(agent: torch.Tensor, agent_mask: torch.Tensor, demos: torch.Tensor, demo_mask: torch.Tensor, *,
-                    epsilon: float, iterations: int, top_k: int, scale: float,
+                    epsilon: float, iterations: int, top_k: int, scale: float, metric: str = "cosine",
                     agent_codes: torch.Tensor | None = None, demo_codes: torch.Tensor | None = None,
                     code_penalty: float = 0.0, agent_times: torch.Tensor | None = None,
                     time_weight: float = 0.0, demo_lengths: torch.Tensor | None = None
@@ -72,13 +83,14 @@ def ot_step_rewards(agent: torch.Tensor, agent_mask: torch.Tensor, demos: torch.
         agent_codes: (S, L) int codes of the agent's steps; with `code_penalty` > 0 a pair whose codes differ
             costs that much more.
         demo_codes: (M, Ld) int codes of the demonstrations' steps.
+        metric: the distance between two steps' features, `cosine` (ROT's) or `euclidean` (`COSTS`).
         agent_times: (S, L) each step's time in its episode; with `time_weight` > 0 a pair costs that times
             |t_agent - t_demo| / (the demonstration's length, `demo_lengths` (M,), default Ld) more.
 
     Returns:
         (S, L) rewards (0 on padding) and (S, M) each piece's total transport cost to each demonstration.
     """
-    cost = cosine_cost(agent.unsqueeze(1), demos.unsqueeze(0))  # (S, M, L, Ld)
+    cost = COSTS[metric](agent.unsqueeze(1), demos.unsqueeze(0))  # (S, M, L, Ld)
     if code_penalty > 0 and agent_codes is not None and demo_codes is not None:
         cost = cost + code_penalty * (agent_codes[:, None, :, None] != demo_codes[None, :, None, :]).to(cost)
     if time_weight > 0 and agent_times is not None:
@@ -184,7 +196,7 @@ class OTReward:
                                       iterations=cfg.ot_iterations, top_k=cfg.ot_top_k, scale=cfg.ot_scale,
                                       agent_codes=agent_codes if self.subtask else None,
                                       demo_codes=codes if self.subtask else None,
-                                      code_penalty=cfg.ot_code_penalty, agent_times=times,
+                                      metric=cfg.ot_cost, code_penalty=cfg.ot_code_penalty, agent_times=times,
                                       time_weight=cfg.ot_time_weight, demo_lengths=lengths)
         out = [rews[i, :n] for i, n in enumerate(sizes.tolist())]
         self._last.extend(float(r.mean()) for r in out)
