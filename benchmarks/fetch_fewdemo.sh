@@ -10,6 +10,7 @@
 #   gail-l2    GAIL + L2 from a fresh policy
 #   each of the three with suffixes, in this order:
 #     -rel        D on Fetch's relative view (--train.disc-obs relative: no horizontal positions)
+#     -dist       D on Fetch's distances view (how far things are, not in which direction: distances_view)
 #     -gp-logit   D's gradient penalty 10 and the logit reward log D - log(1 - D)
 #     -argmax     (digail-l2 only) every training env takes q's argmax code on its own states, as evaluation
 #                 does (--train.replay-fraction 0 --train.closed-loop-codes argmax), instead of replaying the
@@ -20,6 +21,7 @@
 #                 and that in order (time weight 1)
 #     -ote, -otse the transport of -ot / -ots with the Euclidean cost on Fetch's placing view (positions, heights
 #                 and fingers; no velocities) in place of the cosine on the relative view
+#     -otd, -otsd the same on Fetch's distances view (how far things are, not in which direction)
 #     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
@@ -71,7 +73,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse)?(-anneal|-qf)?'
+SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -89,14 +91,16 @@ fi
 ARGS=(); K=4
 case $METHOD in
   *-ote*|*-otse*) ARGS+=(--train.disc-obs digail.envs.fetch:placing_view --train.imitation.ot-cost euclidean) ;;
+  *-otd*|*-otsd*) ARGS+=(--train.disc-obs digail.envs.fetch:distances_view --train.imitation.ot-cost euclidean) ;;
   *-rel*) ARGS+=(--train.disc-obs relative) ;;
+  *-dist*) ARGS+=(--train.disc-obs digail.envs.fetch:distances_view) ;;
 esac
 case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
 case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
 case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
 case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
-case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote) ARGS+=(--train.imitation.kind ot) ;; esac
+case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd) ARGS+=(--train.imitation.kind ot) ;; esac
 case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac
 case $METHOD in *-otst*) ARGS+=(--train.imitation.ot-time-weight 1.0) ;; esac
 case $METHOD in *-anneal*) ARGS+=(--train.imitation.bc-schedule anneal) ;; esac

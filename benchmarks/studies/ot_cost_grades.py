@@ -42,7 +42,7 @@ def main() -> None:
     from digail.algos.rewards.ot import ot_step_rewards, window_mask
     from digail.checkpoint import load_model
     from digail.commands.train import load_demos
-    from digail.envs.fetch import placing_view, relative_view
+    from digail.envs.fetch import distances_view, placing_view, relative_view
     from digail.eval.returns import run_episodes
 
     torch.set_num_threads(1)
@@ -58,7 +58,8 @@ def main() -> None:
     out: dict[str, object] = {"run": str(args.run), "episodes": args.episodes, "agent_success": float(success.mean()),
                               "demonstrations": 4, "held_out_episodes": "5-12"}
     print(f"agent success {success.mean():.2f} over {args.episodes} episodes", flush=True)
-    for view_name, view in (("relative", relative_view), ("placing", placing_view)):
+    for view_name, view in (("relative", relative_view), ("placing", placing_view),
+                            ("distances", distances_view)):
         feats = [view(torch.as_tensor(o)) for o in demo_obs]
         cat = torch.cat(feats)
         mean, std = cat.mean(0), cat.std(0).clamp_min(1e-6)

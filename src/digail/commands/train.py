@@ -202,8 +202,11 @@ def resume_args(run_dir: Path) -> TrainArgs:
 
 def check_recorded_view(run_dir: Path, recorded: str, named: str) -> None:
     """A run folder's D view of the user's own (`module:function` in config.json) is code the folder names: it is
-    imported only when this command line names the same view, else refused before anything is imported."""
-    if recorded in ("all", "relative") or named == recorded:
+    imported only when this command line names the same view, else refused before anything is imported. The views
+    digail ships (`SHIPPED_VIEWS`) are its own code and pass."""
+    from digail.algos.gail.discriminator import SHIPPED_VIEWS
+
+    if recorded in ("all", "relative") or recorded in SHIPPED_VIEWS or named == recorded:
         return
     raise UserError(f"{run_dir} was trained with D's view {recorded} (its config.json), code that digail runs only "
                     f"when you name it; resume with `digail train --resume {run_dir} --train.disc-obs {recorded}`.")

@@ -134,6 +134,19 @@ def placing_view(obs: Any) -> Any:
     return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11]], -1)
 
 
+def distances_view(obs: Any) -> Any:
+    """How far things are, not in which direction (n, 8): the gripper-to-object distance, the object-to-goal
+    distance horizontally and its height part, the heights of gripper and object, the fingers, and the gripper's
+    speed. A layout turned about the vertical axis looks the same, so a few demonstrations cover every placement.
+    For `--train.disc-obs digail.envs.fetch:distances_view`."""
+    import torch
+
+    to_goal = obs[:, 25:28] - obs[:, 3:6]
+    return torch.cat([obs[:, 6:9].norm(dim=-1, keepdim=True), to_goal[:, :2].norm(dim=-1, keepdim=True),
+                      to_goal[:, 2:3], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(dim=-1, keepdim=True)],
+                     -1)
+
+
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
     """`concat(observation, desired_goal)` as float64 (layout in the module docstring)."""
     return np.concatenate([np.asarray(obs["observation"], dtype=np.float64),

@@ -139,6 +139,11 @@ def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Ten
     return feats.float()
 
 
+SHIPPED_VIEWS = frozenset({"digail.envs.fetch:placing_view", "digail.envs.fetch:distances_view"})
+"""`module:function` views that digail itself ships beside the envs' relative views: a run folder that records one
+names no code of the user's, so resuming it needs no `--train.disc-obs`"""
+
+
 def obs_view(env_id: str, kind: str, normalizer: ObsNormalizer, demo_obs: np.ndarray) -> ObsView | None:
     """D's view of the observation for `--train.disc-obs kind`: None for `all`, the env's relative view for
     `relative`, or the user's function for `module:function`."""
