@@ -22,6 +22,7 @@
 #     -ote, -otse the transport of -ot / -ots with the Euclidean cost on Fetch's placing view (positions, heights
 #                 and fingers; no velocities) in place of the cosine on the relative view
 #     -otd, -otsd the same on Fetch's distances view (how far things are, not in which direction)
+#     -sonly      D judges states alone, not actions (--train.imitation.no-disc-actions)
 #     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
 #                 trained with the policy (lr 3e-4), the bonus off, K = 2 or 8 codes (their own VAE, bc_k2 / bc_k8)
@@ -73,7 +74,8 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   digail evaluate "$run" --episodes 100
 }
 
-SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd)?(-anneal|-qf)?'
+SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-sonly)?'
+SHAPE+='(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -98,6 +100,7 @@ esac
 case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward logit) ;; esac
 case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
 case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
+case $METHOD in *-sonly*) ARGS+=(--train.imitation.no-disc-actions) ;; esac
 case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
 case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd) ARGS+=(--train.imitation.kind ot) ;; esac

@@ -316,3 +316,29 @@ def test_sac_runs_each_reward_with_plain_gail(imitation):
             assert any(not torch.equal(a, b) for a, b in zip(before, t.disc.parameters(), strict=True))
     finally:
         t.close()
+
+
+@pytest.mark.parametrize("learner", ["ppo", "sac"])
+def test_a_state_only_d_ignores_the_action(circle_demos, learner):
+    """`disc_actions=False`: D's input is the state (or its view) alone, on the agent's rows and the expert's, so two
+    agent steps that differ only in their action get the same logit; D still trains on both learners."""
+    imitation = ImitationConfig(disc_actions=False)
+    if learner == "ppo":
+        t = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, imitation=imitation),
+                          vae_model=_vae(circle_demos), seed=0, run_dir=None, progress=False)
+    else:
+        t = _pendulum_trainer(imitation)
+    try:
+        obs_dim = t.expert.obs_n.shape[1]
+        assert t.expert_disc_in.shape[1] == obs_dim
+        assert t.disc.net[0].in_features == obs_dim
+        obs = t.expert.obs_n[:5]
+        acts = torch.randn(5, t.expert.disc_in.shape[1] - obs_dim)
+        torch.testing.assert_close(t.rewarder.logits(t.disc_input(obs, acts)),
+                                   t.rewarder.logits(t.disc_input(obs, -acts)))
+        before = [p.detach().clone() for p in t.disc.parameters()]
+        out = t.iterate()
+        assert math.isfinite(out["disc/loss"])
+        assert any(not torch.equal(a, b) for a, b in zip(before, t.disc.parameters(), strict=True))
+    finally:
+        t.close()

@@ -47,6 +47,10 @@ class ImitationConfig:
     """D-based rewards: dropout after each hidden layer of D during its updates (off when it scores); 0: none"""
     disc_weight_decay: float = 0.0
     """D-based rewards: L2 weight decay of D's Adam; 0: none"""
+    disc_actions: bool = True
+    """D-based rewards: whether D sees the action beside the state; off, D judges states alone (as GAIfO), so it
+    cannot tell the agent by how its sampled actions differ from the demonstrations' and grades only where the
+    agent goes"""
     ot_top_k: int = 1
     """`ot*`: how many of the closest demonstrations (lowest total transport cost) an episode's reward averages"""
     ot_cost: Literal["cosine", "euclidean"] = "cosine"

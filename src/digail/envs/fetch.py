@@ -142,9 +142,9 @@ def distances_view(obs: Any) -> Any:
     import torch
 
     to_goal = obs[:, 25:28] - obs[:, 3:6]
-    return torch.cat([obs[:, 6:9].norm(dim=-1, keepdim=True), to_goal[:, :2].norm(dim=-1, keepdim=True),
-                      to_goal[:, 2:3], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(dim=-1, keepdim=True)],
-                     -1)
+    norm = {"keepdim": True, "dim": -1}
+    return torch.cat([obs[:, 6:9].norm(**norm), to_goal[:, :2].norm(**norm), to_goal[:, 2:3], obs[:, 2:3],
+                      obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(**norm)], -1)
 
 
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -107,7 +107,8 @@ class GAIL:
         self.to_env_actions: Callable[[Any], Any] = env_action_fn(probe) or (lambda acts: acts)
         """sampled actions (NumPy or torch, differentiable) -> what the envs execute"""
         act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
-        self._act_in_dim = act_in_dim
+        self._act_in_dim = act_in_dim if cfg.imitation.disc_actions else 0
+        """the width of the action part of D's input (0: D judges states alone)"""
         self.iteration = 0
         self.global_step = 0
         self.rollout_state: RolloutState | None = None  # where the next rollout continues (None: fresh episodes)
@@ -139,7 +140,7 @@ class GAIL:
         self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
         """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
         expert_in = self.expert.disc_in
-        if self._absorbing or self.disc_view is not None:
+        if self._absorbing or self.disc_view is not None or not self._act_in_dim:
             expert_in = self.disc_input(expert_in[:, :obs_dim], expert_in[:, obs_dim:])
         if self._absorbing:
             ends = sum(bool(d.terminated) for d in demos)  # one absorbing row per demonstration that terminated
@@ -272,11 +273,13 @@ class GAIL:
 
     def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
         """D's input rows for (normalised obs, action as D sees it) pairs: [obs or its view, (absorbing flag 0,)
-        action]."""
+        action], the action left out where D judges states alone."""
         parts = [obs_n if self.disc_view is None else self.disc_view(obs_n)]
         if self._absorbing:
             parts.append(obs_n.new_zeros(len(obs_n), 1))
-        return torch.cat([*parts, act_in], -1)
+        if self._act_in_dim:
+            parts.append(act_in)
+        return torch.cat(parts, -1) if len(parts) > 1 else parts[0]
 
     def absorbing_row(self) -> torch.Tensor:
         """D's input (1, obs_dim + 1 + A) for the absorbing state: zero observation and action, flag 1."""
