@@ -4,11 +4,12 @@ that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (the reward v
     python benchmarks/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
         --out benchmarks/results/fetch_rewards.json --page docs/results.md
 
-Per run (`runs/fetchfew/d<N>/digail-l2-rel-argmax*_s<seed>`): the 100-episode evaluations after 30 iterations
-(122,880 env steps: the run's eval.json, or the eval.iteration-30.json a longer run keeps) and after 50 (204,800),
-the best periodic success (20 episodes every 5 iterations), and whether the reward still teaches: D's expert
-accuracy and the imitation reward per agent step (`rollout/disc_reward`) over iterations 1-5 and 26-30. The table
-goes between `<!-- fetch_rewards:start -->` and `<!-- fetch_rewards:end -->` in the page.
+Per run (`runs/fetchfew/d<N>/<method>_s<seed>` for each method of `LABELS`): the 100-episode evaluations after 30
+iterations (122,880 env steps: the run's eval.json, or the eval.iteration-30.json a longer run keeps) and after 50
+(204,800), the best periodic success (20 episodes every 5 iterations), and whether the reward still teaches: D's
+expert accuracy and the imitation reward per agent step (`rollout/disc_reward`) over iterations 1-5 and 26-30. The
+table goes between `<!-- fetch_rewards:start -->` and `<!-- fetch_rewards:end -->` in the page. A row whose run
+folder is not on this machine keeps its record from the results file (`--out`), so rows measured elsewhere stay.
 """
 
 from __future__ import annotations
@@ -24,18 +25,21 @@ from fetch_fewdemo import _command, _curve, _train_minutes
 
 BASE = "digail-l2-rel-argmax"
 LABELS = {
-    "": "today's best: D by binary cross-entropy (GAIL's)",
-    "-pu": "D positive-unlabeled (prior 0.5)",
-    "-noise": "D's inputs noised (sigma 0.15)",
-    "-sn": "D spectrally normalised",
-    "-ot": "optimal transport on D's view (no D)",
-    "-ots": "sub-task-aware optimal transport (no D)",
-    "-otst": "sub-task-aware optimal transport, in order (no D)",
-    "-anneal": "D by cross-entropy, BC weight annealed to 0",
-    "-ots-anneal": "sub-task-aware optimal transport, BC weight annealed to 0",
-    "-ot-anneal": "optimal transport, BC weight annealed to 0",
+    BASE: "today's best: D by binary cross-entropy (GAIL's)",
+    BASE + "-pu": "D positive-unlabeled (prior 0.5)",
+    BASE + "-noise": "D's inputs noised (sigma 0.15)",
+    BASE + "-sn": "D spectrally normalised",
+    BASE + "-sonly": "D judges states alone (no actions)",
+    "digail-l2-dist-argmax": "D on the distances view (no directions)",
+    BASE + "-ot": "optimal transport on D's view (no D)",
+    BASE + "-ots": "sub-task-aware optimal transport (no D)",
+    BASE + "-otst": "sub-task-aware optimal transport, in order (no D)",
+    "digail-l2-argmax-otd": "optimal transport, Euclidean cost on the distances view (no D)",
+    BASE + "-anneal": "D by cross-entropy, BC weight annealed to 0",
+    BASE + "-ots-anneal": "sub-task-aware optimal transport, BC weight annealed to 0",
+    BASE + "-ot-anneal": "optimal transport, BC weight annealed to 0",
 }
-"""suffix after `digail-l2-rel-argmax` -> what the row changes"""
+"""method (`fetch_fewdemo.sh`'s name) -> what the row changes against today's best"""
 
 
 def _column(rows: list[dict[str, str]], key: str, first: int, last: int) -> float | None:
@@ -56,18 +60,22 @@ def _evaluation(run: Path, iterations: int) -> dict[str, Any] | None:
     return None
 
 
-def collect(root: Path, demos: int, seed: int) -> list[dict[str, Any]]:
+def collect(root: Path, demos: int, seed: int, kept: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """The rows, in `LABELS`' order: from the run folders under `root`, else from `kept` (earlier records)."""
     out = []
-    for suffix, label in LABELS.items():
-        run = root / f"d{demos}" / f"{BASE}{suffix}_s{seed}"
+    earlier = {(r["method"], r["demos"], r["seed"]): r for r in kept or []}
+    for method, label in LABELS.items():
+        run = root / f"d{demos}" / f"{method}_s{seed}"
         metrics = run / "metrics.csv"
         if not metrics.is_file():
+            if (method, demos, seed) in earlier:
+                out.append({**earlier[(method, demos, seed)], "label": label})
             continue
         with metrics.open() as f:
             rows = list(csv.DictReader(f))
         curve = _curve(run)
         rec: dict[str, Any] = {
-            "method": BASE + suffix, "label": label, "demos": demos, "seed": seed, "run": str(run),
+            "method": method, "label": label, "demos": demos, "seed": seed, "run": str(run),
             "command": _command(run, "benchmarks/fetch_fewdemo.sh"), "curve": curve,
             "env_steps": max((float(r["step"]) for r in rows), default=0.0),
             "train_minutes": _train_minutes(run),
@@ -113,7 +121,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_rewards.json"))
     parser.add_argument("--page", type=Path, help="a page with the table's markers, rewritten in place")
     args = parser.parse_args()
-    records = collect(args.root, args.demos, args.seed)
+    kept = json.loads(args.out.read_text())["runs"] if args.out.is_file() else []
+    records = collect(args.root, args.demos, args.seed, kept)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4", "dataset":
                                     "digail/fetchpickandplace/expert-v0", "runs": records}, indent=1) + "\n")

@@ -51,3 +51,10 @@ def test_screen_rows_say_whether_the_reward_still_teaches(tmp_path: Path) -> Non
     assert base_row in table
     assert "| sub-task-aware optimal transport (no D) | 0.06 / - |" in table and "| no D | -1.200 / -0.800 |" in table
     assert "| D positive-unlabeled (prior 0.5) | - / running |" in table
+    # a row whose run folder is elsewhere keeps its recorded record; one found here replaces its record
+    kept = [{**base, "method": "digail-l2-rel-argmax-noise", "label": "old"}, {**pu, "status": "old"}]
+    again = {r["method"]: r for r in fetch_rewards.collect(tmp_path, 4, 0, kept)}
+    assert again["digail-l2-rel-argmax-noise"]["eval_50"]["success_rate"] == 0.12
+    assert again["digail-l2-rel-argmax-noise"]["label"] == "D's inputs noised (sigma 0.15)"
+    assert again["digail-l2-rel-argmax-pu"]["status"] == "running"
+    assert list(again)[:3] == ["digail-l2-rel-argmax", "digail-l2-rel-argmax-pu", "digail-l2-rel-argmax-noise"]
