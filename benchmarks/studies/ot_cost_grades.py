@@ -1,7 +1,8 @@
 """Which transport cost grades placing on Fetch? The `ot` reward of a trained agent's episodes, by view and cost.
 
     MUJOCO_GL=egl python benchmarks/studies/ot_cost_grades.py \
-        --run runs/fetchfew/d4/digail-l2-rel-argmax-ot-qf-sacfast_s0 --episodes 40 \
+        --run runs/fetchfew/d4/digail-l2-rel-argmax-ot-qf-sacfast_s0 \
+              benchmarks/results/runs/fetch4_digail-l2-rel-argmax-1m_s1 --episodes 40 \
         --out benchmarks/studies/results/ot_cost_grades.json
 
 The agent's evaluation episodes (deterministic, closed-loop q, seeds 10000 on, as `digail evaluate`) and the
@@ -35,29 +36,41 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--run", type=Path, required=True, help="a trained 4-demonstration Fetch run folder")
+    parser.add_argument("--run", type=Path, nargs="+", required=True,
+                        help="trained 4-demonstration Fetch run folders")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
-    from digail.algos.rewards.ot import ot_step_rewards, window_mask
-    from digail.checkpoint import load_model
     from digail.commands.train import load_demos
-    from digail.envs.fetch import distances_view, placing_view, relative_view
-    from digail.eval.returns import run_episodes
 
     torch.set_num_threads(1)
     demos, env_id = load_demos(DATASET, episodes=4)
     held_out = load_demos(DATASET, episodes=12)[0][4:12]
-    model, _ = load_model(args.run / "model.pt")
-    played = run_episodes(model, env_id, args.episodes, 10000, deterministic=True, keep_obs=args.episodes)
+    out: dict[str, object] = {"demonstrations": 4, "held_out_episodes": "5-12", "episodes": args.episodes}
+    for run in args.run:
+        out[str(run)] = grades(run, args.episodes, demos, held_out, env_id)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(out, indent=1) + "\n")
+        print(f"wrote {args.out}")
+
+
+def grades(run: Path, episodes: int, demos: list, held_out: list, env_id: str) -> dict[str, object]:
+    """One run's table: per view, cost and time weight, the mean rewards and how they rank the agent's episodes."""
+    from digail.algos.rewards.ot import ot_step_rewards, window_mask
+    from digail.checkpoint import load_model
+    from digail.envs.fetch import distances_view, placing_view, relative_view
+    from digail.eval.returns import run_episodes
+
+    model, _ = load_model(run / "model.pt")
+    played = run_episodes(model, env_id, episodes, 10000, deterministic=True, keep_obs=episodes)
     success = np.array([bool(e.final_info.get("is_success")) for e in played])
     final_dist = np.array([-e.info_values["dense_reward"][-1] for e in played])
     agent_obs = [np.asarray(e.obs[:-1], np.float32) for e in played]
     expert_obs = [np.asarray(t.obs[:-1], np.float32) for t in held_out]
     demo_obs = [np.asarray(t.obs[:-1], np.float32) for t in demos]
-    out: dict[str, object] = {"run": str(args.run), "episodes": args.episodes, "agent_success": float(success.mean()),
-                              "demonstrations": 4, "held_out_episodes": "5-12"}
-    print(f"agent success {success.mean():.2f} over {args.episodes} episodes", flush=True)
+    out: dict[str, object] = {"agent_success": float(success.mean())}
+    print(f"{run}: agent success {success.mean():.2f} over {episodes} episodes", flush=True)
     for view_name, view in (("relative", relative_view), ("placing", placing_view),
                             ("distances", distances_view)):
         feats = [view(torch.as_tensor(o)) for o in demo_obs]
@@ -92,10 +105,7 @@ def main() -> None:
                 name = f"{view_name}/{cost}/time{time_weight:g}"
                 out[name] = row
                 print(f"{name:30s} {row}", flush=True)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(out, indent=1) + "\n")
-        print(f"wrote {args.out}")
+    return out
 
 
 if __name__ == "__main__":
