@@ -3,6 +3,9 @@ kept by the Q-filter. Reads the run folders `benchmarks/fetch_fewdemo.sh` wrote 
 
     benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-ot-qf-sacfast 0 150
     benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-ots-qf-sacfast 0 150   # then continued: ... 0 300
+    benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-ot-qf-sacfast 0 150
+    benchmarks/fetch_fewdemo.sh 1 digail-l2-rel-argmax-ot-qf-sacfast 0 150
+    benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax-otd-qf-sacfast 0 150      # then continued: 300, 500
     python benchmarks/fetch_rot_screen.py runs/fetchfew --out benchmarks/results/fetch_rot_screen.json
 
 Per run: the 100-episode evaluations (after 150k env steps, `eval.iteration-150.json` where the run was continued,
@@ -19,8 +22,15 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-METHODS = {"digail-l2-rel-argmax-ot-qf-sacfast": "optimal transport on D's view, BC Q-filtered, SAC",
-           "digail-l2-rel-argmax-ots-qf-sacfast": "sub-task-aware optimal transport, BC Q-filtered, SAC"}
+METHODS = (
+    (4, "digail-l2-rel-argmax-ot-qf-sacfast", "optimal transport on D's view, BC Q-filtered, SAC"),
+    (4, "digail-l2-rel-argmax-ots-qf-sacfast", "sub-task-aware optimal transport, BC Q-filtered, SAC"),
+    (4, "flatbc-l2-rel-ot-qf-sacfast", "the first row from the flat behaviour-cloned start (one code)"),
+    (1, "digail-l2-rel-argmax-ot-qf-sacfast", "the first row with 1 demonstration"),
+    (4, "digail-l2-argmax-otd-qf-sacfast",
+     "optimal transport, Euclidean cost on the distances view, BC Q-filtered, SAC"),
+)
+"""(demonstrations, method of `fetch_fewdemo.sh`, what the row is), in the table's order"""
 EVAL_KEYS = ("success_rate", "grasp_rate", "lift_rate")
 
 
@@ -29,9 +39,9 @@ def _median(records: list[dict[str, str]], key: str) -> float | None:
     return round(statistics.median(values), 3) if values else None
 
 
-def collect(root: Path, demos: int, seed: int) -> list[dict[str, Any]]:
+def collect(root: Path, seed: int) -> list[dict[str, Any]]:
     rows = []
-    for method, what in METHODS.items():
+    for demos, method, what in METHODS:
         run = root / f"d{demos}" / f"{method}_s{seed}"
         if not (run / "eval.json").is_file():
             continue
@@ -56,9 +66,9 @@ def collect(root: Path, demos: int, seed: int) -> list[dict[str, Any]]:
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| reward and learner | env steps | success | grasp | lift | periodic success, best | transport reward "
-             "per step, first / last 10 iterations | BC kept by the Q-filter, first / last 10 |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| reward and learner | demonstrations | env steps | success | grasp | lift | periodic success, best "
+             "| transport reward per step, first / last 10 iterations | BC kept by the Q-filter, first / last 10 |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for row in rows:
         last = list(row["evaluations"])[-1]
         for steps, ev in row["evaluations"].items():
@@ -66,7 +76,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             over = (f"{row['periodic_success_max']:.2f} | {row['ot_reward_per_step_first10']:.3f} / "
                     f"{row['ot_reward_per_step_last10']:.3f} | {row['bc_kept_first10']:.2f} / "
                     f"{row['bc_kept_last10']:.2f}") if steps == last else "(the run continued below) | | "
-            lines.append(f"| {row['what']} | {int(steps) // 1000}k | {ev['success_rate']:.2f} | "
+            lines.append(f"| {row['what']} | {row['demos']} | {int(steps) // 1000}k | {ev['success_rate']:.2f} | "
                          f"{ev['grasp_rate']:.2f} | {ev['lift_rate']:.2f} | {over} |")
     return "\n".join(lines)
 
@@ -74,11 +84,10 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path, help="the folder holding d<N>/<method>_s<seed> run folders")
-    parser.add_argument("--demos", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
-    rows = collect(args.root, args.demos, args.seed)
+    rows = collect(args.root, args.seed)
     if args.out:
         args.out.write_text(json.dumps({"rows": rows}, indent=1) + "\n")
     print(markdown(rows))
