@@ -34,6 +34,9 @@
 #     -sacfast    the same on the cheaper schedule of benchmarks/sac_fetch_speed.py: one update every 4 env steps
 #                 (--train.sac.utd 0.25), D every 4 on a minibatch of 1024
 #   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac, digail-l2-rel-argmax-1m
+# FETCH_OBS=relative: the same on digail/FetchPickAndPlaceRelative-v4 (observed in the relative view, its own copy of
+#   the demonstrations: digail/fetchpickandplacerelative/expert-v0), run folders under runs/fetchfew-rel/dN; D sees
+#   all of that observation, so methods there take no -rel.
 # A job whose eval.json exists is done; a training with a config.json is resumed from its last checkpoint, and one
 # made with fewer than ITERATIONS is continued to ITERATIONS (`digail train --resume RUN --until ITERATIONS`).
 # Every training: PPO (the fetch preset: batch 4096 over 8 envs), BC / L2 weight 1.0, ITERATIONS (default 100, i.e.
@@ -41,8 +44,11 @@
 set -euo pipefail
 N=$1; METHOD=$2; S=$3
 case $METHOD in *-sac|*-sacfast) ITERS=${4:-400}; EVERY=20 ;; *) ITERS=${4:-100}; EVERY=5 ;; esac
-D=digail/fetchpickandplace/expert-v0
-ROOT=runs/fetchfew/d$N
+case ${FETCH_OBS:-flat} in
+  flat) D=digail/fetchpickandplace/expert-v0; ROOT=runs/fetchfew/d$N ;;
+  relative) D=digail/fetchpickandplacerelative/expert-v0; ROOT=runs/fetchfew-rel/d$N ;;
+  *) echo "FETCH_OBS must be flat or relative" >&2; exit 2 ;;
+esac
 mkdir -p "$ROOT"
 export MUJOCO_GL=${MUJOCO_GL:-egl}
 

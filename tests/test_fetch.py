@@ -148,3 +148,34 @@ def test_fetch_smoke_pipeline_pretrain_digail_l2_evaluate(tmp_path) -> None:
         assert np.isfinite(ev[key]), key
     assert ev["mean_return"] == ev["dense_return"] and ev["episodes"] == 3
     assert ev["expert"]["success_rate"] == 1.0 and ev["expert"]["grasp_rate"] == 1.0
+
+
+def test_relative_env_plays_the_same_episode_in_the_relative_view() -> None:
+    """The scripted expert on the relative env and on the flat one, same seed: the same actions, labels and
+    success, and each relative observation is `relative_view` of the flat one; the shipped demonstrations of the
+    two are the same episodes."""
+    import torch
+
+    from digail.commands.train import load_demos
+    from digail.envs import make_env
+    from digail.envs.fetch import FETCH_RELATIVE_ENV_ID, RELATIVE_DIM, relative_view
+
+    flat_env = _make()
+    rel_env = make_env(FETCH_RELATIVE_ENV_ID)
+    try:
+        assert rel_env.observation_space.shape == (RELATIVE_DIM,)
+        flat_labels, flat_ok, flat_obs = _episode(flat_env, 3)
+        rel_labels, rel_ok, rel_obs = _episode(rel_env, 3)
+    finally:
+        flat_env.close()
+        rel_env.close()
+    assert rel_labels == flat_labels and rel_ok and flat_ok
+    want = relative_view(torch.as_tensor(np.array(flat_obs))).numpy()
+    np.testing.assert_allclose(np.array(rel_obs), want, atol=1e-12)
+    flat_demos, _ = load_demos("digail/fetchpickandplace/expert-v0", episodes=2)
+    rel_demos, env_id = load_demos("digail/fetchpickandplacerelative/expert-v0", episodes=2)
+    assert env_id == FETCH_RELATIVE_ENV_ID
+    for f, r in zip(flat_demos, rel_demos, strict=True):
+        np.testing.assert_allclose(np.asarray(r.obs), relative_view(torch.as_tensor(np.asarray(f.obs))).numpy(),
+                                   atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(r.acts), np.asarray(f.acts))

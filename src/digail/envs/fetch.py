@@ -58,6 +58,8 @@ import gymnasium as gym
 import numpy as np
 
 FETCH_ENV_ID = "digail/FetchPickAndPlace-v4"
+FETCH_RELATIVE_ENV_ID = "digail/FetchPickAndPlaceRelative-v4"
+"""the same task observed in the relative view (`RelativeFetchPickAndPlace`)"""
 INNER_ENV_ID = "FetchPickAndPlace-v4"
 MAX_EPISODE_STEPS = 50
 
@@ -115,6 +117,14 @@ def task_info(obs: np.ndarray, rest_height: float, grasped: bool) -> dict[str, A
             "lifted": bool(obj[2] - rest_height > LIFTED)}
 
 
+def _relative_parts(obs: Any) -> list[Any]:
+    """The relative view's pieces of flat observations (n, 28), NumPy or torch alike."""
+    return [obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:25]]
+
+
+RELATIVE_DIM = 24
+
+
 def relative_view(obs: Any) -> Any:
     """What a discriminator sees of flat observations (n, 28) under `--train.disc-obs relative`: the object from the
     gripper, the goal from the object, the heights of gripper and object, and fingers, rotation and velocities
@@ -122,7 +132,7 @@ def relative_view(obs: Any) -> Any:
     the agent by where their objects and goals happened to lie. Takes and returns torch tensors."""
     import torch
 
-    return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:25]], -1)
+    return torch.cat(_relative_parts(obs), -1)
 
 
 def placing_view(obs: Any) -> Any:
@@ -218,3 +228,25 @@ class FlatFetchPickAndPlace(gym.Env):
 
     def close(self) -> None:
         self.fetch.close()
+
+
+class RelativeFetchPickAndPlace(FlatFetchPickAndPlace):
+    """`digail/FetchPickAndPlaceRelative-v4`: the same env observed in the relative view (24 numbers, the layout of
+    `relative_view`): the object from the gripper, the goal from the object, the heights of gripper and object,
+    then fingers, rotation and velocities as in the flat observation. No horizontal position is observed, and the
+    actions move the gripper in world coordinates, so a policy here is the same wherever the object and the goal
+    lie: what a few demonstrations show holds across the table. Dynamics, actions, rewards, infos and phase labels
+    are the flat env's; `last_obs` stays the flat observation (the scripted expert reads it)."""
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        super().__init__(render_mode=render_mode, **kwargs)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(RELATIVE_DIM,), dtype=np.float64)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+        flat, info = super().reset(seed=seed, options=options)
+        return np.concatenate(_relative_parts(flat[None]), -1)[0], info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        flat, reward, terminated, truncated, info = super().step(action)
+        return np.concatenate(_relative_parts(flat[None]), -1)[0], reward, terminated, truncated, info

@@ -137,6 +137,12 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
             labels=("reach", "grasp", "carry", "place"), relative_view="digail.envs.fetch:relative_view"),
+    # the same task observed without horizontal positions (relations only): D's view is then all of it
+    EnvSpec("digail/FetchPickAndPlaceRelative-v4", "fetch", 50, "digail.envs.fetch:RelativeFetchPickAndPlace", 50,
+            step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
+                          StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
+            eval_return="dense_return", reward_name="sparse_return", auto_backend="sync",
+            name="Fetch pick-and-place, relative observation", labels=("reach", "grasp", "carry", "place")),
     EnvSpec("FetchPickAndPlace-v4", "fetch", 500),
     # four legs, one per landmark; `order=...` (make_env) sets a route the demonstrations never showed
     EnvSpec("digail/LandmarkRoute-v0", "landmark-route", 100, "digail.envs.landmark_route:LandmarkRouteEnv", 400,

@@ -127,6 +127,7 @@ SCRIPTED_EXPERTS: dict[str, Callable[[gym.Env], Any]] = {
     "digail/FourRooms-v0": four_rooms_expert,
     "digail/CircleWorld-v0": circle_expert,
     "digail/FetchPickAndPlace-v4": fetch_expert,
+    "digail/FetchPickAndPlaceRelative-v4": fetch_expert,
     "digail/LandmarkRoute-v0": route_expert,
     **METAWORLD_EXPERTS,
 }
