@@ -22,6 +22,7 @@
 #     -ote, -otse the transport of -ot / -ots with the Euclidean cost on Fetch's placing view (positions, heights
 #                 and fingers; no velocities) in place of the cosine on the relative view
 #     -otd, -otsd the same on Fetch's distances view (how far things are, not in which direction)
+#     -otl        the same on the distances view with the distances on a log scale (log_distances_view)
 #     -sonly      D judges states alone, not actions (--train.imitation.no-disc-actions)
 #     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
@@ -81,7 +82,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
 }
 
 SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-sonly)?'
-SHAPE+='(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd)?(-anneal|-qf)?'
+SHAPE+='(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd|-otl)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -100,6 +101,7 @@ ARGS=(); K=4
 case $METHOD in
   *-ote*|*-otse*) ARGS+=(--train.disc-obs digail.envs.fetch:placing_view --train.imitation.ot-cost euclidean) ;;
   *-otd*|*-otsd*) ARGS+=(--train.disc-obs digail.envs.fetch:distances_view --train.imitation.ot-cost euclidean) ;;
+  *-otl*) ARGS+=(--train.disc-obs digail.envs.fetch:log_distances_view --train.imitation.ot-cost euclidean) ;;
   *-rel*) ARGS+=(--train.disc-obs relative) ;;
   *-dist*) ARGS+=(--train.disc-obs digail.envs.fetch:distances_view) ;;
 esac
@@ -109,7 +111,7 @@ case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
 case $METHOD in *-sonly*) ARGS+=(--train.imitation.no-disc-actions) ;; esac
 case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
-case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd) ARGS+=(--train.imitation.kind ot) ;; esac
+case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd|*-otl-*|*-otl) ARGS+=(--train.imitation.kind ot) ;; esac
 case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac
 case $METHOD in *-otst*) ARGS+=(--train.imitation.ot-time-weight 1.0) ;; esac
 case $METHOD in *-anneal*) ARGS+=(--train.imitation.bc-schedule anneal) ;; esac

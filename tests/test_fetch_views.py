@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from digail.commands.train import check_recorded_view
-from digail.envs.fetch import distances_view, placing_view, relative_view
+from digail.envs.fetch import distances_view, log_distances_view, placing_view, relative_view
 from digail.errors import UserError
 
 
@@ -30,6 +30,7 @@ def test_distances_view_is_the_same_for_a_turned_layout_and_the_others_are_not()
     obs[:, 6:9] = obs[:, 3:6] - obs[:, 0:3]
     turned = _turn(obs, 1.1)
     torch.testing.assert_close(distances_view(turned), distances_view(obs))
+    torch.testing.assert_close(log_distances_view(turned), log_distances_view(obs))
     assert not torch.allclose(relative_view(turned), relative_view(obs))
     assert not torch.allclose(placing_view(turned), placing_view(obs))
     dist = distances_view(obs)
@@ -37,6 +38,10 @@ def test_distances_view_is_the_same_for_a_turned_layout_and_the_others_are_not()
     torch.testing.assert_close(dist[:, 0], (obs[:, 3:6] - obs[:, 0:3]).norm(dim=-1))  # gripper to object
     torch.testing.assert_close(dist[:, 1], (obs[:, 25:27] - obs[:, 3:5]).norm(dim=-1))  # object to goal, across
     torch.testing.assert_close(dist[:, 2], obs[:, 27] - obs[:, 5])  # goal above the object
+    logd = log_distances_view(obs)
+    torch.testing.assert_close(logd[:, 0], (dist[:, 0] + 0.01).log())
+    torch.testing.assert_close(logd[:, 1], ((obs[:, 25:28] - obs[:, 3:6]).norm(dim=-1) + 0.01).log())  # in 3-D
+    torch.testing.assert_close(logd[:, 2:], dist[:, 2:])
     place = placing_view(obs)
     assert place.shape == (6, 10)
     torch.testing.assert_close(place[:, 3:6], obs[:, 25:28] - obs[:, 3:6])
@@ -46,5 +51,6 @@ def test_a_run_recording_a_shipped_view_resumes_without_naming_it():
     run = Path("runs/x")
     check_recorded_view(run, "digail.envs.fetch:distances_view", "all")
     check_recorded_view(run, "digail.envs.fetch:placing_view", "relative")
+    check_recorded_view(run, "digail.envs.fetch:log_distances_view", "all")
     with pytest.raises(UserError, match="code that digail runs only when you name it"):
         check_recorded_view(run, "myviews:view", "all")

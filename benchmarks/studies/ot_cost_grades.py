@@ -59,7 +59,7 @@ def grades(run: Path, episodes: int, demos: list, held_out: list, env_id: str) -
     """One run's table: per view, cost and time weight, the mean rewards and how they rank the agent's episodes."""
     from digail.algos.rewards.ot import ot_step_rewards, window_mask
     from digail.checkpoint import load_model
-    from digail.envs.fetch import distances_view, placing_view, relative_view
+    from digail.envs.fetch import distances_view, log_distances_view, placing_view, relative_view
     from digail.eval.returns import run_episodes
 
     model, _ = load_model(run / "model.pt")
@@ -72,7 +72,7 @@ def grades(run: Path, episodes: int, demos: list, held_out: list, env_id: str) -
     out: dict[str, object] = {"agent_success": float(success.mean())}
     print(f"{run}: agent success {success.mean():.2f} over {episodes} episodes", flush=True)
     for view_name, view in (("relative", relative_view), ("placing", placing_view),
-                            ("distances", distances_view)):
+                            ("distances", distances_view), ("log_distances", log_distances_view)):
         feats = [view(torch.as_tensor(o)) for o in demo_obs]
         cat = torch.cat(feats)
         mean, std = cat.mean(0), cat.std(0).clamp_min(1e-6)

@@ -157,6 +157,18 @@ def distances_view(obs: Any) -> Any:
                       obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(**norm)], -1)
 
 
+def log_distances_view(obs: Any) -> Any:
+    """The distances view with the gripper-to-object and object-to-goal distances on a log scale (log of metres plus
+    1 cm), so that 2 cm against 10 cm from the goal weighs as much as 10 cm against 50: what decides success (within
+    5 cm) is graded, not only the way there. For `--train.disc-obs digail.envs.fetch:log_distances_view`."""
+    import torch
+
+    to_goal = obs[:, 25:28] - obs[:, 3:6]
+    norm = {"keepdim": True, "dim": -1}
+    return torch.cat([(obs[:, 6:9].norm(**norm) + 0.01).log(), (to_goal.norm(**norm) + 0.01).log(), to_goal[:, 2:3],
+                      obs[:, 2:3], obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(**norm)], -1)
+
+
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
     """`concat(observation, desired_goal)` as float64 (layout in the module docstring)."""
     return np.concatenate([np.asarray(obs["observation"], dtype=np.float64),

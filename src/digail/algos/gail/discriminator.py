@@ -139,7 +139,8 @@ def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Ten
     return feats.float()
 
 
-SHIPPED_VIEWS = frozenset({"digail.envs.fetch:placing_view", "digail.envs.fetch:distances_view"})
+SHIPPED_VIEWS = frozenset({"digail.envs.fetch:placing_view", "digail.envs.fetch:distances_view",
+                           "digail.envs.fetch:log_distances_view"})
 """`module:function` views that digail itself ships beside the envs' relative views: a run folder that records one
 names no code of the user's, so resuming it needs no `--train.disc-obs`"""
 
