@@ -35,11 +35,13 @@ LABELS = {
     BASE + "-ots": "sub-task-aware optimal transport (no D)",
     BASE + "-otst": "sub-task-aware optimal transport, in order (no D)",
     "digail-l2-argmax-otd": "optimal transport, Euclidean cost on the distances view (no D)",
+    "relative:digail-l2-argmax": "today's best on Fetch observed in the relative view (the policy too)",
     BASE + "-anneal": "D by cross-entropy, BC weight annealed to 0",
     BASE + "-ots-anneal": "sub-task-aware optimal transport, BC weight annealed to 0",
     BASE + "-ot-anneal": "optimal transport, BC weight annealed to 0",
 }
-"""method (`fetch_fewdemo.sh`'s name) -> what the row changes against today's best"""
+"""method (`fetch_fewdemo.sh`'s name; `relative:` for a run on the relative-observation env, FETCH_OBS=relative,
+whose folders sit beside ROOT in ROOT-rel) -> what the row changes against today's best"""
 
 
 def _column(rows: list[dict[str, str]], key: str, first: int, last: int) -> float | None:
@@ -65,7 +67,8 @@ def collect(root: Path, demos: int, seed: int, kept: list[dict[str, Any]] | None
     out = []
     earlier = {(r["method"], r["demos"], r["seed"]): r for r in kept or []}
     for method, label in LABELS.items():
-        run = root / f"d{demos}" / f"{method}_s{seed}"
+        obs, _, name = method.rpartition(":")
+        run = (root.with_name(root.name + "-rel") if obs == "relative" else root) / f"d{demos}" / f"{name}_s{seed}"
         metrics = run / "metrics.csv"
         if not metrics.is_file():
             if (method, demos, seed) in earlier:
@@ -76,7 +79,8 @@ def collect(root: Path, demos: int, seed: int, kept: list[dict[str, Any]] | None
         curve = _curve(run)
         rec: dict[str, Any] = {
             "method": method, "label": label, "demos": demos, "seed": seed, "run": str(run),
-            "command": _command(run, "benchmarks/fetch_fewdemo.sh"), "curve": curve,
+            "command": ("FETCH_OBS=relative " if obs == "relative" else "")
+            + _command(run, "benchmarks/fetch_fewdemo.sh"), "curve": curve,
             "env_steps": max((float(r["step"]) for r in rows), default=0.0),
             "train_minutes": _train_minutes(run),
             "disc_acc_expert_it1_5": _column(rows, "disc/acc_expert", 1, 5),

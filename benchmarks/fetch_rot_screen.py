@@ -6,6 +6,7 @@ kept by the Q-filter. Reads the run folders `benchmarks/fetch_fewdemo.sh` wrote 
     benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-ot-qf-sacfast 0 150
     benchmarks/fetch_fewdemo.sh 1 digail-l2-rel-argmax-ot-qf-sacfast 0 150
     benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax-otd-qf-sacfast 0 150      # then continued: 300, 500
+    benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax-otl-qf-sacfast 0 300
     python benchmarks/fetch_rot_screen.py runs/fetchfew --out benchmarks/results/fetch_rot_screen.json
 
 Per run: the 100-episode evaluations (after 150k env steps, `eval.iteration-150.json` where the run was continued,
@@ -29,6 +30,7 @@ METHODS = (
     (1, "digail-l2-rel-argmax-ot-qf-sacfast", "the first row with 1 demonstration"),
     (4, "digail-l2-argmax-otd-qf-sacfast",
      "optimal transport, Euclidean cost on the distances view, BC Q-filtered, SAC"),
+    (4, "digail-l2-argmax-otl-qf-sacfast", "the same on the log-distances view"),
 )
 """(demonstrations, method of `fetch_fewdemo.sh`, what the row is), in the table's order"""
 EVAL_KEYS = ("success_rate", "grasp_rate", "lift_rate")

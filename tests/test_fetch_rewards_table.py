@@ -57,4 +57,9 @@ def test_screen_rows_say_whether_the_reward_still_teaches(tmp_path: Path) -> Non
     assert again["digail-l2-rel-argmax-noise"]["eval_50"]["success_rate"] == 0.12
     assert again["digail-l2-rel-argmax-noise"]["label"] == "D's inputs noised (sigma 0.15)"
     assert again["digail-l2-rel-argmax-pu"]["status"] == "running"
+    # a run on the relative-observation env sits beside the root, in <root>-rel
+    _run(tmp_path.with_name(tmp_path.name + "-rel") / "d4", "digail-l2-argmax_s0", acc, [0.3] * 50, 0.2)
+    rel = {r["method"]: r for r in fetch_rewards.collect(tmp_path, 4, 0)}["relative:digail-l2-argmax"]
+    assert rel["eval_50"]["success_rate"] == 0.2
+    assert rel["command"] == "FETCH_OBS=relative benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax 0 50"
     assert list(again)[:3] == ["digail-l2-rel-argmax", "digail-l2-rel-argmax-pu", "digail-l2-rel-argmax-noise"]
