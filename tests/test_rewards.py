@@ -301,7 +301,8 @@ def test_anneal_decays_the_bc_weight_to_zero(circle_demos):
 
 
 @pytest.mark.parametrize("imitation", [ImitationConfig(kind="pu", disc_noise=0.1, spectral_norm=True, disc_dropout=0.1),
-                                       ImitationConfig(kind="ot", ot_time_weight=0.5)])
+                                       ImitationConfig(kind="ot", ot_time_weight=0.5),
+                                       ImitationConfig(kind="ot", ot_cost="euclidean")])
 def test_sac_runs_each_reward_with_plain_gail(imitation):
     """Off-policy, one code: the regularised PU step updates D; the transport reward trains with no D at all."""
     t = _pendulum_trainer(imitation)
