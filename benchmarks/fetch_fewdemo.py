@@ -141,27 +141,31 @@ def _command(run: Path, script: str) -> str:
     return shlex.join(words)
 
 
+def record(run: Path, task: str = "fetch") -> dict[str, Any]:
+    """One run folder's record: what it is, its learning curve, its late D scalars and its evaluation."""
+    name, _, seed = run.name.rpartition("_s")
+    curve = _curve(run)
+    rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
+                           "run": str(run), "command": _command(run, str(TASKS[task]["script"])), "curve": curve,
+                           "env_steps": curve[-1][0] if curve else 0.0, "train_minutes": _train_minutes(run),
+                           "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9),
+                           "late_disc_acc_expert": _late_mean(run, "disc/acc_expert"),
+                           "late_disc_reward": _late_mean(run, "rollout/disc_reward")}
+    ev = run / "eval.json"
+    if ev.is_file():
+        m = json.loads(ev.read_text())
+        rec.update(status="done", episodes=m["episodes"], **{k: m[k] for k in TASKS[task]["keys"]})
+    else:
+        rec.update(status="running", last_periodic_success=curve[-1][1] if curve else None)
+    return rec
+
+
 def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
-    keys = TASKS[task]["keys"]
     records = []
     for run in sorted(root.glob("d*/*_s*")):
         name, _, seed = run.name.rpartition("_s")
-        if name not in METHODS or not run.is_dir() or not seed.isdigit():
-            continue
-        curve = _curve(run)
-        rec: dict[str, Any] = {"demos": int(run.parent.name.removeprefix("d")), "method": name, "seed": int(seed),
-                               "run": str(run), "command": _command(run, str(TASKS[task]["script"])), "curve": curve,
-                               "env_steps": curve[-1][0] if curve else 0.0, "train_minutes": _train_minutes(run),
-                               "steps_to_0.5": _steps_to(curve, 0.5), "steps_to_0.9": _steps_to(curve, 0.9),
-                               "late_disc_acc_expert": _late_mean(run, "disc/acc_expert"),
-                               "late_disc_reward": _late_mean(run, "rollout/disc_reward")}
-        ev = run / "eval.json"
-        if ev.is_file():
-            m = json.loads(ev.read_text())
-            rec.update(status="done", episodes=m["episodes"], **{k: m[k] for k in keys})
-        else:
-            rec.update(status="running", last_periodic_success=curve[-1][1] if curve else None)
-        records.append(rec)
+        if name in METHODS and run.is_dir() and seed.isdigit():
+            records.append(record(run, task))
     return records
 
 

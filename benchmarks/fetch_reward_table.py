@@ -1,0 +1,129 @@
+"""Few-demonstration Fetch at the full budget, by reward: three seeds of 1M env steps for each row, today's reward
+beside the screen's pick, each from the sub-task VAE and from the flat behaviour-cloned start.
+
+    benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-noise-1m SEED      # SEED 0, 1, 2
+    benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-noise-1m SEED
+    python benchmarks/fetch_reward_table.py runs/fetchfew --out benchmarks/results/fetch_reward_full.json \
+        --figure benchmarks/results/figures/fetch_reward_full.png
+
+Today's rows (`digail-l2-rel-argmax-1m`, `flatbc-l2-rel-1m`) are read from their run folders where this machine
+has them, else from the few-demonstration study's results file (`benchmarks/results/fetch_fewdemo.json`), where
+they were measured; any other row missing here keeps its record from `--out`. Per row: the success of each seed
+(100 evaluation episodes at the end) and their median, grasp and lift, and whether the reward still taught at the
+end: D's expert accuracy and the reward per agent step over the last 10 iterations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from fetch_fewdemo import record
+
+ROWS = {
+    "digail-l2-rel-argmax-1m": "Directed-Info GAIL + L2, D by cross-entropy (today's)",
+    "flatbc-l2-rel-1m": "GAIL + L2 from flat BC, D by cross-entropy (today's)",
+    "digail-l2-rel-argmax-noise-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15)",
+    "flatbc-l2-rel-noise-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15)",
+}
+"""method of `fetch_fewdemo.sh` -> the row's name, in the table's order"""
+SEEDS = (0, 1, 2)
+STUDY = Path(__file__).resolve().parent / "results" / "fetch_fewdemo.json"
+
+
+def collect(root: Path, kept: list[dict[str, Any]], demos: int = 4) -> list[dict[str, Any]]:
+    """Every (row, seed) record: from its run folder when it has been evaluated, else the one in `kept`."""
+    earlier = {(r["method"], r["seed"]): r for r in kept if r.get("demos") == demos}
+    out = []
+    for method in ROWS:
+        for seed in SEEDS:
+            run = root / f"d{demos}" / f"{method}_s{seed}"
+            if (run / "eval.json").is_file():
+                out.append(record(run))
+            elif (method, seed) in earlier:
+                out.append(earlier[(method, seed)])
+    return out
+
+
+def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    rows = []
+    for method, label in ROWS.items():
+        done = [r for r in records if r["method"] == method and r.get("status") == "done"]
+        if not done:
+            continue
+        med = {k: float(np.median([r[k] for r in done])) for k in ("success_rate", "grasp_rate", "lift_rate")}
+        late = {k: float(np.median([r[k] for r in done if r.get(k) is not None]))
+                for k in ("late_disc_acc_expert", "late_disc_reward") if any(r.get(k) is not None for r in done)}
+        rows.append({"method": method, "label": label, "seeds": [r["seed"] for r in done],
+                     "per_seed_success_rate": [r["success_rate"] for r in done],
+                     **{f"median_{k}": v for k, v in med.items()}, **{f"median_{k}": v for k, v in late.items()},
+                     "env_steps": max(r["env_steps"] for r in done)})
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    lines = ["| start and reward | success, per seed (median) | grasp | lift | D's expert accuracy, last 10 "
+             "iterations | reward per agent step, last 10 iterations | env steps |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        per = " / ".join(f"{v:.2f}" for v in r["per_seed_success_rate"])
+        acc, rew = r.get("median_late_disc_acc_expert"), r.get("median_late_disc_reward")
+        lines.append(f"| {r['label']} | {per} (**{r['median_success_rate']:.2f}**) | {r['median_grasp_rate']:.2f} | "
+                     f"{r['median_lift_rate']:.2f} | {'-' if acc is None else f'{acc:.2f}'} | "
+                     f"{'-' if rew is None else f'{rew:.3f}'} | {r['env_steps'] / 1000:.0f}k |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(records: list[dict[str, Any]], path: Path) -> None:
+    """Each row's learning curves, one thin line per seed and the median over seeds (20-episode evaluations)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    for i, (method, label) in enumerate(ROWS.items()):
+        curves = [r["curve"] for r in records if r["method"] == method and r.get("curve")]
+        if not curves:
+            continue
+        color = f"C{i}"
+        for c in curves:
+            ax.plot([s / 1e3 for s, _ in c], [v for _, v in c], color=color, alpha=0.25, lw=0.8)
+        n = min(len(c) for c in curves)
+        steps = [s / 1e3 for s, _ in curves[0][:n]]
+        ax.plot(steps, np.median([[v for _, v in c[:n]] for c in curves], axis=0), color=color, lw=2, label=label)
+    ax.set_xlabel("env steps (thousands)")
+    ax.set_ylabel("success (20 episodes)")
+    ax.set_title("FetchPickAndPlace, 4 demonstrations: median of 3 seeds (thin: each seed)")
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_ylim(-0.02, 1.02)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", type=Path, help="the folder holding d4/<method>_s<seed> run folders")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_reward_full.json"))
+    parser.add_argument("--figure", type=Path)
+    args = parser.parse_args()
+    kept = json.loads(STUDY.read_text())["runs"]
+    if args.out.is_file():
+        kept = [*kept, *json.loads(args.out.read_text())["runs"]]
+    records = collect(args.root, kept)
+    rows = table(records)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4", "demonstrations": 4, "rows": ROWS,
+                                    "table": rows, "runs": records}, indent=1) + "\n")
+    print(markdown(rows))
+    if args.figure is not None:
+        figure(records, args.figure)
+
+
+if __name__ == "__main__":
+    main()
