@@ -62,6 +62,13 @@ def _evaluation(run: Path, iterations: int) -> dict[str, Any] | None:
     return None
 
 
+def _longer_run(run: Path) -> bool:
+    """Whether the folder holds a run made longer than the screen's 50 iterations that kept no evaluation at 50 (a
+    full-budget run of the same method): not the screen's run."""
+    config = json.loads((run / "config.json").read_text()) if (run / "config.json").is_file() else {}
+    return config.get("train", {}).get("iterations", 0) > 50 and _evaluation(run, 50) is None
+
+
 def collect(root: Path, demos: int, seed: int, kept: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """The rows, in `LABELS`' order: from the run folders under `root`, else from `kept` (earlier records)."""
     out = []
@@ -70,7 +77,7 @@ def collect(root: Path, demos: int, seed: int, kept: list[dict[str, Any]] | None
         obs, _, name = method.rpartition(":")
         run = (root.with_name(root.name + "-rel") if obs == "relative" else root) / f"d{demos}" / f"{name}_s{seed}"
         metrics = run / "metrics.csv"
-        if not metrics.is_file():
+        if not metrics.is_file() or _longer_run(run):
             if (method, demos, seed) in earlier:
                 out.append({**earlier[(method, demos, seed)], "label": label})
             continue

@@ -57,6 +57,10 @@ def test_screen_rows_say_whether_the_reward_still_teaches(tmp_path: Path) -> Non
     assert again["digail-l2-rel-argmax-noise"]["eval_50"]["success_rate"] == 0.12
     assert again["digail-l2-rel-argmax-noise"]["label"] == "D's inputs noised (sigma 0.15)"
     assert again["digail-l2-rel-argmax-pu"]["status"] == "running"
+    # a longer run of a screened method (the first 100 iterations of a 1M run) is not the screen's: the record stays
+    _run(tmp_path / "d4", "digail-l2-rel-argmax-noise_s0", acc * 2, [0.2] * 100, 0.3)
+    again = {r["method"]: r for r in fetch_rewards.collect(tmp_path, 4, 0, kept)}
+    assert again["digail-l2-rel-argmax-noise"]["eval_50"]["success_rate"] == 0.12
     # a run on the relative-observation env sits beside the root, in <root>-rel
     _run(tmp_path.with_name(tmp_path.name + "-rel") / "d4", "digail-l2-argmax_s0", acc, [0.3] * 50, 0.2)
     rel = {r["method"]: r for r in fetch_rewards.collect(tmp_path, 4, 0)}["relative:digail-l2-argmax"]
