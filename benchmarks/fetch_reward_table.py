@@ -16,6 +16,7 @@ end: D's expert accuracy and the reward per agent step over the last 10 iteratio
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 from pathlib import Path
 from typing import Any
@@ -77,14 +78,51 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(records: list[dict[str, Any]], path: Path) -> None:
-    """Each row's learning curves, one thin line per seed and the median over seeds (20-episode evaluations)."""
+COMMITTED = Path(__file__).resolve().parent / "results" / "runs"
+
+
+def median_seed_run(root: Path, records: list[dict[str, Any]], method: str) -> Path | None:
+    """The run folder of the row's median seed (by success): on this machine, or committed as
+    `benchmarks/results/runs/fetch4_<method>_s<seed>`."""
+    done = sorted((r for r in records if r["method"] == method and r.get("status") == "done"),
+                  key=lambda r: r["success_rate"])
+    if not done:
+        return None
+    seed = done[len(done) // 2]["seed"]
+    for run in (root / "d4" / f"{method}_s{seed}", COMMITTED / f"fetch4_{method}_s{seed}"):
+        if (run / "metrics.csv").is_file():
+            return run
+    return None
+
+
+def disc_curve(run: Path, every: int = 5) -> list[tuple[float, float, float]]:
+    """(env step, D's expert accuracy, reward per agent step) of every `every`-th training iteration."""
+    with (run / "metrics.csv").open() as f:
+        rows = [r for r in csv.DictReader(f) if r.get("disc/acc_expert") and r.get("rollout/disc_reward")]
+    return [(float(r["step"]), float(r["disc/acc_expert"]), float(r["rollout/disc_reward"])) for r in rows[::every]]
+
+
+def figure(records: list[dict[str, Any]], path: Path, root: Path) -> None:
+    """Left: each row's learning curves, one thin line per seed and the median over seeds (20-episode evaluations).
+    Middle and right: over training, D's expert accuracy and the reward per agent step of the row's median seed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, (ax, ax_acc, ax_rew) = plt.subplots(1, 3, figsize=(15, 4.2))
+    for i, method in enumerate(ROWS):
+        run = median_seed_run(root, records, method)
+        if run is None:
+            continue
+        steps, acc, rew = zip(*disc_curve(run), strict=True)
+        ax_acc.plot([s / 1e3 for s in steps], acc, color=f"C{i}", lw=1.2)
+        ax_rew.plot([s / 1e3 for s in steps], rew, color=f"C{i}", lw=1.2)
+    ax_acc.set_title("D's expert accuracy (median seed)")
+    ax_rew.set_title("reward per agent step (median seed)")
+    ax_rew.set_yscale("log")
+    for a in (ax_acc, ax_rew):
+        a.set_xlabel("env steps (thousands)")
     for i, (method, label) in enumerate(ROWS.items()):
         curves = [r["curve"] for r in records if r["method"] == method and r.get("curve")]
         if not curves:
@@ -97,7 +135,7 @@ def figure(records: list[dict[str, Any]], path: Path) -> None:
         ax.plot(steps, np.median([[v for _, v in c[:n]] for c in curves], axis=0), color=color, lw=2, label=label)
     ax.set_xlabel("env steps (thousands)")
     ax.set_ylabel("success (20 episodes)")
-    ax.set_title("FetchPickAndPlace, 4 demonstrations: median of 3 seeds (thin: each seed)")
+    ax.set_title("success, 4 demonstrations: median of 3 seeds (thin: each seed)")
     ax.legend(fontsize=7, loc="upper left")
     ax.set_ylim(-0.02, 1.02)
     fig.tight_layout()
@@ -122,7 +160,7 @@ def main() -> None:
                                     "table": rows, "runs": records}, indent=1) + "\n")
     print(markdown(rows))
     if args.figure is not None:
-        figure(records, args.figure)
+        figure(records, args.figure, args.root)
 
 
 if __name__ == "__main__":

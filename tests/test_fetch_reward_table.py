@@ -46,3 +46,15 @@ def test_rows_take_run_folders_first_and_recorded_results_for_the_rest(tmp_path:
     assert "| Directed-Info GAIL + L2, D by cross-entropy (today's) | 0.09 / 0.34 / 0.55 (**0.34**) | 0.95 | 0.90 " \
            "| 1.00 | 0.007 | 999k |" in text
     assert "| Directed-Info GAIL + L2, D's inputs noised (sigma 0.15) | 0.50 / 0.10 / 0.30 (**0.30**) |" in text
+
+
+def test_the_figure_follows_the_median_seed(tmp_path: Path) -> None:
+    for seed, success in enumerate((0.5, 0.1, 0.3)):
+        _run(tmp_path, f"digail-l2-rel-argmax-noise-1m_s{seed}", success, 0.9)
+    records = full.collect(tmp_path, [])
+    run = full.median_seed_run(tmp_path, records, "digail-l2-rel-argmax-noise-1m")
+    assert run == tmp_path / "d4" / "digail-l2-rel-argmax-noise-1m_s2"
+    curve = full.disc_curve(run)
+    assert curve[0] == (4096.0, 0.9, 0.02) and len(curve) == 6  # every fifth of 30 iterations
+    full.figure(records, tmp_path / "fig.png", tmp_path)
+    assert (tmp_path / "fig.png").stat().st_size > 10_000
