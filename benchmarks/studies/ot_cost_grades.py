@@ -1,7 +1,8 @@
 """Which transport cost grades placing on Fetch? The `ot` reward of a trained agent's episodes, by view and cost.
 
     MUJOCO_GL=egl python benchmarks/studies/ot_cost_grades.py \
-        --run runs/fetchfew/d4/digail-l2-rel-argmax-ot-qf-sacfast_s0 \
+        --run benchmarks/results/runs/fetch4_digail-l2-rel-argmax-ot-qf-sacfast_s0 \
+              benchmarks/results/runs/fetch4_digail-l2-argmax-otd-qf-sacfast_s0 \
               benchmarks/results/runs/fetch4_digail-l2-rel-argmax-1m_s1 --episodes 40 \
         --out benchmarks/studies/results/ot_cost_grades.json
 
