@@ -160,6 +160,11 @@ def record(run: Path, task: str = "fetch") -> dict[str, Any]:
     return rec
 
 
+def md_head(columns: list[str]) -> list[str]:
+    """A markdown table's header line and the line under it."""
+    return ["| " + " | ".join(columns) + " |", "| " + " | ".join(["---"] * len(columns)) + " |"]
+
+
 def collect(root: Path, task: str = "fetch") -> list[dict[str, Any]]:
     records = []
     for run in sorted(root.glob("d*/*_s*")):

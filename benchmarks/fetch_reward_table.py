@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fetch_fewdemo import record
+from fetch_fewdemo import md_head, record
 
 ROWS = {
     "digail-l2-rel-argmax-1m": "Directed-Info GAIL + L2, D by cross-entropy (today's)",
@@ -66,9 +66,9 @@ def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| start and reward | success, per seed (median) | grasp | lift | D's expert accuracy, last 10 "
-             "iterations | reward per agent step, last 10 iterations | env steps |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = md_head(["start and reward", "success, per seed (median)", "grasp", "lift",
+                     "D's expert accuracy, last 10 iterations", "reward per agent step, last 10 iterations",
+                     "env steps"])
     for r in rows:
         per = " / ".join(f"{v:.2f}" for v in r["per_seed_success_rate"])
         acc, rew = r.get("median_late_disc_acc_expert"), r.get("median_late_disc_reward")

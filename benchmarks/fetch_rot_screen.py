@@ -23,6 +23,8 @@ import statistics
 from pathlib import Path
 from typing import Any
 
+from fetch_fewdemo import md_head
+
 METHODS = (
     (4, "digail-l2-rel-argmax-ot-qf-sacfast", "optimal transport on D's view, BC Q-filtered, SAC"),
     (4, "digail-l2-rel-argmax-ots-qf-sacfast", "sub-task-aware optimal transport, BC Q-filtered, SAC"),
@@ -68,9 +70,9 @@ def collect(root: Path, seed: int) -> list[dict[str, Any]]:
 
 
 def markdown(rows: list[dict[str, Any]]) -> str:
-    lines = ["| reward and learner | demonstrations | env steps | success | grasp | lift | periodic success, best "
-             "| transport reward per step, first / last 10 iterations | BC kept by the Q-filter, first / last 10 |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = md_head(["reward and learner", "demonstrations", "env steps", "success", "grasp", "lift",
+                     "periodic success, best", "transport reward per step, first / last 10 iterations",
+                     "BC kept by the Q-filter, first / last 10"])
     for row in rows:
         last = list(row["evaluations"])[-1]
         for steps, ev in row["evaluations"].items():

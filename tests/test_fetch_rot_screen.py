@@ -8,6 +8,7 @@ from pathlib import Path
 
 from conftest import repo_module
 
+repo_module("benchmarks/fetch_fewdemo.py")  # the table's header helper
 rot = repo_module("benchmarks/fetch_rot_screen.py")
 
 
