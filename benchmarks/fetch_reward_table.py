@@ -4,7 +4,7 @@ beside the screen's pick, each from the sub-task VAE and from the flat behaviour
     benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-noise-1m SEED      # SEED 0, 1, 2
     benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-noise-1m SEED
     python benchmarks/fetch_reward_table.py runs/fetchfew --out benchmarks/results/fetch_reward_full.json \
-        --figure benchmarks/results/figures/fetch_reward_full.png
+        --figure benchmarks/results/figures/fetch_reward_full.png --page docs/results.md
 
 Today's rows (`digail-l2-rel-argmax-1m`, `flatbc-l2-rel-1m`) are read from their run folders where this machine
 has them, else from the few-demonstration study's results file (`benchmarks/results/fetch_fewdemo.json`), where
@@ -149,6 +149,7 @@ def main() -> None:
     parser.add_argument("root", type=Path, help="the folder holding d4/<method>_s<seed> run folders")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_reward_full.json"))
     parser.add_argument("--figure", type=Path)
+    parser.add_argument("--page", type=Path, help="a page with the table's markers, rewritten in place")
     args = parser.parse_args()
     kept = json.loads(STUDY.read_text())["runs"]
     if args.out.is_file():
@@ -159,6 +160,11 @@ def main() -> None:
     args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4", "demonstrations": 4, "rows": ROWS,
                                     "table": rows, "runs": records}, indent=1) + "\n")
     print(markdown(rows))
+    if args.page is not None:
+        text = args.page.read_text()
+        start, end = "<!-- fetch_reward_full:start -->\n", "<!-- fetch_reward_full:end -->"
+        a, b = text.index(start) + len(start), text.index(end)
+        args.page.write_text(text[:a] + markdown(rows) + text[b:])
     if args.figure is not None:
         figure(records, args.figure, args.root)
 
