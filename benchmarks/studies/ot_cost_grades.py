@@ -70,8 +70,17 @@ def grades(run: Path, episodes: int, demos: list, held_out: list, env_id: str) -
     agent_obs = [np.asarray(e.obs[:-1], np.float32) for e in played]
     expert_obs = [np.asarray(t.obs[:-1], np.float32) for t in held_out]
     demo_obs = [np.asarray(t.obs[:-1], np.float32) for t in demos]
-    out: dict[str, object] = {"agent_success": float(success.mean())}
-    print(f"{run}: agent success {success.mean():.2f} over {episodes} episodes", flush=True)
+    closest = np.array([-max(e.info_values["dense_reward"]) for e in played])
+    holding = np.array([bool(e.info_values["grasped"][-1]) for e in played])
+    air = np.array([e.obs[0][27] - e.obs[0][5] > 0.01 for e in played])  # the goal above the resting block
+    out: dict[str, object] = {
+        "agent_success": float(success.mean()),
+        "agent_final_distance_median_m": round(float(np.median(final_dist)), 4),
+        "agent_closest_distance_median_m": round(float(np.median(closest)), 4),
+        "agent_holding_at_end": float(holding.mean()),
+        "agent_success_goal_in_air": round(float(success[air].mean()), 3) if air.any() else None,
+        "agent_success_goal_on_table": round(float(success[~air].mean()), 3) if (~air).any() else None}
+    print(f"{run}: {out}", flush=True)
     for view_name, view in (("relative", relative_view), ("placing", placing_view),
                             ("distances", distances_view), ("log_distances", log_distances_view)):
         feats = [view(torch.as_tensor(o)) for o in demo_obs]
