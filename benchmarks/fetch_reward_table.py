@@ -30,7 +30,15 @@ ROWS = {
     "digail-l2-rel-argmax-noise-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15)",
     "flatbc-l2-rel-noise-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15)",
 }
-"""method of `fetch_fewdemo.sh` -> the row's name, in the table's order"""
+"""method of `fetch_fewdemo.sh` -> the row's name, in the table's order (4 demonstrations)"""
+ROWS_ONE = {
+    "digail-l2-rel": "Directed-Info GAIL + L2, D by cross-entropy (today's, 410k env steps)",
+    "flatbc-l2-rel": "GAIL + L2 from flat BC, D by cross-entropy (today's, 410k env steps)",
+    "digail-l2-rel-argmax-noise-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15)",
+    "flatbc-l2-rel-noise-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15)",
+}
+"""the same with 1 demonstration: today's rows are the study's (3 seeds at 410k), the noised D's one seed at 1M"""
+TABLES = {4: ROWS, 1: ROWS_ONE}
 SEEDS = (0, 1, 2)
 STUDY = Path(__file__).resolve().parent / "results" / "fetch_fewdemo.json"
 
@@ -39,7 +47,7 @@ def collect(root: Path, kept: list[dict[str, Any]], demos: int = 4) -> list[dict
     """Every (row, seed) record: from its run folder when it has been evaluated, else the one in `kept`."""
     earlier = {(r["method"], r["seed"]): r for r in kept if r.get("demos") == demos}
     out = []
-    for method in ROWS:
+    for method in TABLES[demos]:
         for seed in SEEDS:
             run = root / f"d{demos}" / f"{method}_s{seed}"
             if (run / "eval.json").is_file():
@@ -49,10 +57,11 @@ def collect(root: Path, kept: list[dict[str, Any]], demos: int = 4) -> list[dict
     return out
 
 
-def table(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def table(records: list[dict[str, Any]], demos: int = 4) -> list[dict[str, Any]]:
     rows = []
-    for method, label in ROWS.items():
-        done = [r for r in records if r["method"] == method and r.get("status") == "done"]
+    for method, label in TABLES[demos].items():
+        done = [r for r in records if r["method"] == method and r.get("status") == "done"
+                and r.get("demos", demos) == demos]
         if not done:
             continue
         med = {k: float(np.median([r[k] for r in done])) for k in ("success_rate", "grasp_rate", "lift_rate")}
@@ -156,15 +165,21 @@ def main() -> None:
         kept = [*kept, *json.loads(args.out.read_text())["runs"]]
     records = collect(args.root, kept)
     rows = table(records)
+    one_records = collect(args.root, kept, demos=1)
+    one_rows = table(one_records, demos=1)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4", "demonstrations": 4, "rows": ROWS,
-                                    "table": rows, "runs": records}, indent=1) + "\n")
+    args.out.write_text(json.dumps({"env_id": "digail/FetchPickAndPlace-v4", "rows": TABLES, "table": rows,
+                                    "table_one_demonstration": one_rows, "runs": records + one_records},
+                                   indent=1) + "\n")
     print(markdown(rows))
+    print(markdown(one_rows))
     if args.page is not None:
         text = args.page.read_text()
-        start, end = "<!-- fetch_reward_full:start -->\n", "<!-- fetch_reward_full:end -->"
-        a, b = text.index(start) + len(start), text.index(end)
-        args.page.write_text(text[:a] + markdown(rows) + text[b:])
+        for name, body in (("fetch_reward_full", markdown(rows)), ("fetch_reward_full_one", markdown(one_rows))):
+            start, end = f"<!-- {name}:start -->\n", f"<!-- {name}:end -->"
+            a, b = text.index(start) + len(start), text.index(end)
+            text = text[:a] + body + text[b:]
+        args.page.write_text(text)
     if args.figure is not None:
         figure(records, args.figure, args.root)
 

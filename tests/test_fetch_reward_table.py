@@ -46,6 +46,10 @@ def test_rows_take_run_folders_first_and_recorded_results_for_the_rest(tmp_path:
     assert "| Directed-Info GAIL + L2, D by cross-entropy (today's) | 0.09 / 0.34 / 0.55 (**0.34**) | 0.95 | 0.90 " \
            "| 1.00 | 0.007 | 999k |" in text
     assert "| Directed-Info GAIL + L2, D's inputs noised (sigma 0.15) | 0.50 / 0.10 / 0.30 (**0.30**) |" in text
+    # 1 demonstration: its own rows (today's 410k runs), its own records
+    one = full.collect(tmp_path, [{**kept[0], "demos": 1, "method": "flatbc-l2-rel"}], demos=1)
+    assert [(r["method"], r["demos"]) for r in one] == [("flatbc-l2-rel", 1)]
+    assert full.table(one, demos=1)[0]["label"].startswith("GAIL + L2 from flat BC, D by cross-entropy (today's")
 
 
 def test_the_figure_follows_the_median_seed(tmp_path: Path) -> None:
