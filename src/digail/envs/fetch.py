@@ -141,7 +141,18 @@ def placing_view(obs: Any) -> Any:
     steps is not dominated by how fast they move. For `--train.disc-obs digail.envs.fetch:placing_view`."""
     import torch
 
-    return torch.cat([obs[:, 6:9], obs[:, 25:28] - obs[:, 3:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11]], -1)
+    return torch.cat([*_relative_parts(obs)[:4], obs[:, 9:11]], -1)
+
+
+def _norm(x: Any) -> Any:
+    """Lengths of the rows of a torch tensor (n, k) -> (n, 1)."""
+    return x.norm(dim=-1, keepdim=True)
+
+
+def _distances_rest(obs: Any) -> list[Any]:
+    """What the distances views keep beside the two distances: the goal's height above the object, the heights of
+    gripper and object, the fingers and the gripper's speed."""
+    return [obs[:, 27:28] - obs[:, 5:6], obs[:, 2:3], obs[:, 5:6], obs[:, 9:11], _norm(obs[:, 20:23])]
 
 
 def distances_view(obs: Any) -> Any:
@@ -152,9 +163,7 @@ def distances_view(obs: Any) -> Any:
     import torch
 
     to_goal = obs[:, 25:28] - obs[:, 3:6]
-    norm = {"keepdim": True, "dim": -1}
-    return torch.cat([obs[:, 6:9].norm(**norm), to_goal[:, :2].norm(**norm), to_goal[:, 2:3], obs[:, 2:3],
-                      obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(**norm)], -1)
+    return torch.cat([_norm(obs[:, 6:9]), _norm(to_goal[:, :2]), *_distances_rest(obs)], -1)
 
 
 def log_distances_view(obs: Any) -> Any:
@@ -164,9 +173,7 @@ def log_distances_view(obs: Any) -> Any:
     import torch
 
     to_goal = obs[:, 25:28] - obs[:, 3:6]
-    norm = {"keepdim": True, "dim": -1}
-    return torch.cat([(obs[:, 6:9].norm(**norm) + 0.01).log(), (to_goal.norm(**norm) + 0.01).log(), to_goal[:, 2:3],
-                      obs[:, 2:3], obs[:, 5:6], obs[:, 9:11], obs[:, 20:23].norm(**norm)], -1)
+    return torch.cat([(_norm(obs[:, 6:9]) + 0.01).log(), (_norm(to_goal) + 0.01).log(), *_distances_rest(obs)], -1)
 
 
 def flatten_fetch_obs(obs: dict[str, np.ndarray]) -> np.ndarray:
