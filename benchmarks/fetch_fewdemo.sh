@@ -15,10 +15,10 @@
 #     -argmax     (digail-l2 only) every training env takes q's argmax code on its own states, as evaluation
 #                 does (--train.replay-fraction 0 --train.closed-loop-codes argmax), instead of replaying the
 #                 demonstrations' codes in half the envs and sampling q in the other half
-#     -pu, -noise, -sn, -ot, -ots, -otst   the imitation reward (--train.imitation.*): D trained as a
-#                 positive-unlabeled classifier (prior 0.5), D's inputs noised (sigma 0.15), D spectrally normalised,
-#                 optimal transport on D's view (no D), the same sub-task-aware (codes must match, else cost +1),
-#                 and that in order (time weight 1)
+#     -pu, -noise, -noise5, -sn, -ot, -ots, -otst   the imitation reward (--train.imitation.*): D trained as a
+#                 positive-unlabeled classifier (prior 0.5), D's inputs noised (sigma 0.15, or 0.5 for -noise5), D
+#                 spectrally normalised, optimal transport on D's view (no D), the same sub-task-aware (codes must
+#                 match, else cost +1), and that in order (time weight 1)
 #     -ote, -otse the transport of -ot / -ots with the Euclidean cost on Fetch's placing view (positions, heights
 #                 and fingers; no velocities) in place of the cosine on the relative view
 #     -otd, -otsd the same on Fetch's distances view (how far things are, not in which direction)
@@ -82,7 +82,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
 }
 
 SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-sonly)?'
-SHAPE+='(-pu|-noise|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd|-otl)?(-anneal|-qf)?'
+SHAPE+='(-pu|-noise|-noise5|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd|-otl)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -109,7 +109,7 @@ case $METHOD in *-gp-logit*) ARGS+=(--train.disc-grad-penalty 10 --train.reward 
 case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-codes argmax) ;; esac
 case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
 case $METHOD in *-sonly*) ARGS+=(--train.imitation.no-disc-actions) ;; esac
-case $METHOD in *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
+case $METHOD in *-noise5*) ARGS+=(--train.imitation.disc-noise 0.5) ;; *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
 case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd|*-otl-*|*-otl) ARGS+=(--train.imitation.kind ot) ;; esac
 case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac
