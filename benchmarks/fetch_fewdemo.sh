@@ -23,6 +23,8 @@
 #                 and fingers; no velocities) in place of the cosine on the relative view
 #     -otd, -otsd the same on Fetch's distances view (how far things are, not in which direction)
 #     -otl        the same on the distances view with the distances on a log scale (log_distances_view)
+#     -relabel    D's expert inputs also hold 4 copies of every demonstration step with the goal replaced by where
+#                 the block is later in that demonstration (--train.imitation.relabel-goals 4, goalGAIL's)
 #     -sonly      D judges states alone, not actions (--train.imitation.no-disc-actions)
 #     -anneal, -qf  the BC weight annealed linearly to 0 over the run, or (SAC) Q-filtered
 #     -shuffle, -qtrain, -nobonus, -k2, -k8   (digail-l2 only) the ablations: codes drawn uniformly each step, q
@@ -82,7 +84,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
 }
 
 SHAPE='^(digail|flatbc|gail)-l2(-rel|-dist)?(-gp-logit)?(-argmax)?(-sonly)?'
-SHAPE+='(-pu|-noise|-noise5|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd|-otl)?(-anneal|-qf)?'
+SHAPE+='(-pu|-noise|-noise5|-sn|-ot|-ots|-otst|-ote|-otse|-otd|-otsd|-otl)?(-relabel)?(-anneal|-qf)?'
 SHAPE+='(-shuffle|-qtrain|-nobonus|-k2|-k8)?(-sac|-sacfast|-1m)?$'
 if ! [[ $METHOD =~ ^(bc|flatbc|bc2|bc8)$ || $METHOD =~ $SHAPE ]] \
     || [[ $METHOD =~ ^(flatbc|gail)-.*-(argmax|shuffle|qtrain|nobonus|k2|k8) ]]; then
@@ -110,6 +112,7 @@ case $METHOD in *-argmax*) ARGS+=(--train.replay-fraction 0 --train.closed-loop-
 case $METHOD in *-pu*) ARGS+=(--train.imitation.kind pu) ;; esac
 case $METHOD in *-sonly*) ARGS+=(--train.imitation.no-disc-actions) ;; esac
 case $METHOD in *-noise5*) ARGS+=(--train.imitation.disc-noise 0.5) ;; *-noise*) ARGS+=(--train.imitation.disc-noise 0.15) ;; esac
+case $METHOD in *-relabel*) ARGS+=(--train.imitation.relabel-goals 4) ;; esac
 case $METHOD in *-sn*) ARGS+=(--train.imitation.spectral-norm) ;; esac
 case $METHOD in *-ot-*|*-ot|*-ote-*|*-ote|*-otd-*|*-otd|*-otl-*|*-otl) ARGS+=(--train.imitation.kind ot) ;; esac
 case $METHOD in *-ots*) ARGS+=(--train.imitation.kind ot-subtask) ;; esac

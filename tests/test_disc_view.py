@@ -78,6 +78,38 @@ def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
         trainer.close()
 
 
+def test_goal_relabelling_adds_copies_with_later_goals_to_ds_expert_inputs():
+    """`--train.imitation.relabel-goals 3` on Fetch: D's expert rows are the 20 demonstration steps and 3 copies of
+    each whose goal (and so the view's goal-to-object part) is where the object is later; the actions are kept."""
+    from dataclasses import replace
+
+    from digail.algos.directed_info_gail import build_trainer
+    from digail.imitation_config import ImitationConfig
+
+    rng = np.random.default_rng(0)
+    demos = [Trajectory(obs=_fetch_obs(11, i), acts=rng.uniform(-1, 1, (10, 4)).astype(np.float32))
+             for i in range(2)]
+    cfg = TrainConfig(method="gail", disc_obs="relative", hidden=(8,), backend="sync",
+                      ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1))
+    plain = build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
+                          progress=False)
+    trainer = build_trainer("digail/FetchPickAndPlace-v4", demos,
+                            replace(cfg, imitation=ImitationConfig(relabel_goals=3)), vae_model=None, seed=0,
+                            run_dir=None, progress=False)
+    try:
+        x = trainer.expert_disc_in
+        assert x.shape == (80, 28)
+        torch.testing.assert_close(x[:20], plain.expert_disc_in)
+        copies = x[20:].reshape(2, 3, 10, 28).permute(1, 0, 2, 3).reshape(3, 20, 28)  # demo-major -> copy-major
+        for c in copies:
+            torch.testing.assert_close(c[:, 24:], x[:20, 24:])  # the actions
+            assert not torch.allclose(c[:, :24], x[:20, :24])  # the goal moved, so the view did
+        assert np.isfinite(trainer.iterate()["disc/loss"])
+    finally:
+        plain.close()
+        trainer.close()
+
+
 def test_a_view_of_the_users_own_is_named_as_module_function(tmp_path, monkeypatch):
     """`--train.disc-obs module:function` builds D on the user's function; a broken one is one sentence."""
     (tmp_path / "my_views.py").write_text(

@@ -12,7 +12,7 @@ import torch
 
 from digail.algos.aux_losses import qfiltered_bc_loss
 from digail.algos.directed_info_gail import build_trainer
-from digail.algos.expert_data import ExpertData
+from digail.algos.expert_data import ExpertData, relabelled_goals
 from digail.algos.rewards import REWARDS, DiscReward, OTReward, pu_loss, sinkhorn_plan
 from digail.algos.rewards.ot import ot_step_rewards, window_mask
 from digail.config import PPOConfig, SACConfig, TrainConfig
@@ -188,6 +188,41 @@ def test_bad_imitation_settings_are_one_sentence():
         ImitationConfig(pu_prior=1.0)
     with pytest.raises(UserError, match="--train.imitation.ot-top-k must be at least 1"):
         ImitationConfig(ot_top_k=0)
+
+
+def test_relabelled_goals_are_where_the_object_is_later_in_the_same_demonstration():
+    """Columns 0:2 are the goal, 2:4 the object (its x is the step number, its y the demonstration), 4 a bystander:
+    each copy's goal is the object at a strictly later step of its own demonstration, all else as recorded."""
+    from digail.data.trajectory import Trajectory
+
+    demos = []
+    for d, steps in enumerate((6, 9)):
+        obs = np.zeros((steps + 1, 5), np.float32)
+        obs[:, 0:2] = -1.0
+        obs[:, 2] = np.arange(steps + 1)
+        obs[:, 3] = d
+        obs[:, 4] = 7.0
+        demos.append(Trajectory(obs=obs, acts=np.arange(steps, dtype=np.float32)[:, None] + 100 * d))
+    obs, acts = relabelled_goals(demos, (0, 2), (2, 4), 3, np.random.default_rng(0))
+    assert obs.shape == (3 * 15, 5) and acts.shape == (3 * 15, 1)
+    step = acts[:, 0] % 100  # the step each row copies (its action says which)
+    demo = acts[:, 0] // 100
+    np.testing.assert_array_equal(obs[:, 2], step)
+    np.testing.assert_array_equal(obs[:, 1], demo)  # the goal's y: the same demonstration's object
+    assert np.all(obs[:, 0] > step) and np.all(obs[:, 0] <= np.where(demo == 0, 6, 9))
+    assert np.all(obs[:, 4] == 7.0)
+    assert len(np.unique(obs[:, 0])) > 5  # the later steps are drawn, not always the last
+
+
+def test_goal_relabelling_is_refused_where_it_cannot_apply(circle_demos):
+    with pytest.raises(UserError, match="--train.imitation.relabel-goals must be 0 with an optimal-transport"):
+        ImitationConfig(kind="ot", relabel_goals=2)
+    with pytest.raises(UserError, match="--train.imitation.relabel-goals must be a whole number"):
+        ImitationConfig(relabel_goals=-1)
+    cfg = replace(SMALL, imitation=ImitationConfig(relabel_goals=2))
+    with pytest.raises(UserError, match="needs a goal-conditioned env.*set it to 0"):
+        build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=_vae(circle_demos), seed=0,
+                      run_dir=None, progress=False)
 
 
 def _vae(demos, codes=2):

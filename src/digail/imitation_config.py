@@ -51,6 +51,11 @@ class ImitationConfig:
     """D-based rewards: whether D sees the action beside the state; off, D judges states alone (as GAIfO), so it
     cannot tell the agent by how its sampled actions differ from the demonstrations' and grades only where the
     agent goes"""
+    relabel_goals: int = 0
+    """D-based rewards on goal-conditioned envs (Fetch): for every demonstration step, this many copies more among
+    D's expert inputs, each with the goal replaced by where the demonstration's object is at a later step of the
+    same demonstration, drawn uniformly (goalGAIL's expert relabelling: the expert's action also heads for that
+    goal), so a few demonstrations show D many goals; 0: none"""
     ot_top_k: int = 1
     """`ot*`: how many of the closest demonstrations (lowest total transport cost) an episode's reward averages"""
     ot_cost: Literal["cosine", "euclidean"] = "cosine"
@@ -90,6 +95,11 @@ class ImitationConfig:
         for name in ("ot_epsilon", "ot_scale"):
             value = getattr(self, name)
             _check(math.isfinite(value) and value > 0, name, "positive", value)
+        _check(isinstance(self.relabel_goals, int) and not isinstance(self.relabel_goals, bool)
+               and self.relabel_goals >= 0, "relabel_goals", "a whole number, not negative", self.relabel_goals)
+        _check(self.relabel_goals == 0 or not self.kind.startswith("ot"), "relabel_goals",
+               "0 with an optimal-transport reward (it relabels D's expert inputs; use kind bce or pu)",
+               self.relabel_goals)
         for name in ("ot_top_k", "ot_iterations"):
             value = getattr(self, name)
             _check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, name, "at least 1", value)

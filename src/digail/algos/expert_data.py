@@ -43,3 +43,21 @@ def expert_data(model: HierarchicalPolicy, demos: Sequence[Trajectory], act_inpu
     for i, s in enumerate(seqs):
         replay_codes[i, : len(s)] = s
     return ExpertData(obs_n=obs_n, acts=acts, disc_in=disc_in, codes=codes, replay_codes=replay_codes)
+
+
+def relabelled_goals(demos: Sequence[Trajectory], goal: tuple[int, int], achieved: tuple[int, int], copies: int,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`copies` relabelled copies of every demonstration step (s_t, a_t): the goal columns of s_t replaced by the
+    achieved columns of s_t' for t' drawn uniformly from t + 1 .. T of the same demonstration (HER's "future"
+    goals), so the action still heads for a place the expert went on to reach. Returns (obs, acts): demonstration
+    by demonstration, its copies one after another."""
+    obs_out, acts_out = [], []
+    for t in demos:
+        obs = np.asarray(t.obs, np.float32)
+        steps = len(obs) - 1
+        later = rng.integers(np.arange(1, steps + 1), steps + 1, size=(copies, steps))  # (copies, T): t' > t
+        rows = np.repeat(obs[None, :-1], copies, axis=0)
+        rows[..., goal[0]:goal[1]] = obs[later, achieved[0]:achieved[1]]
+        obs_out.append(rows.reshape(copies * steps, -1))
+        acts_out.append(np.tile(np.asarray(t.acts), (copies,) + (1,) * (np.asarray(t.acts).ndim - 1)))
+    return np.concatenate(obs_out), np.concatenate(acts_out)

@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from digail.algos import fast
-from digail.algos.expert_data import expert_data
+from digail.algos.expert_data import expert_data, relabelled_goals
 from digail.algos.gail.discriminator import PenaltyStep, obs_view
 from digail.algos.learners import LEARNERS, Learner
 from digail.algos.rollout import CodeState, RolloutState
@@ -29,6 +29,7 @@ from digail.checkpoint import load_training_state, rng_state, save_model, save_t
 from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
 from digail.envs.actions import env_action_fn
+from digail.envs.registry import env_spec
 from digail.envs.vector import make_vec_env
 from digail.errors import TrainingError, UserError
 from digail.nets.critic import Discriminator, generator_reward
@@ -142,6 +143,8 @@ class GAIL:
         expert_in = self.expert.disc_in
         if self._absorbing or self.disc_view is not None or not self._act_in_dim:
             expert_in = self.disc_input(expert_in[:, :obs_dim], expert_in[:, obs_dim:])
+        if cfg.imitation.relabel_goals:
+            expert_in = torch.cat([expert_in, self._relabelled_expert_in(demos, cfg.imitation.relabel_goals)])
         if self._absorbing:
             ends = sum(bool(d.terminated) for d in demos)  # one absorbing row per demonstration that terminated
             expert_in = torch.cat([expert_in, self.absorbing_row().expand(ends, -1)])
@@ -153,6 +156,18 @@ class GAIL:
         self.model_config: dict[str, Any] = {"kind": self.method, "method": self.method, "env_id": env_id,
                                              "seed": seed, "train": to_dict(cfg)}
         """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
+
+    def _relabelled_expert_in(self, demos: list[Trajectory], copies: int) -> torch.Tensor:
+        """D's input rows of `copies` goal-relabelled copies of every demonstration step (`relabelled_goals`)."""
+        spec = env_spec(self.env_id)
+        if spec is None or spec.goal_columns is None:
+            raise UserError(f"--train.imitation.relabel-goals needs a goal-conditioned env whose registry entry names "
+                            f"its goal columns (digail/FetchPickAndPlace-v4); {self.env_id} has none: set it to 0.")
+        # its own generator, so relabelling leaves every other random draw of the run as it was
+        obs, acts = relabelled_goals(demos, *spec.goal_columns, copies, np.random.default_rng(self.seed))
+        acts_t = torch.as_tensor(acts, dtype=torch.long if self.discrete else torch.float32, device=self.device)
+        obs_n = self.model.normalizer(torch.as_tensor(obs, device=self.device))
+        return self.disc_input(obs_n, self.act_input(acts_t))
 
     # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
