@@ -297,6 +297,10 @@ for _pid, _flags, _expect in [
      "non-finite"),
     ("reward-ot-scale-huge", ["--train.imitation.kind", "ot", "--train.imitation.ot-scale", "1e300"], "non-finite"),
     ("reward-ot-subtask-on-gail", ["--train.imitation.kind", "ot-subtask"], "ot-subtask"),
+    ("reward-relabel-no-goal", ["--train.imitation.relabel-goals", "4"], "goal-conditioned"),
+    ("reward-relabel-negative", ["--train.imitation.relabel-goals", "-1"], "relabel-goals"),
+    ("reward-relabel-with-ot", ["--train.imitation.kind", "ot", "--train.imitation.relabel-goals", "2"],
+     "optimal-transport"),
 ]:
     probe(_pid, f"`digail train --method gail` (Circle-World) with `{' '.join(_flags)}`", _expect)(
         lambda tmp, f=tuple(_flags): cw_train(tmp, *f))
