@@ -1,8 +1,9 @@
-"""Few-demonstration Fetch at the full budget, by reward: three seeds of 1M env steps for each row, today's reward
-beside the screen's pick, each from the sub-task VAE and from the flat behaviour-cloned start.
+"""Few-demonstration Fetch at the full budget, by reward: seeds of 1M env steps for each row (three, or one where a
+variant was screened), today's reward beside the others, each from the sub-task VAE and from the flat
+behaviour-cloned start.
 
-    benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-noise-1m SEED      # SEED 0, 1, 2
-    benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-noise-1m SEED
+    benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-noise-1m SEED      # SEED 0, 1, 2; and so on for each row:
+    benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-noise-1m SEED              # DEMOS 4 or 1, METHOD the row's key
     python benchmarks/fetch_reward_table.py runs/fetchfew --out benchmarks/results/fetch_reward_full.json \
         --figure benchmarks/results/figures/fetch_reward_full.png --page docs/results.md
 
@@ -24,11 +25,17 @@ from typing import Any
 import numpy as np
 from fetch_fewdemo import md_head, record
 
+RELABEL_DI = "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15), its expert goals relabelled (4 copies)"
+RELABEL_FLAT = "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15), its expert goals relabelled (4 copies)"
 ROWS = {
     "digail-l2-rel-argmax-1m": "Directed-Info GAIL + L2, D by cross-entropy (today's)",
     "flatbc-l2-rel-1m": "GAIL + L2 from flat BC, D by cross-entropy (today's)",
     "digail-l2-rel-argmax-noise-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15)",
     "flatbc-l2-rel-noise-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15)",
+    "digail-l2-rel-argmax-noise5-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.5)",
+    "flatbc-l2-rel-noise5-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.5)",
+    "digail-l2-rel-argmax-noise-relabel-1m": RELABEL_DI,
+    "flatbc-l2-rel-noise-relabel-1m": RELABEL_FLAT,
 }
 """method of `fetch_fewdemo.sh` -> the row's name, in the table's order (4 demonstrations)"""
 ROWS_ONE = {
@@ -36,8 +43,10 @@ ROWS_ONE = {
     "flatbc-l2-rel": "GAIL + L2 from flat BC, D by cross-entropy (today's, 410k env steps)",
     "digail-l2-rel-argmax-noise-1m": "Directed-Info GAIL + L2, D's inputs noised (sigma 0.15)",
     "flatbc-l2-rel-noise-1m": "GAIL + L2 from flat BC, D's inputs noised (sigma 0.15)",
+    "digail-l2-rel-argmax-noise-relabel-1m": RELABEL_DI,
+    "flatbc-l2-rel-noise-relabel-1m": RELABEL_FLAT,
 }
-"""the same with 1 demonstration: today's rows are the study's (3 seeds at 410k), the noised D's one seed at 1M"""
+"""the same with 1 demonstration: today's rows are the study's (3 seeds at 410k), the others at 1M"""
 TABLES = {4: ROWS, 1: ROWS_ONE}
 SEEDS = (0, 1, 2)
 STUDY = Path(__file__).resolve().parent / "results" / "fetch_fewdemo.json"
@@ -144,7 +153,7 @@ def figure(records: list[dict[str, Any]], path: Path, root: Path) -> None:
         ax.plot(steps, np.median([[v for _, v in c[:n]] for c in curves], axis=0), color=color, lw=2, label=label)
     ax.set_xlabel("env steps (thousands)")
     ax.set_ylabel("success (20 episodes)")
-    ax.set_title("success, 4 demonstrations: median of 3 seeds (thin: each seed)")
+    ax.set_title("success, 4 demonstrations: median over seeds (thin: each seed)")
     ax.legend(fontsize=7, loc="upper left")
     ax.set_ylim(-0.02, 1.02)
     fig.tight_layout()
