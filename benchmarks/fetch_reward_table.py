@@ -128,7 +128,7 @@ def figure(records: list[dict[str, Any]], path: Path, root: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, ax_acc, ax_rew) = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, (ax, ax_acc, ax_rew) = plt.subplots(1, 3, figsize=(15, 5.6))
     for i, method in enumerate(ROWS):
         run = median_seed_run(root, records, method)
         if run is None:
@@ -153,10 +153,10 @@ def figure(records: list[dict[str, Any]], path: Path, root: Path) -> None:
         ax.plot(steps, np.median([[v for _, v in c[:n]] for c in curves], axis=0), color=color, lw=2, label=label)
     ax.set_xlabel("env steps (thousands)")
     ax.set_ylabel("success (20 episodes)")
-    ax.set_title("success, 4 demonstrations: median over seeds (thin: each seed)")
-    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("success, 4 demonstrations (median; thin: each seed)")
     ax.set_ylim(-0.02, 1.02)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.22, 1, 1))  # the rows' legend below the panels, where it hides no curve
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=8, frameon=False)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
