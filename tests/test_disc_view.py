@@ -59,16 +59,23 @@ def test_an_env_without_a_relative_view_is_refused_in_one_sentence():
         obs_view("Pendulum-v1", "relative", ObsNormalizer(3), np.zeros((2, 3)))
 
 
-def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
+def _fetch_trainer(**imitation):
+    """A tiny GAIL trainer on Fetch with D on the relative view: two 10-step made-up demonstrations."""
     from digail.algos.directed_info_gail import build_trainer
+    from digail.imitation_config import ImitationConfig
 
     rng = np.random.default_rng(0)
     demos = [Trajectory(obs=_fetch_obs(11, i), acts=rng.uniform(-1, 1, (10, 4)).astype(np.float32))
              for i in range(2)]
     cfg = TrainConfig(method="gail", disc_obs="relative", hidden=(8,), backend="sync",
-                      ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1))
-    trainer = build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
-                            progress=False)
+                      ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1),
+                      imitation=ImitationConfig(**imitation))
+    return build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
+                         progress=False)
+
+
+def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
+    trainer = _fetch_trainer()
     try:
         assert trainer.disc.net[0].in_features == 24 + 4
         assert trainer.expert_disc_in.shape == (20, 28)
@@ -81,21 +88,7 @@ def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
 def test_goal_relabelling_adds_copies_with_later_goals_to_ds_expert_inputs():
     """`--train.imitation.relabel-goals 3` on Fetch: D's expert rows are the 20 demonstration steps and 3 copies of
     each whose goal (and so the view's goal-to-object part) is where the object is later; the actions are kept."""
-    from dataclasses import replace
-
-    from digail.algos.directed_info_gail import build_trainer
-    from digail.imitation_config import ImitationConfig
-
-    rng = np.random.default_rng(0)
-    demos = [Trajectory(obs=_fetch_obs(11, i), acts=rng.uniform(-1, 1, (10, 4)).astype(np.float32))
-             for i in range(2)]
-    cfg = TrainConfig(method="gail", disc_obs="relative", hidden=(8,), backend="sync",
-                      ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1))
-    plain = build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
-                          progress=False)
-    trainer = build_trainer("digail/FetchPickAndPlace-v4", demos,
-                            replace(cfg, imitation=ImitationConfig(relabel_goals=3)), vae_model=None, seed=0,
-                            run_dir=None, progress=False)
+    plain, trainer = _fetch_trainer(), _fetch_trainer(relabel_goals=3)
     try:
         x = trainer.expert_disc_in
         assert x.shape == (80, 28)
