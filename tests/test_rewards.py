@@ -203,7 +203,7 @@ def test_relabelled_goals_are_where_the_object_is_later_in_the_same_demonstratio
         obs[:, 3] = d
         obs[:, 4] = 7.0
         demos.append(Trajectory(obs=obs, acts=np.arange(steps, dtype=np.float32)[:, None] + 100 * d))
-    obs, acts = relabelled_goals(demos, (0, 2), (2, 4), 3, np.random.default_rng(0))
+    obs, acts = relabelled_goals(demos, slice(0, 2), slice(2, 4), 3, np.random.default_rng(0))
     assert obs.shape == (3 * 15, 5) and acts.shape == (3 * 15, 1)
     step = acts[:, 0] % 100  # the step each row copies (its action says which)
     demo = acts[:, 0] // 100

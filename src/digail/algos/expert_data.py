@@ -32,11 +32,9 @@ class ExpertData:
 def expert_data(model: HierarchicalPolicy, demos: Sequence[Trajectory], act_input: Callable[[torch.Tensor],
                 torch.Tensor], *, discrete: bool, device: torch.device) -> ExpertData:
     """The demonstrations through the model's (fixed) normaliser and q, and `act_input` (actions as D sees them)."""
-    obs = torch.as_tensor(np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]), device=device)
-    acts_np = np.concatenate([np.asarray(t.acts) for t in demos])
-    obs_n = model.normalizer(obs)
-    acts = torch.as_tensor(acts_np, dtype=torch.long if discrete else torch.float32, device=device)
-    disc_in = torch.cat([obs_n, act_input(acts)], -1)  # built once: every discriminator update reads it
+    obs_n, acts, disc_in = disc_rows(model, np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]),
+                                     np.concatenate([np.asarray(t.acts) for t in demos]), act_input,
+                                     discrete=discrete, device=device)
     seqs = segment_many(model, demos)
     codes = torch.as_tensor(np.concatenate(seqs), dtype=torch.long, device=device)
     replay_codes = np.full((len(seqs), max(len(s) for s in seqs)), -1, dtype=np.int64)
@@ -45,7 +43,16 @@ def expert_data(model: HierarchicalPolicy, demos: Sequence[Trajectory], act_inpu
     return ExpertData(obs_n=obs_n, acts=acts, disc_in=disc_in, codes=codes, replay_codes=replay_codes)
 
 
-def relabelled_goals(demos: Sequence[Trajectory], goal: tuple[int, int], achieved: tuple[int, int], copies: int,
+def disc_rows(model: HierarchicalPolicy, obs: np.ndarray, acts_np: np.ndarray,
+              act_input: Callable[[torch.Tensor], torch.Tensor], *, discrete: bool,
+              device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Recorded (obs, action) rows -> (normalised obs, actions as tensors, their D input [obs_n, act_input])."""
+    obs_n = model.normalizer(torch.as_tensor(obs, dtype=torch.float32, device=device))
+    acts = torch.as_tensor(acts_np, dtype=torch.long if discrete else torch.float32, device=device)
+    return obs_n, acts, torch.cat([obs_n, act_input(acts)], -1)
+
+
+def relabelled_goals(demos: Sequence[Trajectory], goal: slice, achieved: slice, copies: int,
                      rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """`copies` relabelled copies of every demonstration step (s_t, a_t): the goal columns of s_t replaced by the
     achieved columns of s_t' for t' drawn uniformly from t + 1 .. T of the same demonstration (HER's "future"
@@ -57,7 +64,8 @@ def relabelled_goals(demos: Sequence[Trajectory], goal: tuple[int, int], achieve
         steps = len(obs) - 1
         later = rng.integers(np.arange(1, steps + 1), steps + 1, size=(copies, steps))  # (copies, T): t' > t
         rows = np.repeat(obs[None, :-1], copies, axis=0)
-        rows[..., goal[0]:goal[1]] = obs[later, achieved[0]:achieved[1]]
+        rows[..., goal] = obs[later, achieved]
         obs_out.append(rows.reshape(copies * steps, -1))
-        acts_out.append(np.tile(np.asarray(t.acts), (copies,) + (1,) * (np.asarray(t.acts).ndim - 1)))
+        acts = np.asarray(t.acts)
+        acts_out.append(np.repeat(acts[None], copies, axis=0).reshape(copies * steps, *acts.shape[1:]))
     return np.concatenate(obs_out), np.concatenate(acts_out)

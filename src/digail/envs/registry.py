@@ -17,6 +17,8 @@ import gymnasium as gym
 import numpy as np
 
 from digail.envs.circle_world import CircleWorldVecEnv
+from digail.envs.fetch import GOAL as FETCH_GOAL
+from digail.envs.fetch import OBJECT_POS as FETCH_OBJECT
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.envs.metaworld import EPISODE_STEPS as METAWORLD_STEPS
 from digail.envs.metaworld import env_id as metaworld_id
@@ -104,8 +106,8 @@ class EnvSpec:
     relative_view: str | None = None
     """`module:function` mapping raw observations (n, D) to what D sees under `--train.disc-obs relative`: relations
     between the things in the scene instead of where they are (torch tensors in and out); None: the env has none"""
-    goal_columns: tuple[tuple[int, int], tuple[int, int]] | None = None
-    """((start, stop) of the desired goal, (start, stop) of what the goal is met by) in the flat observation, for
+    goal_columns: tuple[slice, slice] | None = None
+    """(the desired goal's columns, the columns of what meets it) in the flat observation, for
     relabelling a demonstration's goal with where it took the object later (`--train.imitation.relabel-goals`);
     None: the env is not goal-conditioned"""
 
@@ -141,7 +143,7 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
             labels=("reach", "grasp", "carry", "place"), relative_view="digail.envs.fetch:relative_view",
-            goal_columns=((25, 28), (3, 6))),
+            goal_columns=(FETCH_GOAL, FETCH_OBJECT)),
     # the same task observed without horizontal positions (relations only): D's view is then all of it
     EnvSpec("digail/FetchPickAndPlaceRelative-v4", "fetch", 50, "digail.envs.fetch:RelativeFetchPickAndPlace", 50,
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),

@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from digail.algos import fast
-from digail.algos.expert_data import expert_data, relabelled_goals
+from digail.algos.expert_data import disc_rows, expert_data, relabelled_goals
 from digail.algos.gail.discriminator import PenaltyStep, obs_view
 from digail.algos.learners import LEARNERS, Learner
 from digail.algos.rollout import CodeState, RolloutState
@@ -165,9 +165,8 @@ class GAIL:
                             f"its goal columns (digail/FetchPickAndPlace-v4); {self.env_id} has none: set it to 0.")
         # its own generator, so relabelling leaves every other random draw of the run as it was
         obs, acts = relabelled_goals(demos, *spec.goal_columns, copies, np.random.default_rng(self.seed))
-        acts_t = torch.as_tensor(acts, dtype=torch.long if self.discrete else torch.float32, device=self.device)
-        obs_n = self.model.normalizer(torch.as_tensor(obs, device=self.device))
-        return self.disc_input(obs_n, self.act_input(acts_t))
+        obs_n, _, rows = disc_rows(self.model, obs, acts, self.act_input, discrete=self.discrete, device=self.device)
+        return self.disc_input(obs_n, rows[:, obs_n.shape[1]:])
 
     # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
