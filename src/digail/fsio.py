@@ -9,10 +9,11 @@ import contextlib
 import json
 import os
 import shutil
+import stat
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -158,6 +159,71 @@ def check_clear_of(out: Path, protected: Sequence[tuple[str | os.PathLike[str], 
                             f"run's files, choose another {flag}.")
 
 
+def check_output(out: Path, kind: Literal["file", "folder"], force: bool, *,
+                 protected: Sequence[tuple[str | os.PathLike[str], str]] = (), flag: str = "--out",
+                 ours: Callable[[Path], bool] | None = None, ours_what: str = "an output digail wrote",
+                 writes: str | None = None, example: str = "out") -> None:
+    """The one rule for a path digail is told to write (`--out` of every command), checked before any work.
+
+    Refused, in one sentence: a path that is, lies inside or holds one of the `protected` (path, what it is) pairs
+    (what the command reads, a run's files; links resolved); a symbolic link (even one to nothing), a FIFO, a device
+    or a socket, since the output is written only as a file or folder of its own; a folder where a file goes or a
+    file where a folder goes; an existing output without `force`, and with it anything but what digail wrote (a
+    folder `check_replaceable` accepts, a file `ours` recognises: e.g. an earlier page or export of the same kind);
+    a place that cannot be written.
+
+    Args:
+        kind: what the command writes at `out`.
+        ours: for `kind` "file", whether an existing file is one digail wrote (without it no file is replaced).
+        ours_what: the words for such files in the refusal, e.g. "a report page digail wrote".
+        writes: what the command writes, in the refusal of a folder for a file and the reverse (e.g. "--export
+            csv writes a file").
+        example: a file name to suggest inside a folder given where a file goes.
+    """
+    out = Path(out)
+    check_clear_of(out, protected, flag)
+    try:
+        st = os.lstat(out)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise UserError(f"cannot look at {flag} {out} ({(exc.strerror or type(exc).__name__).lower()}); choose "
+                        f"another {flag}.") from None
+    if st is not None:
+        if stat.S_ISLNK(st.st_mode):
+            raise UserError(f"{flag} {out} is a symbolic link; digail writes only a file or folder of its own, never "
+                            f"through a link: remove the link or choose another {flag}.")
+        special = file_kind(st.st_mode)
+        if special is not None:
+            raise UserError(f"{flag} {out} is {special}, not a file or folder digail wrote; choose another {flag}.")
+        is_dir = stat.S_ISDIR(st.st_mode)
+        if kind == "folder" and not is_dir:
+            raise UserError(f"{flag} {out} is a file, but {writes or 'a folder is written there'}; choose a new "
+                            "folder name.")
+        if kind == "file" and is_dir:
+            raise UserError(f"{flag} {out} is a folder, but {writes or 'a file is written there'}; give a file name "
+                            f"such as {out / example}.")
+        if not force:
+            raise UserError(f"output {out} already exists; choose another {flag} or pass --force.")
+        if is_dir:
+            check_replaceable(out, flag)
+            check_not_locked(out)
+        elif ours is None or not ours(out):
+            raise UserError(f"{out} is not {ours_what}, and --force replaces only those; move it away or choose "
+                            f"another {flag}.")
+    check_writable(out, flag)
+
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def file_kind(mode: int) -> str | None:
+    """What a `stat` mode is when it is neither a regular file nor a folder (a FIFO, a device, a socket), else
+    None."""
+    return next((name for test, name in _KINDS if test(mode)), None)
+
+
 def umask() -> int:
     """The process's file-mode creation mask."""
     mask = os.umask(0)
@@ -166,12 +232,36 @@ def umask() -> int:
 
 
 def remove_path(path: Path) -> None:
-    """Remove a folder tree or a file (or nothing, when absent)."""
+    """Remove a folder tree or a file (or nothing, when absent); a folder without write permission inside the tree
+    (a copy of a read-only dataset) is made writable first, so what digail made it can always remove."""
     path = Path(path)
     if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
+        shutil.rmtree(path, onerror=_retry_writable)
     elif path.exists() or path.is_symlink():
         path.unlink()
+
+
+def _retry_writable(func: Callable[..., Any], name: str, exc_info: Any) -> None:
+    """`shutil.rmtree`'s error handler: give the folder holding `name` (and `name`, when a folder) the owner's
+    write and search permission, then try once more; a second failure is raised."""
+    if not isinstance(exc_info[1], PermissionError):
+        raise exc_info[1]
+    for folder in {os.path.dirname(name), name}:
+        with contextlib.suppress(OSError):
+            if os.path.isdir(folder) and not os.path.islink(folder):
+                os.chmod(folder, os.stat(folder).st_mode | stat.S_IRWXU)
+    func(name)
+
+
+def make_writable(tree: Path) -> None:
+    """Give the owner write permission on every file and folder of the copied tree `tree` (links left alone), so
+    a copy of a read-only source can be annotated and removed."""
+    for root, dirs, files in os.walk(tree):
+        for name in [*dirs, *files]:
+            path = os.path.join(root, name)
+            if not os.path.islink(path):
+                os.chmod(path, os.stat(path).st_mode | (stat.S_IRWXU if name in dirs else stat.S_IWUSR))
+    os.chmod(tree, os.stat(tree).st_mode | stat.S_IRWXU)
 
 
 LOCK_FILE = ".digail.lock"
@@ -300,17 +390,17 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
         yield tmp
     except BaseException:
         with signals_deferred():
-            shutil.rmtree(tmp, ignore_errors=True)
+            _discard(tmp)
         raise
     if (final.exists() or final.is_symlink()) and not force:  # made by another command meanwhile
-        shutil.rmtree(tmp, ignore_errors=True)
+        _discard(tmp)
         raise UserError(f"output {final} appeared while this command ran; choose another --out or pass --force.")
     with contextlib.ExitStack() as held:
         if final.is_dir() and not final.is_symlink():
             try:
                 held.enter_context(run_dir_lock(final))  # a folder another command is writing is never swapped away
             except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
+                _discard(tmp)
                 raise
         with signals_deferred():  # the swap and its clean-up are not cut in half by a signal
             old = None
@@ -322,11 +412,25 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
             except BaseException:
                 if old is not None and (old / "x").exists() and not final.exists():
                     os.replace(old / "x", final)
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
-            finally:
+                _discard(tmp)
                 if old is not None:
+                    _discard(old)
+                raise
+            if old is not None:
+                try:
                     remove_path(old)
+                except OSError as exc:  # e.g. an immutable file (chattr +i) in the replaced folder
+                    reason = (exc.strerror or type(exc).__name__).lower()
+                    raise UserError(f"the new {final} is in place, but the folder it replaced could not be removed "
+                                    f"({reason}: {exc.filename}); what is left of it is in {old}, remove it by "
+                                    "hand.") from None
+
+
+def _discard(tmp: Path) -> None:
+    """Remove a temporary folder of `atomic_dir` on the way out of an error, which is reported instead of any
+    failure to remove it."""
+    with contextlib.suppress(OSError):
+        remove_path(tmp)
 
 
 @contextlib.contextmanager

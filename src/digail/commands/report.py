@@ -26,6 +26,8 @@ class ReportArgs:
     out: Path | None = None
     """output page (default: RUN/report.html; with --compare, compare.html in the sweep folder or the runs' common
     folder)"""
+    force: bool = False
+    """replace an existing --out page (and, with --compare, the figure beside it), only one digail wrote"""
     figures: bool = True
     """redraw the run's figures from its model and demonstrations first (--no-figures: use those present)"""
     unsmoothed: Path | None = None
@@ -49,9 +51,9 @@ def report_command(args: ReportArgs) -> Path:
             raise UserError(f"no run folders (with a config.json) in {', '.join(map(str, args.runs))}.")
         folder = Path(args.runs[0])
         sweep = len(args.runs) == 1 and not (folder / "config.json").exists()
-        out = args.out or (folder if sweep else _common_parent(runs)) / "compare.html"
-        check_page_path(out)
-        page = write_compare_report(runs, out)
+        compare = args.out or (folder if sweep else _common_parent(runs)) / "compare.html"
+        check_page_path(compare, runs, force=args.force or args.out is None, figure=True)
+        page = write_compare_report(runs, compare)
         print(f"compared {len(runs)} runs: {page}")
         return page
     if len(args.runs) != 1:
@@ -60,25 +62,61 @@ def report_command(args: ReportArgs) -> Path:
     if not (run / "config.json").is_file():
         raise UserError(f"{run} is not a run folder (it has no config.json); pass a folder made by `digail run`, "
                         "`digail train` or `digail pretrain`.")
-    if args.out is not None:
-        check_page_path(args.out)
+    own_page = run / "report.html"
+    out = None if args.out is None or _same_path(args.out, own_page) else Path(args.out)
+    # the run's own page is rewritten on every call; any other --out follows the rule of every output
+    check_page_path(own_page if out is None else out, [run], force=args.force or out is None)
     # one writer per run folder: its figures and its page are written into it
-    with run_dir_lock(run) if args.figures or args.out is None else contextlib.nullcontext():
+    with run_dir_lock(run) if args.figures or out is None else contextlib.nullcontext():
         if args.figures and (run / "model.pt").exists():
             make_figures(run, unsmoothed=args.unsmoothed)
-        page = write_report(run, args.out)
+        page = write_report(run, out)
     print(f"report: {page}")
     return page
 
 
-def check_page_path(out: Path) -> None:
-    """Refuse, before anything is drawn, an --out that names a folder or cannot be written."""
-    from digail.fsio import check_writable
+def check_page_path(out: Path, runs: list[Path], force: bool, figure: bool = False) -> None:
+    """Refuse, before anything is drawn, a page path `digail.fsio.check_output` refuses: one of the runs' own
+    files (their model, config, checkpoint, dataset) or inside one, a link, a FIFO or a device, a folder, an
+    existing file without `force` or one that is not a page digail wrote. With `figure`, the learning-curves
+    figure written beside a comparison page is checked the same way."""
+    from digail.fsio import check_output
+    from digail.viz.figures import is_figure
+    from digail.viz.html_page import is_page
+    from digail.viz.report import compare_figure
 
-    out = Path(out)
-    if out.is_dir():
-        raise UserError(f"--out {out} is a folder; name the page to write, e.g. {out / 'compare.html'}.")
-    check_writable(out)
+    protected = run_files(runs)
+    check_output(Path(out), "file", force, protected=protected, ours=is_page,
+                 ours_what="a report page digail wrote", writes="`digail report` writes a page",
+                 example="report.html")
+    if figure:
+        fig = compare_figure(Path(out))
+        check_output(fig, "file", force, protected=protected, ours=is_figure, ours_what="a figure digail drew",
+                     writes="`digail report --compare` writes a figure beside its page", example=fig.name)
+
+
+def run_files(runs: list[Path]) -> list[tuple[Path, str]]:
+    """What a report never writes over: every file and folder of the runs (their pages aside, which it rewrites)
+    and each run's dataset."""
+    from digail.commands.common import resolve_ref
+    from digail.viz.html_page import is_page
+
+    protected: list[tuple[Path, str]] = []
+    for run in map(Path, runs):
+        for child in sorted(run.iterdir()):
+            if not (child.suffix == ".html" and child.is_file() and not child.is_symlink() and is_page(child)):
+                kind = "folder" if child.is_dir() and not child.is_symlink() else "file"
+                protected.append((child, f"the run's {kind} {child.name}"))
+        demos = resolve_ref(run, _load_json(run / "config.json").get("demos"))
+        if demos and Path(demos).exists():
+            protected.append((Path(demos), "the run's dataset"))
+    return protected
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    import os
+
+    return os.path.realpath(a) == os.path.realpath(b) and not Path(a).is_symlink()
 
 
 def find_runs(paths: tuple[Path, ...] | list[Path], depth: int = 3) -> list[Path]:

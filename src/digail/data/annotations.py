@@ -21,16 +21,15 @@ import csv
 import io
 import json
 import os
-import stat
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from digail.data.input_files import check_tree, file_kind
+from digail.data.input_files import check_tree
 from digail.errors import UserError
-from digail.fsio import atomic_write_bytes, check_clear_of, check_not_locked, check_replaceable, check_writable
+from digail.fsio import atomic_write_bytes, check_output
 
 EXPORTS = ("robomimic", "lerobot", "csv", "json")
 """where `export_segmentation` writes"""
@@ -105,39 +104,12 @@ def check_export_target(fmt: str, out: Path, force: bool,
     device or a socket; a folder where a file export goes or a file where the LeRobot folder goes; an existing one
     without `force`, and with it anything but digail's own output (`check_replaceable` for the LeRobot folder, an
     export of the same kind for a file); a place that cannot be written."""
-    out = Path(out)
-    check_clear_of(out, protected)
-    try:
-        st = os.lstat(out)
-    except FileNotFoundError:
-        st = None
-    except OSError as exc:
-        raise UserError(f"cannot look at --out {out} ({(exc.strerror or type(exc).__name__).lower()}); choose "
-                        "another --out.") from None
-    if st is not None:
-        if stat.S_ISLNK(st.st_mode):
-            raise UserError(f"--out {out} is a symbolic link; an export is written only as a file or folder of its "
-                            "own, never through a link: remove the link or choose another --out.")
-        kind = file_kind(st.st_mode)
-        if kind is not None:
-            raise UserError(f"--out {out} is {kind}, not a file or folder digail wrote; choose another --out.")
-        is_dir = stat.S_ISDIR(st.st_mode)
-        if fmt == "lerobot" and not is_dir:
-            raise UserError(f"--out {out} is a file, but --export lerobot writes a folder (a copy of the dataset); "
-                            "choose a new folder name.")
-        if fmt != "lerobot" and is_dir:
-            suffix = {"robomimic": "hdf5"}.get(fmt, fmt)
-            raise UserError(f"--out {out} is a folder, but --export {fmt} writes a file; give a file name such as "
-                            f"{out / ('segments.' + suffix)}.")
-        if not force:
-            raise UserError(f"output {out} already exists; choose another --out or pass --force.")
-        if is_dir:
-            check_replaceable(out)
-            check_not_locked(out)
-        elif not _digail_export(fmt, out):
-            raise UserError(f"{out} is not a {fmt} export digail wrote, and --force replaces only those; move it "
-                            "away or choose another --out.")
-    check_writable(out)
+    suffix = {"robomimic": "hdf5"}.get(fmt, fmt)
+    writes = ("--export lerobot writes a folder (a copy of the dataset)" if fmt == "lerobot" else
+              f"--export {fmt} writes a file")
+    check_output(Path(out), "folder" if fmt == "lerobot" else "file", force, protected=protected,
+                 ours=lambda path: _digail_export(fmt, path), ours_what=f"a {fmt} export digail wrote",
+                 writes=writes, example=f"segments.{suffix}")
 
 
 _TABLE_HEADS = {"csv": b"episode,start,end,code,name\n", "json": b'{\n "names": ['}

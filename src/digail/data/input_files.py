@@ -21,20 +21,11 @@ from typing import Any
 import numpy as np
 
 from digail.errors import UserError
+from digail.fsio import file_kind as file_kind
 from digail.utils import one_line
 
 MAX_JSON_BYTES = 64 * 2**20
 """a metadata file larger than this is refused unread"""
-
-_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
-
-
-def file_kind(mode: int) -> str | None:
-    """What a `stat` mode is when it is neither a regular file nor a folder (a FIFO, a device, a socket), else
-    None."""
-    return next((name for test, name in _KINDS if test(mode)), None)
-
 
 def regular_file(path: str | os.PathLike[str], what: str = "file") -> Path:
     """`path` when it is a regular file (a link to one counts); one sentence otherwise, without opening it."""

@@ -29,7 +29,7 @@ import numpy as np
 
 from digail.data.input_files import as_float32, check_tree, inside, read_json
 from digail.errors import UserError
-from digail.fsio import atomic_dir
+from digail.fsio import atomic_dir, make_writable
 from digail.utils import one_line
 
 SUBTASK_COLUMN = "subtask_index"
@@ -246,6 +246,7 @@ def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Seque
     check_tree(source)  # no FIFO to block the copy, no link to copy another folder's files from
     with atomic_dir(out, force=force) as tmp:
         shutil.copytree(source, tmp, dirs_exist_ok=True)
+        make_writable(tmp)  # a read-only source's modes come with the copy, which is written and may be removed
         for file in data_files(tmp):
             table = pq.read_table(file)
             episode = table.column("episode_index").to_numpy().astype(np.int64)

@@ -185,8 +185,10 @@ def merge_labels(labels: np.ndarray, label_map: Sequence[int]) -> np.ndarray:
 
 # -------------------------------------------------------------------------------------------- run folder
 def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Trajectory],
-                       demos: str | None = None, label_map: Sequence[int] | None = None) -> dict[str, Any]:
-    """Segment `trajs`; write `codes.npz`, `segmentation.json` and `figures/segmentation.png` into `run`.
+                       demos: str | None = None, label_map: Sequence[int] | None = None,
+                       codes: Sequence[np.ndarray] | None = None) -> dict[str, Any]:
+    """Segment `trajs` (or take their `codes`, `segment_many`'s); write `codes.npz`, `segmentation.json` and
+    `figures/segmentation.png` into `run`.
 
     With `label_map`, scores (and the figure) use the merged labels (`merge_labels`); the map is recorded.
 
@@ -195,7 +197,7 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
         smoother) when every demonstration has oracle labels, otherwise only the switch count.
     """
     run = Path(run)
-    codes = segment_many(model, trajs)
+    codes = segment_many(model, trajs) if codes is None else list(codes)
     buf = io.BytesIO()
     arrays: dict[str, Any] = {f"episode_{i:05d}": c for i, c in enumerate(codes)}
     np.savez_compressed(buf, **arrays)

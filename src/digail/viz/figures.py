@@ -59,12 +59,26 @@ def code_colour(code: int) -> tuple[float, float, float, float]:
     return CODE_CMAP(int(code) % 10)  # type: ignore[no-any-return]
 
 
+FIGURE_SOFTWARE = "digail"
+"""the PNG `Software` text every figure carries: what tells a figure digail drew from a user's (`is_figure`)"""
+
+
+def is_figure(path: Path) -> bool:
+    """Whether the regular file `path` is a PNG figure digail drew, which `digail report --force` may replace."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    return head.startswith(b"\x89PNG\r\n\x1a\n") and b"Software\x00" + FIGURE_SOFTWARE.encode() in head
+
+
 def _save(fig: Any, path: Path) -> Path:
     """Write `fig` at DPI without cropping (the pixel size is the figure size times DPI), atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": FIGURE_SOFTWARE})
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
     return path

@@ -156,7 +156,21 @@ def _img(path: Path, alt: str) -> str:
     return f"<img src='data:{mime};base64,{data}' alt='{_esc(alt)}' loading='eager'>"
 
 
+PAGE_HEAD = ("<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+             "<meta name='viewport' content='width=device-width,initial-scale=1'><title>")
+"""how every page digail writes begins; its title follows and starts with "digail" (`is_page`)"""
+
+
 def _page(title: str, body: str) -> str:
-    return ("<!doctype html><html lang='en'><head><meta charset='utf-8'>"
-            "<meta name='viewport' content='width=device-width,initial-scale=1'>"
-            f"<title>{_esc(title)}</title><style>{STYLE}</style></head><body>{body}</body></html>")
+    return f"{PAGE_HEAD}{_esc(title)}</title><style>{STYLE}</style></head><body>{body}</body></html>"
+
+
+def is_page(path: Path) -> bool:
+    """Whether the regular file `path` is a page digail wrote (a report or a comparison), which `digail report
+    --force` may replace."""
+    head = (PAGE_HEAD + "digail").encode()
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(head)) == head
+    except OSError:
+        return False

@@ -307,6 +307,11 @@ def _seeds(n: int) -> str:
     return f"{n} seed" if n == 1 else f"{n} seeds"
 
 
+def compare_figure(out: Path) -> Path:
+    """The learning-curves figure a comparison page `out` is written with, beside it (and embedded in it)."""
+    return Path(out).with_name(Path(out).stem + "_learning_curves.png")
+
+
 def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
     """One page over many run folders: learning curves (mean and spread over seeds per method) and tables of
     medians and of each seed's main numbers. Returns `out`."""
@@ -325,7 +330,7 @@ def write_compare_report(runs: Sequence[Path], out: Path) -> Path:
         key = method_of(cfg) + (f" on {env_name(env)}" if len(envs) > 1 else "")
         groups.setdefault(key, []).append(r)
     out = Path(out)
-    fig_path = out.with_name(out.stem + "_learning_curves.png")
+    fig_path = compare_figure(out)
     existed = fig_path.exists()
     fig = learning_curves_multi(groups, fig_path)
     keys = ["mean_return", "normalized_return", *TASK_KEYS]
