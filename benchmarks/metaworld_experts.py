@@ -1,7 +1,7 @@
 """Meta-World's scripted experts on digail's Meta-World envs: success, steps to success and phase structure.
 
     python benchmarks/metaworld_experts.py                   # every task, 20 episodes -> results/metaworld_experts.json
-    python benchmarks/metaworld_experts.py --tasks pick-place-v3 --episodes 5 --out /tmp/mw.json
+    python benchmarks/metaworld_experts.py --tasks pick-place-v3 --episodes 5 --out runs/mw.json
     python benchmarks/metaworld_experts.py --markdown   # the docs' table of the shipped tasks from the JSON
 
 Each episode (reset with seed `seed + i`, random placements) runs the expert for up to `--limit` steps (500,

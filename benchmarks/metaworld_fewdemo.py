@@ -1,7 +1,7 @@
 """Few-demonstration imitation on Meta-World, a one-seed screen: behaviour cloning with and without codes.
 
     python benchmarks/metaworld_fewdemo.py                   # -> results/metaworld_fewdemo.json
-    python benchmarks/metaworld_fewdemo.py --tasks pick-place --methods bc flatbc --seeds 0 --out /tmp/few.json
+    python benchmarks/metaworld_fewdemo.py --tasks pick-place --methods bc flatbc --seeds 0 --out runs/few.json
 
 Per (task, method, seed), from the first `--demos` episodes of the task's shipped demonstrations (seeds 0..N-1):
 

@@ -17,6 +17,8 @@ import json
 import shutil
 from pathlib import Path
 
+from digail.sweep.publish import make_portable
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 KEEP = ("model.pt", "config.json", "eval.json", "metrics.csv")
@@ -60,6 +62,7 @@ def main() -> None:
             dest.mkdir(parents=True, exist_ok=True)
             for name in KEEP:
                 shutil.copyfile(source / name, dest / name)
+            make_portable(dest)
             print(f"{task} {method}: seed {seed} -> {dest.relative_to(HERE.parent)}")
             if method == "digail-l2":
                 video(source, f"{task}_{method}_s{seed}_seed10000")

@@ -1,7 +1,7 @@
 """One segmentation across Meta-World tasks: a VAE pre-trained on the demonstrations of several tasks together.
 
     python benchmarks/metaworld_shared.py        # -> results/metaworld_shared.json, figures/metaworld_shared.png
-    python benchmarks/metaworld_shared.py --seeds 0 --out /tmp/shared.json
+    python benchmarks/metaworld_shared.py --seeds 0 --out runs/shared.json
 
 pick-place, shelf-place and basketball all reach above an object, descend onto it, grasp it and carry it away; their
 experts' phases (`info["subtask"]`, runs under `MIN_SEGMENT` steps merged) are mapped to five phase kinds by reading

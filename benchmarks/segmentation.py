@@ -2,7 +2,7 @@
 setting was tuned for.
 
     python benchmarks/segmentation.py          # every task, seeds 0 1 2 -> benchmarks/results/segmentation.json
-    python benchmarks/segmentation.py --tasks shuttle square --seeds 0 --out /tmp/seg.json
+    python benchmarks/segmentation.py --tasks shuttle square --seeds 0 --out runs/seg.json
     python benchmarks/segmentation.py --set vae.smoothing-weight=0.3 ...   (extra flags for every `digail pretrain`)
 
 Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once per seed 0 with Minari's API by
@@ -130,16 +130,26 @@ def metaworld_dataset(name: str, data_root: Path) -> tuple[Path, int, str]:
                            f"{len(labels) - 50} steps)")
 
 
+def _command_path(folder: Path) -> str:
+    """`folder` as the recorded commands name it: relative to the working directory (the repository's root) when it
+    lies below it, so a published command runs on any checkout."""
+    try:
+        return folder.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return str(folder)
+
+
 def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     """(demos, K, shipped, description) of task `name`, recording a course's data set first if needed."""
     if name.startswith("metaworld-"):
         folder, codes, description = metaworld_dataset(name, data_root)
-        return str(folder), codes, True, description
+        return _command_path(folder), codes, True, description
     if name in COURSES:
         folder = record_course(name, data_root, seed=0)
-        return str(folder), COURSES[name].codes, False, COURSES[name].description
+        return _command_path(folder), COURSES[name].codes, False, COURSES[name].description
     if name in DERIVED:
-        return str(derived_dataset(name, data_root)), DERIVED[name]["codes"], True, DERIVED[name]["description"]
+        return (_command_path(derived_dataset(name, data_root)), DERIVED[name]["codes"], True,
+                DERIVED[name]["description"])
     spec = SHIPPED[name]
     return spec["demos"], spec["codes"], True, spec["description"]
 

@@ -1,4 +1,4 @@
-"""Step 1 of scripts/check_mimicgen_signals.py, in digail's venv, writing into $MG_CHECK_OUT (default /tmp/mg_check):
+"""Step 1 of scripts/check_mimicgen_signals.py, in digail's venv, writing into $MG_CHECK_OUT (default runs/mg_check):
 
 - the robomimic fixture's known phases (reach=0, carry=1) exported as check_format_exports.py does, and digail's
   own segment table (csv export of the same codes) beside it;
@@ -26,7 +26,7 @@ from digail.data.importers import read_demonstrations  # noqa: E402
 from digail.data.robomimic import SIGNALS_PATH, plan_subtasks  # noqa: E402
 
 NAMES = ["reach", "carry"]
-OUT = Path(os.environ.get("MG_CHECK_OUT", "/tmp/mg_check"))
+OUT = Path(os.environ.get("MG_CHECK_OUT", "runs/mg_check"))
 parser = argparse.ArgumentParser()
 parser.add_argument("--robosuite-export", type=Path)
 args = parser.parse_args()

@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 
 MAIN = Path(os.environ.get("DIGAIL_ROOT", Path(__file__).resolve().parents[1]))
-OUT = Path(os.environ.get("MG_CHECK_OUT", "/tmp/mg_check"))
+OUT = Path(os.environ.get("MG_CHECK_OUT", "runs/mg_check"))
 MG_COMMIT = os.environ.get("MIMICGEN_COMMIT", "72bd767c255545f462e7ccfb2731f2e5d4c1d9bb")
 EXPORT = OUT / "annotated-robomimic.hdf5"
 HARNESS = OUT / "annotated-robomimic.with-placeholder-poses.hdf5"

@@ -2,9 +2,9 @@
 
 Runs in its own virtual environment, not digail's (LeRobot needs Python >= 3.12 and its own torch):
 
-    python3.12 -m venv /tmp/venv_lerobot && /tmp/venv_lerobot/bin/pip install lerobot==0.6.1
-    /tmp/venv_lerobot/bin/python scripts/make_format_fixtures_lerobot.py            # writes the fixture
-    /tmp/venv_lerobot/bin/python scripts/make_format_fixtures_lerobot.py --check DIR  # loads a digail export
+    python3.12 -m venv runs/venv_lerobot && runs/venv_lerobot/bin/pip install lerobot==0.6.1
+    runs/venv_lerobot/bin/python scripts/make_format_fixtures_lerobot.py            # writes the fixture
+    runs/venv_lerobot/bin/python scripts/make_format_fixtures_lerobot.py --check DIR  # loads a digail export
 
 Writing: `LeRobotDataset.create`, `add_frame` per frame, `save_episode` per episode, `finalize`; no cameras (so
 no videos). Checking: `LeRobotDataset(repo_id, root=DIR)` loads the copy digail exported and every frame's

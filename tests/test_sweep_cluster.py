@@ -61,7 +61,7 @@ def cluster():
     root = tempfile.mkdtemp(prefix="dgc-")  # short: Ray's socket paths live under it
     os.environ[SESSION_ENV] = root  # every process of the cluster carries it: the teardown finds them all
     old_tmp = os.environ.get("RAY_TMPDIR")
-    os.environ["RAY_TMPDIR"] = root  # where the head records its address, instead of /tmp/ray
+    os.environ["RAY_TMPDIR"] = root  # where the head records its address, instead of Ray's default temporary folder
     (Path(root) / "ray").mkdir()
     os.environ.setdefault("MUJOCO_GL", "egl")
     workdirs = [Path(root) / f"node{i}" for i in (1, 2)]

@@ -3,6 +3,8 @@ between a page's two markers (what the generators of the published tables in `be
 
 from __future__ import annotations
 
+import io
+import os
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,6 +33,37 @@ def publish_run(src: Path, dest: Path) -> None:
             shutil.copy2(src / name, dest / name)
     if (src / "figures").is_dir():
         shutil.copytree(src / "figures", dest / "figures", dirs_exist_ok=True)
+    make_portable(dest)
+
+
+def portable_text(text: str, root: str | os.PathLike[str] | None = None) -> str:
+    """`text` with every absolute path below `root` (default: the working directory, the repository's root for the
+    publishing scripts) written relative to it: a published command or run folder then reads the same on any
+    checkout. Only the published copy is rewritten: the run's own `config.json` keeps its absolute paths, which a
+    later command on the machine that ran it needs from any directory."""
+    prefix = os.path.join(os.path.realpath(root if root is not None else os.getcwd()), "")
+    return text.replace(prefix, "")
+
+
+def make_portable(folder: Path, root: str | os.PathLike[str] | None = None) -> None:
+    """Rewrite a published run folder's `config.json` and the config stored in its `model.pt` with
+    `portable_text`; the checkpoint's tensors are saved again untouched."""
+    import torch
+
+    from digail.fsio import atomic_write_bytes
+
+    config = folder / "config.json"
+    if config.is_file():
+        config.write_text(portable_text(config.read_text(), root))
+    model = folder / "model.pt"
+    if model.is_file():
+        payload = torch.load(model, map_location="cpu", weights_only=True)
+        text = payload.get("config_json") if isinstance(payload, dict) else None
+        if isinstance(text, str) and portable_text(text, root) != text:
+            payload["config_json"] = portable_text(text, root)
+            buf = io.BytesIO()
+            torch.save(payload, buf)
+            atomic_write_bytes(model, buf.getvalue())
 
 
 def replace_between_markers(page: Path, markers: tuple[str, str], text: str) -> None:
