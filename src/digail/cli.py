@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("TrainArgs", "train_command"),
     "evaluate": ("EvaluateArgs", "evaluate_command"),
     "compose": ("ComposeArgs", "compose_command"),
+    "generate": ("GenerateArgs", "generate_command"),
     "run": ("RunArgs", "run_command"),
     "expert": ("ExpertArgs", "expert_command"),
     "video": ("VideoArgs", "video_command"),
@@ -66,6 +67,10 @@ def _module(name: str) -> ModuleType:
             from digail.commands import compose
 
             return compose
+        case "generate":
+            from digail.commands import generate
+
+            return generate
         case "run":
             from digail.commands import run
 

@@ -22,6 +22,9 @@ from digail.envs.fetch import OBJECT_POS as FETCH_OBJECT
 from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.envs.metaworld import EPISODE_STEPS as METAWORLD_STEPS
 from digail.envs.metaworld import env_id as metaworld_id
+from digail.envs.scene import FETCH as FETCH_SCENE
+from digail.envs.scene import METAWORLD as METAWORLD_SCENE
+from digail.envs.scene import SceneColumns
 from digail.errors import UserError
 from digail.paper import paper_return
 from digail.preset import Preset, resolve_preset
@@ -110,6 +113,9 @@ class EnvSpec:
     """(the desired goal's columns, the columns of what meets it) in the flat observation, for
     relabelling a demonstration's goal with where it took the object later (`--train.imitation.relabel-goals`);
     None: the env is not goal-conditioned"""
+    scene: SceneColumns | None = None
+    """the observation columns of the end-effector, object and goal and the end-effector's move actions, which
+    `digail generate` transforms and tracks demonstrated paths with; None: the env does not state them"""
 
     @property
     def paper_return(self) -> tuple[float, float] | None:
@@ -143,7 +149,7 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
                           StepMetric("grasped", "grasp_rate", "any"), StepMetric("lifted", "lift_rate", "any")),
             eval_return="dense_return", reward_name="sparse_return", auto_backend="sync", name="Fetch pick-and-place",
             labels=("reach", "grasp", "carry", "place"), relative_view="digail.envs.fetch:relative_view",
-            goal_columns=(FETCH_GOAL, FETCH_OBJECT)),
+            goal_columns=(FETCH_GOAL, FETCH_OBJECT), scene=FETCH_SCENE),
     # the same task observed without horizontal positions (relations only): D's view is then all of it
     EnvSpec("digail/FetchPickAndPlaceRelative-v4", "fetch", 50, "digail.envs.fetch:RelativeFetchPickAndPlace", 50,
             step_metrics=(StepMetric("dense_reward", "dense_return", "sum"),
@@ -168,7 +174,8 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
     # every Meta-World v3 task (digail.envs.metaworld), labelled by its scripted expert's phase; Meta-World is
     # imported only when one is made
     *(EnvSpec(metaworld_id(task), "metaworld", 50, "digail.envs.metaworld:MetaWorldEnv", steps,
-              kwargs=(("task", task),), auto_backend="sync", name=f"Meta-World {task[:-3]}", reward="shaped")
+              kwargs=(("task", task),), auto_backend="sync", name=f"Meta-World {task[:-3]}", reward="shaped",
+              scene=METAWORLD_SCENE)
       for task, steps in METAWORLD_STEPS.items()),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""

@@ -1,0 +1,167 @@
+"""`digail generate`: segments, frames, one attempt's arithmetic, a real rate on Fetch, resuming, the CLI and its
+refusals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from digail.algos.generate import (
+    GenerationPlan,
+    Segment,
+    chunk_segments,
+    frames_from_text,
+    generate,
+    infer_frames,
+    plan_segments,
+    runs_to_segments,
+)
+from digail.cli import main
+from digail.data.trajectory import Trajectory
+from digail.envs.scene import SceneColumns, parse_columns
+from digail.errors import UserError
+
+FETCH = "digail/fetchpickandplace/expert-v0"
+SCENE = SceneColumns(ee=slice(0, 3), object=slice(3, 6), goal=slice(6, 9), move_actions=slice(0, 3),
+                     gripper_action=3, action_scale=0.05)
+
+
+def test_runs_to_segments_merges_flickers() -> None:
+    labels = np.array([0, 0, 0, 1, 0, 0, 2, 2, 2, 2])
+    segs = runs_to_segments(labels, min_len=2)
+    assert [(s.start, s.end, s.key) for s in segs] == [(0, 6, 0), (6, 10, 2)]
+    assert [(s.start, s.end) for s in chunk_segments(7, 3)] == [(0, 3), (3, 6), (6, 7)]
+
+
+def _demo(obj: np.ndarray, goal: np.ndarray) -> Trajectory:
+    """Reach the object (ends 1 cm above it), then carry to the goal (ends at the goal): 2 + 2 steps."""
+    ee = np.array([[0.0, 0, 0.5], (obj + [0, 0, 0.2]), obj + [0, 0, 0.01], (obj + goal) / 2, goal])
+    obs = np.concatenate([ee, np.repeat(obj[None], 5, 0), np.repeat(goal[None], 5, 0)], 1)
+    return Trajectory(obs=obs.astype(np.float32), acts=np.zeros((4, 4), np.float32),
+                      subtasks=np.array([0, 0, 1, 1, 1]))
+
+
+def test_frames_are_where_the_end_pose_is_consistent() -> None:
+    rng = np.random.default_rng(0)
+    demos = [_demo(rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3)) for _ in range(4)]
+    segs = [[Segment(0, 2, 0), Segment(2, 4, 1)] for _ in demos]
+    assert infer_frames(demos, segs, SCENE) == {0: "object", 1: "goal"}
+    # one demonstration: the nearest origin at the segment's end
+    assert infer_frames(demos[:1], segs[:1], SCENE) == {0: "object", 1: "goal"}
+    assert frames_from_text("goal, object", [1, 0]) == {0: "goal", 1: "object"}
+    with pytest.raises(UserError, match="one frame per sub-task"):
+        frames_from_text("object", [0, 1])
+    with pytest.raises(UserError, match="no frame"):
+        frames_from_text("table,goal", [0, 1])
+    with pytest.raises(UserError, match="3 columns"):
+        parse_columns("0:4", "--ee")
+
+
+def test_order_takes_each_keys_first_segment() -> None:
+    segs = [Segment(0, 2, 0), Segment(2, 5, 1), Segment(5, 9, 2)]
+    assert plan_segments([segs], [2, 0]) == [[segs[2], segs[0]]]
+    assert plan_segments([segs[:2]], [2, 0]) == [None]
+
+
+class _PointEnv:
+    """A point end-effector that moves by `action * 0.05` per step; the object and goal sit where reset puts them;
+    success: the point within 1 cm of the goal."""
+
+    def reset(self, seed: int) -> tuple[np.ndarray, dict]:
+        rng = np.random.default_rng(seed)
+        self.obj, self.goal, self.p = rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3), np.array([0.0, 0, 0.5])
+        return self._obs(), {}
+
+    def _obs(self) -> np.ndarray:
+        return np.concatenate([self.p, self.obj, self.goal])
+
+    def step(self, act: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.p = self.p + 0.05 * np.clip(act[:3], -1, 1)
+        return self._obs(), 0.0, False, False, {"is_success": bool(np.linalg.norm(self.p - self.goal) < 0.01)}
+
+    def close(self) -> None:
+        pass
+
+
+def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> None:
+    """A demonstration whose steps the point can follow exactly (1 cm each) is replayed in new scenes, each segment
+    in its frame: with gain 1 and no blend needed after the first step the point ends on the new goal."""
+    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
+    start = np.array([0.0, 0, 0.5])
+    ee = np.concatenate([np.linspace(start, obj, 30), np.linspace(obj, goal, 10)[1:]])
+    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
+    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    plan = GenerationPlan("point", [demo], [0], [segs], {0: "object", 1: "goal"}, SCENE, gain=1.0, blend=20,
+                          hold=40, seed=3)
+    kept, state = generate(plan, _PointEnv, attempts=5, successes=None, work=tmp_path / "w", progress=False)
+    assert state.attempts == 5 and state.successes == 5 == len(kept)
+    assert state.env_steps == sum(len(t) for t in kept)
+
+
+@pytest.mark.mujoco
+def test_fetch_from_one_labelled_demo_generates_successes(tmp_path: Path) -> None:
+    """Fetch's first expert demonstration, cut at its phase labels, succeeds in at least 0.7 of 20 new scenes
+    (measured: 0.83 over 30); a generation stopped after 25 attempts and continued gives the same episodes as one
+    run straight through."""
+    from digail.algos.generate import CHECKPOINT_EVERY
+    from digail.data.minari_io import load_dataset
+    from digail.envs.registry import env_spec, make_env
+
+    env_id = "digail/FetchPickAndPlace-v4"
+    demo = load_dataset(FETCH).trajs[0]
+    segs = runs_to_segments(np.asarray(demo.subtasks)[:len(demo)], 3)
+    scene = env_spec(env_id).scene
+    plan = GenerationPlan(env_id, [demo], [0], [segs], infer_frames([demo], [segs], scene), scene, seed=500)
+    kept, state = generate(plan, lambda: make_env(env_id), 20, None, tmp_path / "a", progress=False)
+    assert state.successes / state.attempts >= 0.7
+    assert len(kept) == state.successes and all(len(t) == 50 for t in kept)  # Fetch's episodes run to the limit
+
+    whole, _ = generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY + 3, None, tmp_path / "b", progress=False)
+    generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY, None, tmp_path / "c", progress=False)
+    resumed, st = generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY + 3, None, tmp_path / "c",
+                           progress=False)
+    assert st.attempts == CHECKPOINT_EVERY + 3 and len(resumed) == len(whole)
+    assert all(np.array_equal(a.obs, b.obs) for a, b in zip(resumed, whole, strict=True))
+    other = GenerationPlan(env_id, [demo], [0], [segs], plan.frames, scene, gain=0.5, seed=500)
+    with pytest.raises(UserError, match="other settings"):
+        generate(other, lambda: make_env(env_id), 30, None, tmp_path / "c", progress=False)
+
+
+@pytest.mark.mujoco
+def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from digail.data.minari_io import load_dataset
+
+    out = tmp_path / "gen"
+    assert main(["generate", "--demos", FETCH, "--sources", "0", "--attempts", "6", "--out", str(out),
+                 "--no-progress"]) == 0
+    ds = load_dataset(out)
+    record = ds.metadata["digail"]["generation"]
+    assert record["attempts"] == 6 and record["successes"] == len(ds.trajs) > 0
+    assert record["env_steps"] >= sum(len(t) for t in ds.trajs)
+    assert [s["frame"] for s in record["episodes"][0]["segments"]] == ["object", "object", "object", "goal"]
+    assert not (tmp_path / "gen.partial").exists()
+    before = (out / "data" / "main_data.hdf5").read_bytes()
+    capsys.readouterr()
+    cases = [
+        (["--out", str(out)], "already exists"),
+        (["--demos", "digail/fetchpickandplacerelative/expert-v0", "--out", str(tmp_path / "r")], "--ee"),
+        (["--segments", "codes", "--out", str(tmp_path / "c")], "--vae RUN or --codes"),
+        (["--segments", "chunks", "--frames", "object,goal", "--out", str(tmp_path / "f")], "one frame per"),
+        (["--order", "3,9", "--out", str(tmp_path / "o")], "do not have"),
+        (["--sources", "0,0", "--out", str(tmp_path / "s")], "distinct episodes"),
+        (["--ee", "0:3", "--out", str(tmp_path / "e")], "needs --object"),
+    ]
+    for extra, phrase in cases:
+        argv = ["generate", "--demos", FETCH, "--attempts", "2", "--no-progress", *extra]
+        if "--demos" in extra:
+            argv = ["generate", "--attempts", "2", "--no-progress", *extra]
+        assert main(argv) == 2, extra
+        err = capsys.readouterr().err
+        assert phrase in err and err.count("\n") == 1, (extra, err)
+    assert (out / "data" / "main_data.hdf5").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gen"]
+    json.dumps(record)
