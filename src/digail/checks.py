@@ -37,9 +37,32 @@ def check_at_least(value: int | None, flag: str, low: int = 1) -> None:
         _require(isinstance(value, int) and value >= low, flag, f"at least {low}", value)
 
 
-def check_codes(codes: int) -> None:
-    """The number of sub-task codes K: at least 1 (`--codes`)."""
-    _require(isinstance(codes, int) and not isinstance(codes, bool) and codes >= 1, "--codes", "at least 1", codes)
+MAX_CODES = 256
+"""most sub-task codes K: the prior holds K x K numbers and every step's q K, and no demonstrated task has come
+near a hundred sub-tasks"""
+
+
+def check_codes(codes: int, flag: str = "--codes") -> None:
+    """The number of sub-task codes K: between 1 and `MAX_CODES` (`--codes`)."""
+    _require(isinstance(codes, int) and not isinstance(codes, bool) and 1 <= codes <= MAX_CODES, flag,
+             f"between 1 and {MAX_CODES}", codes)
+
+
+AT_MOST: dict[str, int] = {
+    "--vae.steps": 10**8, "--vae.batch-size": 2**16, "--vae.restarts": 1000, "--vae.polish-steps": 10**8,
+    "--vae.init-steps": 10**8, "--vae.warmup-epochs": 10**6, "--vae.q-anticipate": 10**6,
+    "--train.iterations": 10**8, "--train.eval-episodes": 10**6, "--train.bc-batch-size": 2**24,
+    "--train.disc-updates": 10**4, "--train.disc-minibatch-size": 2**24, "--train.value-warmup": 10**6,
+    "--train.env-workers": 1024,
+    "--train.ppo.num-envs": 1024, "--train.ppo.batch-size": 2**24, "--train.ppo.epochs": 10**4,
+    "--train.ppo.minibatch-size": 2**24,
+    "--train.sac.num-envs": 1024, "--train.sac.steps-per-iteration": 2**24, "--train.sac.batch-size": 2**24,
+    "--train.sac.learning-starts": 10**9, "--train.sac.policy-warmup": 10**9,
+}
+"""upper bounds of the counts that size memory, iterations or time, checked with the lower ones before any work:
+far above any setting that has been useful (a batch of 16M rows, 100M iterations), low enough that a slip of the
+keyboard (`--train.ppo.batch-size 10000000000`) is one sentence rather than an allocation failure or a run that
+never ends. The replay buffer (`--train.sac.buffer-size`) is checked against the memory available instead."""
 
 
 FINAL_EVAL_SEED = 10_000
@@ -59,7 +82,10 @@ def _check_numbers(cfg: Any, prefix: str, at_least: dict[str, int], non_negative
 
     for name, low in at_least.items():
         v = getattr(cfg, name)
+        high = AT_MOST.get(flag(name))
         _require(isinstance(v, int) and v >= low, flag(name), f"at least {low}", v)
+        if high is not None:
+            _require(v <= high, flag(name), f"at most {high:,}", v)
     for name in non_negative:
         v = getattr(cfg, name)
         if v is not None:

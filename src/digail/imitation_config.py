@@ -46,7 +46,8 @@ class ImitationConfig:
     disc_dropout: float = 0.0
     """D-based rewards: dropout after each hidden layer of D during its updates (off when it scores); 0: none"""
     disc_weight_decay: float = 0.0
-    """D-based rewards: L2 weight decay of D's Adam; 0: none"""
+    """D-based rewards: L2 weight decay of D's Adam, at most 1 (beyond, D's weights shrink faster than its loss
+    can train them and its loss overflows); 0: none"""
     disc_actions: bool = True
     """D-based rewards: whether D sees the action beside the state; off, D judges states alone (as GAIfO), so it
     cannot tell the agent by how its sampled actions differ from the demonstrations' and grades only where the
@@ -55,7 +56,8 @@ class ImitationConfig:
     """D-based rewards on goal-conditioned envs (Fetch): for every demonstration step, this many copies more among
     D's expert inputs, each with the goal replaced by where the demonstration's object is at a later step of the
     same demonstration, drawn uniformly (goalGAIL's expert relabelling: the expert's action also heads for that
-    goal), so a few demonstrations show D many goals; 0: none"""
+    goal), so a few demonstrations show D many goals; at most 1000 (each copy is a row of D's expert inputs per
+    demonstration step); 0: none"""
     ot_top_k: int = 1
     """`ot*`: how many of the closest demonstrations (lowest total transport cost) an episode's reward averages"""
     ot_cost: Literal["cosine", "euclidean"] = "cosine"
@@ -63,12 +65,15 @@ class ImitationConfig:
     in [0, 2]), or `euclidean`, the root-mean-square difference per feature in units of the demonstrations' spread
     (D's view is standardised on them), which grows with how far a step is from a demonstration's"""
     ot_epsilon: float = 0.05
-    """`ot*`: entropic regularisation of the Sinkhorn iterations, in the cost's units"""
+    """`ot*`: entropic regularisation of the Sinkhorn iterations, in the cost's units: 1e-4 to 1e4 (below, cost /
+    epsilon overflows the log-domain sums; above, the plan is uniform whatever the cost)"""
     ot_iterations: int = 50
-    """`ot*`: Sinkhorn iterations (log domain)"""
+    """`ot*`: Sinkhorn iterations (log domain) per episode's reward, 1 to 1000 (each is a pass over every
+    demonstration; 1000 makes a training iteration some 20 times slower than the default)"""
     ot_scale: float = 1.0
     """`ot*`: the reward of an agent step is minus this times its transport cost (the cost its unit of mass
-    pays), so with the cosine it lies in [-2 ot_scale, 0] whatever the episode's length"""
+    pays), so with the cosine it lies in [-2 ot_scale, 0] whatever the episode's length; at most 1000, which keeps
+    returns and the value loss finite"""
     ot_code_penalty: float = 1.0
     """`ot-subtask`: cost added where the agent's code and the demonstration step's code differ (a mismatch the
     marginals force still costs, so a sub-task the agent skips or overstays shows in its reward)"""
@@ -95,14 +100,20 @@ class ImitationConfig:
         for name in ("ot_epsilon", "ot_scale"):
             value = getattr(self, name)
             _check(math.isfinite(value) and value > 0, name, "positive", value)
+        # the ranges within which the losses stay finite (measured at both ends); the bounds are the docstrings'
+        for name, low, high in (("disc_weight_decay", 0, 1), ("ot_epsilon", 1e-4, 1e4), ("ot_scale", 0, 1e3)):
+            value = getattr(self, name)
+            _check(low <= value <= high, name, f"between {low:g} and {high:g}", value)
         _check(isinstance(self.relabel_goals, int) and not isinstance(self.relabel_goals, bool)
-               and self.relabel_goals >= 0, "relabel_goals", "a whole number, not negative", self.relabel_goals)
+               and 0 <= self.relabel_goals <= 1000, "relabel_goals", "a whole number from 0 to 1000",
+               self.relabel_goals)
         _check(self.relabel_goals == 0 or not self.kind.startswith("ot"), "relabel_goals",
                "0 with an optimal-transport reward (it relabels D's expert inputs; use kind bce or pu)",
                self.relabel_goals)
         for name in ("ot_top_k", "ot_iterations"):
             value = getattr(self, name)
             _check(isinstance(value, int) and not isinstance(value, bool) and value >= 1, name, "at least 1", value)
+        _check(self.ot_iterations <= 1000, "ot_iterations", "at most 1000", self.ot_iterations)
 
     @property
     def regularised(self) -> bool:

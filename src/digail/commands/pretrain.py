@@ -26,11 +26,11 @@ class PretrainArgs:
     """keep every K-th transition of each demonstration, from a random offset per episode drawn from the seed
     (GAIL's and DAC's few-demonstration setting: 20); 1 keeps all"""
     codes: int | Literal["auto"] | None = None
-    """number of sub-task codes K (default: the preset's); `auto` tries K = 2 .. `max_codes` and keeps the one
+    """number of sub-task codes K, 1 to 256 (default: the preset's); `auto` tries K = 2 .. `max_codes` and keeps the one
     whose segmentation describes held-out demonstrations in the fewest nats (no labels; the curve is written to
     config.json as `k_selection`)"""
     max_codes: int = 8
-    """largest K that `--codes auto` tries"""
+    """largest K that `--codes auto` tries (at most 256, as --codes)"""
     preset: str | None = None
     """settings preset (default: the one for the dataset's env)"""
     out: Path | None = None
@@ -51,6 +51,7 @@ class PretrainArgs:
         if self.codes != "auto" and self.codes is not None:
             check_codes(self.codes)
         check_at_least(self.max_codes, "--max-codes", 2)
+        check_codes(self.max_codes, "--max-codes")
 
 
 ALIASES = {"--vae.codes": "--codes"}

@@ -47,7 +47,7 @@ class SweepArgs:
     address: Annotated[str | None, _flag("ADDRESS")] = None
     """Ray cluster address (default: $RAY_ADDRESS, else a local Ray sized to this machine)"""
     num_cpus: Annotated[int | None, _flag("INT")] = None
-    """CPUs of the local Ray (default: all cores)"""
+    """CPUs of the local Ray, at least 1 (default: all cores)"""
     retries: Annotated[int | None, _flag("INT")] = None
     """extra attempts of a failed trial (default: the spec's, 1)"""
     cpus_per_trial: Annotated[float | None, _flag("FLOAT")] = None
@@ -68,6 +68,12 @@ class SweepArgs:
     (default: eval/normalized_return)"""
     mode: Literal["max", "min"] | None = None
     """maximise or minimise the metric (default: max)"""
+
+    def __post_init__(self) -> None:
+        from digail.checks import check_at_least
+
+        # 0 would read as "unset" further on and quietly mean every core
+        check_at_least(self.num_cpus, "--num-cpus")
 
 
 def sweep_command(args: SweepArgs) -> dict[str, Any]:

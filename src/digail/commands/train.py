@@ -145,19 +145,45 @@ def train_command(args: TrainArgs) -> Path:
     except (UserError, TrainingError) as exc:
         # bad input found only once training ran (a view of the user's failing on the agent's observations) or a
         # NaN loss: a folder this command made that holds no checkpoint yet is nothing to resume, so it goes
-        if not made or ckpt.exists():
-            raise
-        from digail.fsio import remove_path
+        message = likely_cause(str(exc), cfg) if isinstance(exc, TrainingError) else str(exc)
+        if made and not ckpt.exists():
+            from digail.fsio import remove_path
 
-        remove_path(run_dir)
+            remove_path(run_dir)
+            message = message.replace("the last good checkpoint is kept", f"no checkpoint was saved yet, so "
+                                      f"{run_dir} is removed")
         if isinstance(exc, TrainingError):
-            raise TrainingError(str(exc).replace("the last good checkpoint is kept", f"no checkpoint was saved yet, "
-                                                 f"so {run_dir} is removed")) from None
+            raise TrainingError(message) from None
         raise
     finally:
         trainer.close()
     print(f"run folder: {run_dir}")
     return run_dir
+
+
+GENERIC_CAUSE = "lower the learning rate or check the demonstrations"
+"""the advice of a non-finite loss when no setting stands out (`likely_cause`)"""
+
+
+def likely_cause(message: str, cfg: TrainConfig) -> str:
+    """A non-finite-loss sentence whose advice names the reward settings most likely responsible: those that scale
+    the reward or D's loss (`--train.imitation.*`) and were set away from their defaults; the generic advice
+    when none was."""
+    from dataclasses import fields
+
+    from digail.imitation_config import ImitationConfig
+
+    ot = cfg.imitation.kind.startswith("ot")
+    scaling = ("ot_epsilon", "ot_scale", "ot_cost", "ot_time_weight", "ot_code_penalty") if ot else \
+        ("disc_weight_decay", "disc_noise", "relabel_goals", "pu_prior")
+    default = ImitationConfig()
+    moved = [f"--train.imitation.{f.name.replace('_', '-')} {getattr(cfg.imitation, f.name)}"
+             for f in fields(ImitationConfig) if f.name in scaling
+             and getattr(cfg.imitation, f.name) != getattr(default, f.name)]
+    if not moved or GENERIC_CAUSE not in message:
+        return message
+    return message.replace(GENERIC_CAUSE, f"the likely cause is {' and '.join(moved)}, set away from the "
+                           "default: try a value nearer it (or lower the learning rate)")
 
 
 def extend_run(run_dir: Path, config: dict[str, Any], done: int, until: int) -> None:

@@ -88,6 +88,9 @@ def _flat(group: Any, keys: Sequence[str], where: str) -> np.ndarray:
         arr = h5_array(group[key], where, key)  # checked: numeric, real, stored in the file, within memory
         if arr.ndim == 0:
             raise UserError(f"{where} has '{key}' as a single number; it needs one row per step.")
+        if arr.size == 0 and len(arr):  # rows of no values: nothing a policy could see
+            raise UserError(f"{where} has observation '{key}' 0 values wide; choose keys that hold values with "
+                            "--obs-keys.")
         parts.append(as_float32(arr.reshape(len(arr), -1), where, key))
     lengths = {len(p) for p in parts}
     if len(lengths) != 1:
@@ -195,7 +198,10 @@ def _read_demos(f: Any, where: str, obs_keys: Sequence[str] | None) -> dict[str,
         demo = demos[key]
         row = f"{where}, data/{key}"
         acts = h5_array(demo["actions"], row, "actions")
-        if acts.ndim == 0 or not len(acts):  # nothing to learn from; said in the notes
+        if acts.ndim == 0:
+            raise UserError(f"{row} has 'actions' as a single number; robomimic stores one action row per step, "
+                            "so repair or drop this demonstration.")
+        if not len(acts):  # nothing to learn from; said in the notes
             continue
         obs = _flat(demo["obs"], chosen, row)
         rews = h5_array(demo["rewards"], row, "rewards").reshape(-1) if "rewards" in demo else None
@@ -219,8 +225,7 @@ def _read_demos(f: Any, where: str, obs_keys: Sequence[str] | None) -> dict[str,
         oracle = _oracle_signals(signals) if isinstance(signals, h5py.Group) else []
         if oracle:
             signal_names.update(oracle)
-            ended = np.stack([np.maximum.accumulate(h5_array(signals[s], row, f"{SIGNALS_PATH}/{s}").reshape(-1)
-                                                    != 0) for s in oracle]).sum(axis=0)
+            ended = np.stack([np.maximum.accumulate(_signal(signals, s, row) != 0) for s in oracle]).sum(axis=0)
             step_labels = np.concatenate([ended, ended[-1:]])[:len(obs)]
             labels.append(np.pad(step_labels, (0, len(obs) - len(step_labels)), mode="edge").astype(np.int64))
         else:
@@ -262,6 +267,15 @@ def _read_demos(f: Any, where: str, obs_keys: Sequence[str] | None) -> dict[str,
     found = (f"a robomimic file ({len(keys)} demonstrations data/{keys[0]} .. data/{keys[-1]}{of_env}; observation "
              f"keys {', '.join(chosen)} flattened in this order{filters})")
     return {"episodes": eps, "notes": notes, "found": found, "episode_keys": kept, "metadata": metadata}
+
+
+def _signal(signals: Any, name: str, row: str) -> np.ndarray:
+    """One sub-task signal of a demonstration, checked: 0 or 1 per step, so NaN never counts as "turned 1"."""
+    values = h5_array(signals[name], row, f"{SIGNALS_PATH}/{name}").reshape(-1)
+    if values.dtype.kind in "fc" and not np.isfinite(values).all():
+        raise UserError(f"{row} has NaN or inf in {SIGNALS_PATH}/{name}; a sub-task signal is 0 or 1 per step, "
+                        "so repair it or remove the signals.")
+    return values
 
 
 def _oracle_signals(group: Any) -> list[str]:

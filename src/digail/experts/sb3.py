@@ -27,7 +27,7 @@ from digail.experts.recipes import (
     safe_name,
     spec_for,
 )
-from digail.fsio import atomic_write_bytes, run_dir_lock, write_json
+from digail.fsio import atomic_write_bytes, check_output, digail_made, run_dir_lock, write_json, write_marker
 from digail.utils import one_line, progress_bar, resolve_device, set_torch_threads
 
 _STEP_RE = re.compile(r"step_(\d+)\.pt$")
@@ -360,7 +360,13 @@ def train_expert(args: ExpertRun) -> Path:
     elif existing or (out / "expert.pt").exists() or (ckpt_dir.is_dir() and any(ckpt_dir.glob("step_*.zip"))):
         raise UserError(f"{out} already holds a training run; pass --resume to continue it or choose "
                         "another --out.")
+    else:  # a new folder, or one digail made: never a user's folder, a file, a link or a device
+        if out.is_dir() and not out.is_symlink() and not digail_made(out):
+            raise UserError(f"{out} is a folder digail did not make; `digail expert` writes only into a new folder "
+                            "or one of its own, choose another --out.")
+        check_output(out, "folder", force=True, writes="`digail expert` writes a folder")
     out.mkdir(parents=True, exist_ok=True)
+    write_marker(out)
     with run_dir_lock(out):  # one writer per expert folder: a second `digail expert` on it is refused
         return _train_in(args, spec, out, total, device, existing[-1][1] if args.resume else None)
 
