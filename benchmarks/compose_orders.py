@@ -3,9 +3,9 @@
     python benchmarks/compose_orders.py circle --runs runs/cw_s0 runs/cw_s1 runs/cw_s2 --flat runs/cw_flat_s0
     python benchmarks/compose_orders.py rooms --runs runs/frs_s0 --flat runs/fr_flat_s0
 
-Each call measures one task and merges its entry into benchmarks/results/compose_orders.json (`--out`), with the
-command that made it. Every run folder is measured as trained (its model.pt) and as its VAE alone (RUN/vae, when
-there), with the same episodes for every policy.
+Each call measures one task and merges its entry into benchmarks/results/new-orders/compose_orders.json
+(`--out`), with the command that made it. Every run folder is measured as trained (its model.pt) and as its VAE
+alone (RUN/vae, when there), with the same episodes for every policy.
 
 - circle: Circle-World reversed, the counter-clockwise circle first, then the clockwise one, no durations given.
   The order is the run's codes for labels 1, 0 (its segmentation.json mapping). Success is the env's own
@@ -335,7 +335,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--hold", type=int, default=1)
     ap.add_argument("--figure", type=Path, default=None, help="rooms: paths from room 0, one panel per policy")
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/compose_orders.json"))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/new-orders/compose_orders.json"))
     args = ap.parse_args()
     result = {"circle": circle, "rooms": rooms, "route": landmark_route}[args.task](args)
     result["command"] = "python " + " ".join(sys.argv)

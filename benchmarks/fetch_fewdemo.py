@@ -1,9 +1,11 @@
 """Few-demonstration multi-stage tasks (FetchPickAndPlace, the landmark route): the table, the learning curves and
 the results file from the run folders that `benchmarks/fetch_fewdemo.sh` / `benchmarks/route_fewdemo.sh` write.
 
-    python benchmarks/fetch_fewdemo.py runs/fetchfew [--task fetch] [--out benchmarks/results/fetch_fewdemo.json]
+    python benchmarks/fetch_fewdemo.py runs/fetchfew [--task fetch]
+        [--out benchmarks/results/fetch-few-demos/fetch_fewdemo.json]
         [--markdown FILE] [--figure benchmarks/results/figures/fetch_fewdemo_curves.png]
-    python benchmarks/fetch_fewdemo.py runs/routefew --task route --out benchmarks/results/route_fewdemo.json ...
+    python benchmarks/fetch_fewdemo.py runs/routefew --task route \
+        --out benchmarks/results/landmark-route/route_fewdemo.json ...
 
 Per run folder (`runs/fetchfew/d<N>/<method>_s<seed>`, the VAEs as `bc_k4_s<seed>` and `bc_k1_s<seed>`): the
 demonstrations N, the method, the seed, the env steps trained, the 100-episode evaluation (`eval.json`: Fetch's
@@ -286,7 +288,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("root", type=Path, help="the folder the job script wrote (runs/fetchfew, runs/routefew)")
     parser.add_argument("--task", choices=sorted(TASKS), default="fetch")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_fewdemo.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch-few-demos/fetch_fewdemo.json"))
     parser.add_argument("--markdown", type=Path)
     parser.add_argument("--figure", type=Path)
     parser.add_argument("--page", type=Path, help="a Markdown page whose `<!-- TASK_fewdemo:start -->` and "

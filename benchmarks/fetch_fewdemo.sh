@@ -34,7 +34,7 @@
 #                 with `digail train --resume --until 244`, the same numbers as a run started with 244
 #     -sac        the off-policy learner (SAC: 1000 env steps an iteration, its discriminator with a gradient
 #                 penalty, as DAC); ITERATIONS default 400 (400k env steps), a 20-episode evaluation every 20
-#     -sacfast    the same on the cheaper schedule of benchmarks/sac_fetch_speed.py: one update every 4 env steps
+#     -sacfast    the same on the cheaper schedule of benchmarks/studies/sac_fetch_speed.py: one update every 4 env steps
 #                 (--train.sac.utd 0.25), D every 4 on a minibatch of 1024
 #   e.g. digail-l2-rel-nobonus, flatbc-l2-rel, gail-l2-sac, digail-l2-rel-argmax-1m
 # FETCH_OBS=relative: the same on digail/FetchPickAndPlaceRelative-v4 (observed in the relative view, its own copy of

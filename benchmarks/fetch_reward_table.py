@@ -4,11 +4,13 @@ behaviour-cloned start.
 
     benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-argmax-noise-1m SEED      # SEED 0, 1, 2; and so on for each row:
     benchmarks/fetch_fewdemo.sh 4 flatbc-l2-rel-noise-1m SEED              # DEMOS 4 or 1, METHOD the row's key
-    python benchmarks/fetch_reward_table.py runs/fetchfew --out benchmarks/results/fetch_reward_full.json \
+    python benchmarks/fetch_reward_table.py runs/fetchfew \
+        --out benchmarks/results/fetch-few-demos/fetch_reward_full.json \
         --figure benchmarks/results/figures/fetch_reward_full.png --page docs/results.md
 
 Today's rows (`digail-l2-rel-argmax-1m`, `flatbc-l2-rel-1m`) are read from their run folders where this machine
-has them, else from the few-demonstration study's results file (`benchmarks/results/fetch_fewdemo.json`), where
+has them, else from the few-demonstration study's results file
+(`benchmarks/results/fetch-few-demos/fetch_fewdemo.json`), where
 they were measured; any other row missing here keeps its record from `--out`. Per row: the success of each seed
 (100 evaluation episodes at the end) and their median, grasp and lift, and whether the reward still taught at the
 end: D's expert accuracy and the reward per agent step over the last 10 iterations.
@@ -49,7 +51,7 @@ ROWS_ONE = {
 """the same with 1 demonstration: today's rows are the study's (3 seeds at 410k), the others at 1M"""
 TABLES = {4: ROWS, 1: ROWS_ONE}
 SEEDS = (0, 1, 2)
-STUDY = Path(__file__).resolve().parent / "results" / "fetch_fewdemo.json"
+STUDY = Path(__file__).resolve().parent / "results" / "fetch-few-demos" / "fetch_fewdemo.json"
 
 
 def collect(root: Path, kept: list[dict[str, Any]], demos: int = 4) -> list[dict[str, Any]]:
@@ -165,7 +167,7 @@ def figure(records: list[dict[str, Any]], path: Path, root: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("root", type=Path, help="the folder holding d4/<method>_s<seed> run folders")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_reward_full.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch-few-demos/fetch_reward_full.json"))
     parser.add_argument("--figure", type=Path)
     parser.add_argument("--page", type=Path, help="a page with the table's markers, rewritten in place")
     args = parser.parse_args()

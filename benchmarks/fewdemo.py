@@ -1,6 +1,6 @@
 """The few-demonstration benchmark's table from its run folders (benchmarks/sweeps/fewdemo.toml).
 
-    python benchmarks/fewdemo.py --sweep runs/sweeps/fewdemo [--out benchmarks/results/fewdemo.json]
+    python benchmarks/fewdemo.py --sweep runs/sweeps/fewdemo [--out benchmarks/results/few-demos/fewdemo.json]
     python benchmarks/fewdemo.py RUN [RUN ...] [--merge [--drop OLD ...]]   # any training or VAE run folders
 
 Per run: env, method, learner, demonstration setting, seed; the environment steps done (`partial` when fewer than
@@ -281,7 +281,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="*", type=Path)
     parser.add_argument("--sweep", type=Path)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fewdemo.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/few-demos/fewdemo.json"))
     parser.add_argument("--commands", type=Path, help="a JSON file {run folder: the command that made it}")
     parser.add_argument("--merge", action="store_true",
                         help="keep the entries of --out whose run folders are not given (runs made elsewhere)")

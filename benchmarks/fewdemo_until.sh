@@ -3,7 +3,7 @@
 #   benchmarks/fewdemo_until.sh STEPS RUN_DIR -- digail train ... --out RUN_DIR
 # The training is stopped with SIGTERM (it writes its checkpoint; `digail train --resume RUN_DIR` continues it) once
 # RUN_DIR/metrics.csv reaches STEPS env steps, and its last checkpoint is evaluated on 100 closed-loop episodes
-# (RUN_DIR/eval.json). The SAC runs of benchmarks/results/fewdemo.json marked "stopped with SIGTERM at N" ran so.
+# (RUN_DIR/eval.json). The SAC runs of benchmarks/results/few-demos/fewdemo.json marked "stopped with SIGTERM at N" ran so.
 set -u
 N=$1; RUN=$2; shift 3
 "$@" &

@@ -1,6 +1,6 @@
 """Meta-World's scripted experts on digail's Meta-World envs: success, steps to success and phase structure.
 
-    python benchmarks/metaworld_experts.py                   # every task, 20 episodes -> results/metaworld_experts.json
+    python benchmarks/metaworld_experts.py       # every task, 20 episodes -> results/metaworld/metaworld_experts.json
     python benchmarks/metaworld_experts.py --tasks pick-place-v3 --episodes 5 --out runs/mw.json
     python benchmarks/metaworld_experts.py --markdown   # the docs' table of the shipped tasks from the JSON
 
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=500)
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_experts.json")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld" / "metaworld_experts.json")
     parser.add_argument("--markdown", action="store_true", help="print the docs' table from --out and stop")
     args = parser.parse_args(argv)
     if args.markdown:

@@ -1,6 +1,6 @@
 """Few-demonstration imitation on Meta-World, a one-seed screen: behaviour cloning with and without codes.
 
-    python benchmarks/metaworld_fewdemo.py                   # -> results/metaworld_fewdemo.json
+    python benchmarks/metaworld_fewdemo.py                   # -> results/metaworld/metaworld_fewdemo.json
     python benchmarks/metaworld_fewdemo.py --tasks pick-place --methods bc flatbc --seeds 0 --out runs/few.json
 
 Per (task, method, seed), from the first `--demos` episodes of the task's shipped demonstrations (seeds 0..N-1):
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--iterations", type=int, default=10, help="training iterations of the -l2 methods")
     parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_fewdemo"))
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_fewdemo.json")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld" / "metaworld_fewdemo.json")
     parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
                         help="run nothing: add the rows of these files (calls that ran side by side) to --out")
     args = parser.parse_args(argv)

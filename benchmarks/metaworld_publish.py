@@ -2,7 +2,7 @@
 
     MUJOCO_GL=egl python benchmarks/metaworld_publish.py --runs runs/mwfew [--tasks box-close ...]
 
-For every task and adversarial method in `results/metaworld_fewdemo.json`, at the longest training with three
+For every task and adversarial method in `results/metaworld/metaworld_fewdemo.json`, at the longest training with three
 seeds (the run folders hold their last training only), the seed
 whose success is the median of the three (the lower seed on a tie) is copied (model, config, evaluation, metrics;
 no checkpoint) to `results/runs/metaworld_<task>_<method>_s<seed>`, where tests/test_committed_runs.py evaluates
@@ -45,7 +45,7 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", help="only these tasks (default: every task in the JSON)")
     parser.add_argument("--methods", nargs="+", default=["digail-l2", "flatbc-l2"])
     args = parser.parse_args()
-    rows = json.loads((RESULTS / "metaworld_fewdemo.json").read_text())["rows"]
+    rows = json.loads((RESULTS / "metaworld" / "metaworld_fewdemo.json").read_text())["rows"]
     tasks = args.tasks or list(dict.fromkeys(r["task"] for r in rows))
     for task in tasks:
         trained = False

@@ -1,6 +1,6 @@
 """One segmentation across Meta-World tasks: a VAE pre-trained on the demonstrations of several tasks together.
 
-    python benchmarks/metaworld_shared.py        # -> results/metaworld_shared.json, figures/metaworld_shared.png
+    python benchmarks/metaworld_shared.py  # -> results/metaworld/metaworld_shared.json, figures/metaworld_shared.png
     python benchmarks/metaworld_shared.py --seeds 0 --out runs/shared.json
 
 pick-place, shelf-place and basketball all reach above an object, descend onto it, grasp it and carry it away; their
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--codes", type=int, default=len(KIND_NAMES))
     parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_shared"))
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld_shared.json")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld" / "metaworld_shared.json")
     parser.add_argument("--figure", type=Path, default=HERE / "results" / "figures" / "metaworld_shared.png")
     args = parser.parse_args(argv)
     demos, tasks = shared_dataset((args.runs / "data").resolve())

@@ -16,15 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parent / "results" / "metaworld"
+SEGMENTATION = Path(__file__).resolve().parent / "results"
 # the shipped tasks in the order of the segmentation table and the how-to
 ORDER = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball", "disassemble", "peg-insert-side",
          "box-close", "hammer")
 
 
 def segmentation() -> str:
-    tasks = json.loads((RESULTS / "segmentation.json").read_text())["tasks"]
-    codes_file = RESULTS / "segmentation_codes_metaworld.json"
+    tasks = json.loads((SEGMENTATION / "segmentation.json").read_text())["tasks"]
+    codes_file = SEGMENTATION / "segmentation_codes_metaworld.json"
     auto = json.loads(codes_file.read_text())["tasks"] if codes_file.is_file() else {}
     lines = ["| task | K (phases) | steps | accuracy (seeds) | NMI | boundary F1 | switches / episode (truth) | "
              "auto-K, seed 0 | time |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]

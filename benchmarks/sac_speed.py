@@ -6,7 +6,7 @@ One torch thread, one environment, one update of batch 256 per environment step 
 warm-up that fills the buffer past the learning start. A size H gives the actor, both critics (and D) hidden
 layers HxH in both libraries; P:Q gives the actor (and D) PxP and the critics QxQ (the training runs' 64:256).
 Each round times every variant in turn, so that drifting load on a shared machine hits all of them alike; the
-medians over the rounds and their ratios go to benchmarks/results/sac_speed.json. Every variant is timed by the
+medians over the rounds and their ratios go to benchmarks/results/speed/sac_speed.json. Every variant is timed by the
 wall clock (`*_sps_H`) and by this process's CPU time (`*_cpu_sps_H`, steps per CPU second): on a machine shared
 with other jobs the wall clock also counts the time the process waited for a core, the CPU time does not (it still
 grows somewhat with load: caches and the core's other hardware thread are shared):
@@ -142,7 +142,7 @@ def main() -> None:
                         help="H (every net HxH) or P:Q (actor and D PxP, critics QxQ)")
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--out", default="benchmarks/results/sac_speed.json")
+    parser.add_argument("--out", default="benchmarks/results/speed/sac_speed.json")
     args = parser.parse_args()
     from digail.utils import keep_heap_pages, set_torch_threads
 

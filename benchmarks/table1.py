@@ -6,7 +6,7 @@ from the sweep that ran it.
     python benchmarks/table1.py readme       the table into docs/results.md from the committed table1.json alone
     python benchmarks/table1.py figures      -> benchmarks/results/figures/table1/ and table1_codes.json
 
-`sweep` writes benchmarks/results/table1.json (per env, method and seed: the 300-episode evaluation, the
+`sweep` writes benchmarks/results/table1/table1.json (per env, method and seed: the 300-episode evaluation, the
 normalised return, the env steps at which the 5-episode evaluations during training first reached 0.9, wall time,
 the exact commands, whether the seed meets its env's target; medians), copies the sweep's results.json /
 results.md to benchmarks/results/sweeps/table1/, the median seed's run folder of every cell to
@@ -32,7 +32,7 @@ from digail import paper
 from digail.sweep.publish import median_seed, publish_run, replace_between_markers
 
 HERE = Path(__file__).resolve().parent
-OUT = HERE / "results" / "table1.json"
+OUT = HERE / "results" / "table1" / "table1.json"
 PAGE = HERE.parent / "docs" / "results.md"
 MARKERS = ("<!-- table1:start (python benchmarks/table1.py readme) -->", "<!-- table1:end -->")
 ENVS = {"Pendulum-v1": ("pendulum", 1_000_000), "InvertedPendulum-v5": ("invertedpendulum", 1_000_000),
@@ -172,7 +172,7 @@ def figures(t: dict[str, Any]) -> dict[str, Any]:
 
     folder = HERE / "results" / "figures" / "table1"
     folder.mkdir(parents=True, exist_ok=True)
-    codes_json = HERE / "results" / "table1_codes.json"
+    codes_json = HERE / "results" / "table1" / "table1_codes.json"
     before = json.loads(codes_json.read_text()) if codes_json.exists() else {}
     out: dict[str, Any] = {}
     for env, row in t.items():

@@ -3,7 +3,7 @@
     digail sweep --spec benchmarks/sweeps/table2.toml --out runs/sweeps/table2      the 15 trials (resumable)
     python benchmarks/table2.py runs/sweeps/table2
 
-writes benchmarks/results/table2.json (per method and seed: the paper's dense return, the sparse return, success,
+writes benchmarks/results/table2/table2.json (per method and seed: the paper's dense return, the sparse return, success,
 grasp and lift rates, env steps, wall time, the exact commands; medians; the issue's targets), copies the median
 seed's run folder of every method to benchmarks/results/runs/fetch_<method>_s<seed>/ and puts the Markdown table
 into docs/results.md between its table2 markers. The sweep's own results.json / results.md go to
@@ -25,7 +25,7 @@ from digail.sweep.publish import publish_run, replace_between_markers
 
 HERE = Path(__file__).resolve().parent
 PAGE = HERE.parent / "docs" / "results.md"
-OUT = HERE / "results" / "table2.json"
+OUT = HERE / "results" / "table2" / "table2.json"
 RUNS = HERE / "results" / "runs"
 MARKERS = ("<!-- table2:start (python benchmarks/table2.py SWEEP) -->", "<!-- table2:end -->")
 ENV = "digail/FetchPickAndPlace-v4"

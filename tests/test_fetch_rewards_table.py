@@ -8,7 +8,7 @@ from pathlib import Path
 from conftest import repo_module
 
 repo_module("benchmarks/fetch_fewdemo.py")  # fetch_rewards reads the run folders with its helpers
-fetch_rewards = repo_module("benchmarks/fetch_rewards.py")
+fetch_rewards = repo_module("benchmarks/studies/fetch_rewards.py")
 
 
 def _run(root: Path, name: str, acc: list[float] | None, rewards: list[float], success: float | None) -> None:

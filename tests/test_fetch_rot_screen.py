@@ -9,7 +9,7 @@ from pathlib import Path
 from conftest import repo_module
 
 repo_module("benchmarks/fetch_fewdemo.py")  # the table's header helper
-rot = repo_module("benchmarks/fetch_rot_screen.py")
+rot = repo_module("benchmarks/studies/fetch_rot_screen.py")
 
 
 def _run(folder: Path, iterations: int, evals: dict[int, float], ot: list[float], kept: list[float]) -> None:

@@ -105,9 +105,9 @@ def test_the_summary_takes_the_start_with_most_seeds_and_shows_where_runs_stoppe
 
 def test_the_summary_table_is_the_stored_results_summary() -> None:
     """The results page's few-demonstration summary table is `fewdemo.py --summary` of
-    benchmarks/results/fewdemo.json."""
+    benchmarks/results/few-demos/fewdemo.json."""
     summary = fewdemo.summary
 
     root = Path(__file__).resolve().parents[1]
-    runs = json.loads((root / "benchmarks/results/fewdemo.json").read_text())["runs"]
+    runs = json.loads((root / "benchmarks/results/few-demos/fewdemo.json").read_text())["runs"]
     assert summary(runs) in (root / "docs" / "results.md").read_text()

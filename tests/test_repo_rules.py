@@ -33,7 +33,8 @@ def test_benchmarks_results_holds_only_what_the_docs_publish() -> None:
              *(ROOT / "benchmarks").glob("*.py")]
     text = "\n".join(p.read_text() for p in pages)
     results = ROOT / "benchmarks" / "results"
-    files = [p for p in results.iterdir() if p.is_file()]
-    files += [p for p in (results / "figures").iterdir() if p.is_file()]
+    # the files of each benchmark's folder and the figures (run folders, sweeps and videos are cited as folders)
+    folders = [results, *(d for d in results.iterdir() if d.is_dir() and d.name not in {"runs", "sweeps", "videos"})]
+    files = [p for d in folders for p in d.iterdir() if p.is_file()]
     unnamed = [str(p.relative_to(results)) for p in sorted(files) if p.name not in text]
     assert not unnamed, f"move these to benchmarks/studies/results/ or cite them: {unnamed}"

@@ -117,10 +117,10 @@ def _train_flags(argv: tuple[str, ...]) -> set[str]:
 
 
 def test_table1_spec_expresses_the_published_trials():
-    """sweeps/table1.toml plans the trials the published Table 1 ran (benchmarks/results/table1.json records
+    """sweeps/table1.toml plans the trials the published Table 1 ran (benchmarks/results/table1/table1.json records
     every trial's commands): the same env, method and seed cells, the same training flags, 300 evaluation
     episodes."""
-    published = json.loads((ROOT / "benchmarks" / "results" / "table1.json").read_text())
+    published = json.loads((ROOT / "benchmarks" / "results" / "table1" / "table1.json").read_text())
     recorded = {f"{row['env_id']}:{method}:{r['seed']}": r for row in published.values()
                 for method, cell in row["methods"].items() for r in cell["seeds"]}
     jobs = [j for j in plan(load_spec(ROOT / "benchmarks" / "sweeps" / "table1.toml")) if j.kind == "trial"]

@@ -4,7 +4,7 @@ demonstrated route driven on the new route; measured as `digail evaluate` measur
 10000, env reward, success, legs done, wrong visits). Also renders the expert's videos.
 
     MUJOCO_GL=egl python benchmarks/studies/route_reference.py
-        -> benchmarks/results/landmark_route_reference.json,
+        -> benchmarks/results/landmark-route/landmark_route_reference.json,
            benchmarks/results/videos/landmarkroute/expert_{demonstrated,reversed}_seed10000.mp4
 """
 
@@ -86,7 +86,7 @@ def main(episodes: int = 100, seed: int = 10_000) -> None:
     }
     for name, row in rows.items():
         print(f"{name}: {json.dumps(row)}")
-    out = HERE / "results" / "landmark_route_reference.json"
+    out = HERE / "results" / "landmark-route" / "landmark_route_reference.json"
     out.write_text(json.dumps({"command": "python benchmarks/studies/route_reference.py", "episodes": episodes,
                                "seed": seed, "rows": rows}, indent=1) + "\n")
     folder = HERE / "results" / "videos" / "landmarkroute"

@@ -5,8 +5,8 @@
 The products are `benchmarks/sac_speed.py`'s `update_matmuls` (both critics and targets forward, the critics'
 weight and input gradients, the policy's gradient back through the critics, the actor forward twice and
 backward), timed on one thread by its `matmul_bound`, once with float32 and once with bfloat16 operands.
-With `--sb3` (default benchmarks/results/sac_speed.json) each bound is also divided by that file's SB3 steps per CPU
-second at the same size: the most any SAC update of these nets could gain over SB3 here. Writes
+With `--sb3` (default benchmarks/results/speed/sac_speed.json) each bound is also divided by that file's SB3 steps
+per CPU second at the same size: the most any SAC update of these nets could gain over SB3 here. Writes
 benchmarks/studies/results/sac_bound_dtypes.json.
 """
 
@@ -43,7 +43,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", default="Hopper-v5")
     parser.add_argument("--sizes", nargs="+", default=["64", "256", "64:256"])
-    parser.add_argument("--sb3", type=Path, default=Path("benchmarks/results/sac_speed.json"))
+    parser.add_argument("--sb3", type=Path, default=Path("benchmarks/results/speed/sac_speed.json"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks/studies/results/sac_bound_dtypes.json"))
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -1,7 +1,8 @@
 """Where the segmentation benchmark's Meta-World codes depart from the expert's phases: per phase, the codes its steps
 took, and per code, the phases it covers.
 
-    python benchmarks/metaworld_trace.py runs/segbench > benchmarks/results/metaworld_segmentation_trace.txt
+    python benchmarks/studies/metaworld_trace.py runs/segbench \
+        > benchmarks/studies/results/metaworld_segmentation_trace.txt
 
 reads the benchmark's seed-0 runs (`RUNS/metaworld-<task>_s0`, made by `python benchmarks/segmentation.py --tasks
 metaworld-... --runs RUNS`) and the labelled data beside them (`RUNS/datasets/segbench-metaworld-<task>`, or

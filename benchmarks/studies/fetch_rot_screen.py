@@ -7,7 +7,7 @@ kept by the Q-filter. Reads the run folders `benchmarks/fetch_fewdemo.sh` wrote 
     benchmarks/fetch_fewdemo.sh 1 digail-l2-rel-argmax-ot-qf-sacfast 0 150
     benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax-otd-qf-sacfast 0 150      # then continued: 300, 500
     benchmarks/fetch_fewdemo.sh 4 digail-l2-argmax-otl-qf-sacfast 0 300
-    python benchmarks/fetch_rot_screen.py runs/fetchfew --out benchmarks/results/fetch_rot_screen.json
+    python benchmarks/studies/fetch_rot_screen.py runs/fetchfew --out benchmarks/studies/results/fetch_rot_screen.json
 
 Per run: the 100-episode evaluations (after 150k env steps, `eval.iteration-150.json` where the run was continued,
 and at its end), the best 20-episode periodic success, and over training the transport reward per agent step and
@@ -18,12 +18,28 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib.util
 import json
 import statistics
+import sys
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
-from fetch_fewdemo import md_head
+
+def _benchmark(name: str) -> ModuleType:
+    """benchmarks/<name>.py, loaded from its file once (this study lives one folder below it)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+md_head = _benchmark("fetch_fewdemo").md_head
 
 METHODS = (
     (4, "digail-l2-rel-argmax-ot-qf-sacfast", "optimal transport on D's view, BC Q-filtered, SAC"),

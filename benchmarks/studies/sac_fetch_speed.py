@@ -1,6 +1,6 @@
 """SAC on few-demonstration Fetch: what an env step costs, today's schedule against cheaper ones, in one run.
 
-    python benchmarks/sac_fetch_speed.py --vae runs/fetchfew/d4/bc_k4_s0 [--steps 400] [--rounds 2]
+    python benchmarks/studies/sac_fetch_speed.py --vae runs/fetchfew/d4/bc_k4_s0 [--steps 400] [--rounds 2]
 
 The learner of `benchmarks/fetch_fewdemo.sh 4 digail-l2-rel-sac 0`: Directed-Info GAIL + L2 (BC weight 1.0) from
 the VAE, D on Fetch's relative view with the gradient penalty, one env, one torch thread. Each variant is built
@@ -81,7 +81,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--warmup", type=int, default=600)
     parser.add_argument("--only", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--out", default="benchmarks/results/sac_fetch_speed.json")
+    parser.add_argument("--out", default="benchmarks/studies/results/sac_fetch_speed.json")
     args = parser.parse_args()
     import torch
 

@@ -1,6 +1,6 @@
 """How many trials one `digail sweep` driver moves through Ray per second when the trials themselves cost nothing.
 
-    python benchmarks/sweep_driver.py [--trials 200] [--cpus 2] [--remote]
+    python benchmarks/studies/sweep_driver.py [--trials 200] [--cpus 2] [--remote]
         [--out benchmarks/studies/results/sweep_driver.json]
 
 Plans a sweep of `--trials` VAE-baseline trials (CircleWorld, one seed each, so `--trials` VAE jobs and as many
@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def stand_in(job_dict: dict[str, Any], sweep: str, token: str = "",

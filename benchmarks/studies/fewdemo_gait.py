@@ -1,6 +1,6 @@
 """What the codes of a VAE trained on few demonstrations mean: their agreement with the hip's gait phase.
 
-    python benchmarks/fewdemo_gait.py VAE_RUN [--env Hopper-v5] [--episodes 4] [--subsample 20] [--seed 0]
+    python benchmarks/studies/fewdemo_gait.py VAE_RUN [--env Hopper-v5] [--episodes 4] [--subsample 20] [--seed 0]
 
 q decodes causally (`segment_many`, as the macro-policy runs online) the training demonstrations at the env's own
 rate, held-out demonstrations 10-19 of the same dataset, and the training demonstrations as subsampled (what the

@@ -1,8 +1,8 @@
 """The imitation-reward screen on few-demonstration Fetch: one table and its results file from the run folders
 that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (the reward variants are suffixes there).
 
-    python benchmarks/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
-        --out benchmarks/results/fetch_rewards.json --page docs/results.md
+    python benchmarks/studies/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
+        --out benchmarks/studies/results/fetch_rewards.json --page docs/results.md
 
 Per run (`runs/fetchfew/d<N>/<method>_s<seed>` for each method of `LABELS`): the 100-episode evaluations after 30
 iterations (122,880 env steps: the run's eval.json, or the eval.iteration-30.json a longer run keeps) and after 50
@@ -16,12 +16,30 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib.util
 import json
+import sys
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
-from fetch_fewdemo import _command, _curve, _train_minutes
+
+
+def _benchmark(name: str) -> ModuleType:
+    """benchmarks/<name>.py, loaded from its file once (this study lives one folder below it)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+fetch_fewdemo = _benchmark("fetch_fewdemo")
+_command, _curve, _train_minutes = fetch_fewdemo._command, fetch_fewdemo._curve, fetch_fewdemo._train_minutes
 
 BASE = "digail-l2-rel-argmax"
 LABELS = {
@@ -129,7 +147,7 @@ def main() -> None:
     parser.add_argument("root", type=Path)
     parser.add_argument("--demos", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fetch_rewards.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/studies/results/fetch_rewards.json"))
     parser.add_argument("--page", type=Path, help="a page with the table's markers, rewritten in place")
     args = parser.parse_args()
     kept = json.loads(args.out.read_text())["runs"] if args.out.is_file() else []

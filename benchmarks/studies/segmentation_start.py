@@ -1,18 +1,18 @@
 """The hard-EM start on one task of the segmentation benchmark, without the VAE: what a ridge or a sub-task model
 does to it, and whether its criterion ranks the oracle labels above what it finds.
 
-    python benchmarks/segmentation_start.py curved --ridges 1.0 0.02
+    python benchmarks/studies/segmentation_start.py curved --ridges 1.0 0.02
         the start's accuracy and switches per episode for each ridge (`segment_init.hard_em_segmentation`)
-    python benchmarks/segmentation_start.py fetch --ridges 0.01 --oracle
+    python benchmarks/studies/segmentation_start.py fetch --ridges 0.01 --oracle
         also the description length (nats) of the oracle labels, of hard EM started from them and of what the
         start finds, under that ridge (`segment_init.hard_em_from`; lower is preferred by the criterion)
-    python benchmarks/segmentation_start.py four-rooms --ridges 0.003 --starts 16 --seeds 0 1
+    python benchmarks/studies/segmentation_start.py four-rooms --ridges 0.003 --starts 16 --seeds 0 1
         the same with more k-means starts, from two seeds
-    python benchmarks/segmentation_start.py circle-world --curve rff --ridges 0.01 --seeds 0 1
+    python benchmarks/studies/segmentation_start.py circle-world --curve rff --ridges 0.01 --seeds 0 1
         the K curve (K = 2 .. 8, held-out description length per step) and the K chosen, as `--codes auto`
         computes it but with this model and ridge (`segment_init.heldout_codes_curve`); `--previous-action`
         lets every sub-task policy also see the action before (the first step: its own)
-    python benchmarks/segmentation_start.py circle-world --residuals
+    python benchmarks/studies/segmentation_start.py circle-world --residuals
         the residual of each sub-task model fitted to the oracle labels (Circle-World: how well one code can
         describe one circle)
 
@@ -23,13 +23,32 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
+import sys
 import time
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
-from segmentation import task_data, task_names
 
 from digail.data.trajectory import Trajectory
+
+
+def _benchmark(name: str) -> ModuleType:
+    """benchmarks/<name>.py, loaded from its file once (this study lives one folder below it)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+segmentation = _benchmark("segmentation")
+task_data, task_names = segmentation.task_data, segmentation.task_names
+
 
 
 def with_previous_action(t: Trajectory) -> Trajectory:
