@@ -38,3 +38,23 @@ def test_benchmarks_results_holds_only_what_the_docs_publish() -> None:
     files = [p for d in folders for p in d.iterdir() if p.is_file()]
     unnamed = [str(p.relative_to(results)) for p in sorted(files) if p.name not in text]
     assert not unnamed, f"move these to benchmarks/studies/results/ or cite them: {unnamed}"
+
+
+FITTED_OR_CLOSED_LOOP = re.compile(r"compose_order\(|evaluate_policy\(|play_episodes\(|build_trainer\(|pretrain\("
+                                   r"|segment_many\(|\.learn\(|\bevaluate\(|\.train\(")
+"""calls whose numbers come from a fitted model or a closed-loop rollout"""
+FLOAT_ASSERT = re.compile(r"assert [^\n]*(?:[<>]=?\s*-?\d*\.\d|approx\(|allclose\(|isclose\()|assert_close\(")
+"""an assertion that compares floats"""
+
+
+def test_kernel_tests_hold_every_float_check_of_a_fitted_model() -> None:
+    """`make test-kernels` (the Makefile's KERNEL_TESTS, run under torch's portable and AVX2 kernels) holds every
+    test module that compares floats from fitted models or closed-loop rollouts: such a test can pass on one CPU
+    and fail on another, and that is where it shows."""
+    makefile = (ROOT / "Makefile").read_text()
+    block = makefile.split("KERNEL_TESTS :=", 1)[1].split("\ntest-kernels", 1)[0]
+    listed = set(re.findall(r"tests/test_\w+\.py", block))
+    missing = [f"tests/{p.name}" for p in sorted((ROOT / "tests").glob("test_*.py"))
+               if FITTED_OR_CLOSED_LOOP.search(text := p.read_text()) and FLOAT_ASSERT.search(text)
+               and f"tests/{p.name}" not in listed]
+    assert not missing, f"compare floats of fitted models but are not in the Makefile's KERNEL_TESTS: {missing}"
