@@ -333,7 +333,7 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
                 state.successes += 1
                 pending.append(result.traj)
                 state.episodes.append({"attempt": i, "seed": plan.seed + i, "source": plan.source_ids[src],
-                                       "segments": result.segments})
+                                       "env_steps": state.env_steps, "segments": result.segments})
             bar.update(1)
             bar.set_postfix(successes=state.successes, rate=f"{state.successes / state.attempts:.2f}",
                             refresh=False)

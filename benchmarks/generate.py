@@ -1,0 +1,192 @@
+"""Data generation from sub-tasks (`digail generate`), then behaviour cloning on what it generated.
+
+    python benchmarks/generate.py run --task fetch --demos 1 --seeds 0 1 2 --sizes 100 500 1000 --methods bc flatbc
+    python benchmarks/generate.py run --task pick-place --demos 3 --seeds 0 --segments codes ...
+    python benchmarks/generate.py table --out benchmarks/results/generate/fetch.json --task fetch
+
+A job (task, source demonstrations N, seed S, segment source) runs, resumably, under
+`runs/generate/<task>/<segments>/d<N>_s<S>/`:
+
+    digail generate --demos D --sources <N episodes: S*N .. S*N+N-1> --segments SEG --attempts A --successes MAX
+        --seed 1000000+100000*S --out .../data          (SEG codes: --vae .../vae, a `digail pretrain` of the sources
+                                                         with K = the labels' count, the task's preset)
+    digail pretrain --demos .../data --demos-episodes SIZE --codes K --seed S --preset P --out .../<method>_n<SIZE>
+    digail evaluate .../<method>_n<SIZE> --episodes 100   (fresh scenes: the evaluation seeds, 10000 on)
+
+`bc` is the VAE's policy with K codes (Fetch 4, a Meta-World task its expert's phase count), closed-loop q; `flatbc`
+the same pre-training with one code. Every command is kept in the job's `commands.json`. `table` gathers the jobs
+into one JSON: per job the generation (attempts, successes, rate, env steps), per trained row its success rate, the
+env steps generation spent on its SIZE demonstrations, and the training env steps (0: behaviour cloning only), with
+medians over seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import statistics
+from pathlib import Path
+from typing import Any
+
+ROOT = Path("runs/generate")
+FETCH = {"env_id": "digail/FetchPickAndPlace-v4", "demos": "digail/fetchpickandplace/expert-v0", "preset": "fetch",
+         "codes": 4}
+
+
+def task_info(task: str) -> dict[str, Any]:
+    """The env, the source dataset, the preset and K of a task (`fetch` or a Meta-World task such as pick-place)."""
+    if task == "fetch":
+        return FETCH
+    from digail.envs.metaworld import phase_counts
+
+    return {"env_id": f"metaworld/{task}-v3", "demos": f"digail/metaworld-{task}/expert-v0", "preset": "metaworld",
+            "codes": phase_counts()[f"{task}-v3"]}
+
+
+def digail(cmd: list[str], log: list[list[str]], job: Path) -> None:
+    """Run one digail command in-process, noting it in the job's commands.json first."""
+    from digail.cli import main
+
+    if cmd not in log:
+        log.append(cmd)
+        (job / "commands.json").write_text(json.dumps([shlex.join(["digail", *c]) for c in log], indent=1))
+    print("$ digail " + shlex.join(cmd), flush=True)
+    if main(cmd) != 0:
+        raise SystemExit(f"failed: digail {shlex.join(cmd)}")
+
+
+def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespace) -> None:
+    info = task_info(task)
+    job = ROOT / task / segments / f"d{n}_s{seed}"
+    job.mkdir(parents=True, exist_ok=True)
+    log = _saved(job)
+    sources = ",".join(str(i) for i in range(seed * n, seed * n + n))
+    data = job / "data"
+    if not data.exists():
+        extra: list[str] = []
+        if segments == "codes":
+            vae = job / "vae"
+            if not (vae / "model.pt").exists():
+                digail(["pretrain", "--demos", info["demos"], "--demos-episodes", str(seed * n + n), "--codes",
+                        str(info["codes"]), "--seed", str(seed), "--preset", info["preset"], "--out", str(vae),
+                        "--force"], log, job)
+            extra = ["--vae", str(vae)]
+        if segments == "chunks":
+            extra = ["--chunk", str(args.chunk)]
+        digail(["generate", "--demos", info["demos"], "--sources", sources, "--segments", segments, *extra,
+                "--attempts", str(args.attempts), "--successes", str(max(args.sizes)), "--seed",
+                str(1_000_000 + 100_000 * seed), *args.generate_args, "--out", str(data)], log, job)
+    have = _generation(data)["successes"]
+    for size in args.sizes:
+        if size > have:
+            print(f"{job}: {have} demonstrations generated, fewer than {size}; row skipped")
+            continue
+        for method in args.methods:
+            run = job / f"{method}_n{size}"
+            if (run / "eval.json").exists():
+                continue
+            if not (run / "model.pt").exists():
+                codes = info["codes"] if method == "bc" else 1
+                digail(["pretrain", "--demos", str(data), "--demos-episodes", str(size), "--codes", str(codes),
+                        "--seed", str(seed), "--preset", info["preset"], "--out", str(run), "--force"], log, job)
+            digail(["evaluate", str(run), "--episodes", str(args.eval_episodes)], log, job)
+
+
+def _saved(job: Path) -> list[list[str]]:
+    path = job / "commands.json"
+    return [shlex.split(c)[1:] for c in json.loads(path.read_text())] if path.exists() else []
+
+
+def _generation(data: Path) -> dict[str, Any]:
+    meta = json.loads((data / "data" / "metadata.json").read_text())
+    return meta["digail"]["generation"]
+
+
+def _steps_for(gen: dict[str, Any], size: int) -> int:
+    """Env steps generation spent until its `size`-th kept demonstration."""
+    ep = gen["episodes"][size - 1]
+    if "env_steps" in ep:
+        return int(ep["env_steps"])
+    return round((ep["attempt"] + 1) * gen["env_steps"] / gen["attempts"])  # equal-length attempts (Fetch)
+
+
+def table(args: argparse.Namespace) -> dict[str, Any]:
+    jobs, rows = [], []
+    for data in sorted(ROOT.glob("*/*/d*_s*/data")):
+        job = data.parent
+        task, segments = job.parent.parent.name, job.parent.name
+        if args.task and task not in args.task:
+            continue
+        n, seed = (int(x[1:]) for x in job.name.split("_"))
+        gen = _generation(data)
+        jobs.append({"task": task, "segments": segments, "demos": n, "seed": seed, "attempts": gen["attempts"],
+                     "successes": gen["successes"], "rate": round(gen["rate"], 4), "env_steps": gen["env_steps"],
+                     "frames": gen["frames"], "order": gen.get("order"),
+                     "commands": [shlex.join(["digail", *c]) for c in _saved(job)
+                                  if c[0] == "generate" or str(job / "vae") in c]})
+        for run in sorted(job.glob("*_n*")):
+            if not (run / "eval.json").exists():
+                continue
+            method, size = run.name.rsplit("_n", 1)
+            ev = json.loads((run / "eval.json").read_text())
+            rows.append({"task": task, "segments": segments, "demos": n, "seed": seed, "method": method,
+                         "size": int(size), "success_rate": ev.get("success_rate"),
+                         "generation_env_steps": _steps_for(gen, int(size)), "training_env_steps": 0,
+                         "run": str(run), "commands": [shlex.join(["digail", *c]) for c in _saved(job)
+                                                        if str(run) in c]})
+    medians = []
+    keys = sorted({(r["task"], r["segments"], r["demos"], r["method"], r["size"]) for r in rows})
+    for key in keys:
+        group = [r for r in rows if (r["task"], r["segments"], r["demos"], r["method"], r["size"]) == key]
+        gens = [j for j in jobs if (j["task"], j["segments"], j["demos"]) == key[:3]]
+        medians.append({"task": key[0], "segments": key[1], "demos": key[2], "method": key[3], "size": key[4],
+                        "seeds": sorted(r["seed"] for r in group),
+                        "median_success": statistics.median(r["success_rate"] for r in group),
+                        "success_by_seed": [r["success_rate"] for r in sorted(group, key=lambda r: r["seed"])],
+                        "median_generation_rate": statistics.median(j["rate"] for j in gens),
+                        "median_generation_env_steps": statistics.median(r["generation_env_steps"] for r in group),
+                        "training_env_steps": 0})
+    result = {"about": "digail generate from N source demonstrations, then behaviour cloning on SIZE generated "
+              "ones; success over 100 evaluation episodes on fresh scenes (seeds 10000 on)",
+              "script": "benchmarks/generate.py", "jobs": jobs, "rows": rows, "table": medians}
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=1) + "\n")
+    for m in medians:
+        print(f"{m['task']:16s} {m['segments']:7s} d{m['demos']} {m['method']:7s} n{m['size']:<5d} success "
+              f"{m['median_success']:.2f} {m['success_by_seed']} gen rate {m['median_generation_rate']:.2f} "
+              f"gen steps {m['median_generation_env_steps']:.0f}")
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    r = sub.add_parser("run", help="generate and train (resumable)")
+    r.add_argument("--task", nargs="+", default=["fetch"])
+    r.add_argument("--demos", type=int, nargs="+", default=[1])
+    r.add_argument("--seeds", type=int, nargs="+", default=[0])
+    r.add_argument("--segments", nargs="+", default=["labels"])
+    r.add_argument("--sizes", type=int, nargs="+", default=[100, 500, 1000])
+    r.add_argument("--methods", nargs="*", default=["bc", "flatbc"])
+    r.add_argument("--attempts", type=int, default=1500)
+    r.add_argument("--chunk", type=int, default=10)
+    r.add_argument("--eval-episodes", type=int, default=100)
+    r.add_argument("--generate-args", nargs="*", default=[], help="more `digail generate` flags, e.g. --gain 0.5")
+    t = sub.add_parser("table", help="gather the jobs into one JSON")
+    t.add_argument("--task", nargs="*")
+    t.add_argument("--out", type=Path)
+    args = parser.parse_args()
+    if args.what == "table":
+        table(args)
+        return
+    for task in args.task:
+        for segments in args.segments:
+            for n in args.demos:
+                for seed in args.seeds:
+                    run_job(task, n, seed, segments, args)
+
+
+if __name__ == "__main__":
+    main()
