@@ -292,7 +292,8 @@ def main() -> None:
     parser.add_argument("--markdown", type=Path)
     parser.add_argument("--figure", type=Path)
     parser.add_argument("--page", type=Path, help="a Markdown page whose `<!-- TASK_fewdemo:start -->` and "
-                        "`<!-- TASK_fewdemo:end -->` markers take the table (docs/results.md)")
+                        "`<!-- TASK_fewdemo:end -->` markers take the table (the route's: docs/results.md; Fetch's: "
+                        "docs/experiments/2026-12-07-results-history.md)")
     args = parser.parse_args()
     task = TASKS[args.task]
     records = collect(args.root, args.task)

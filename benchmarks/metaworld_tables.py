@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results" / "metaworld"
-SEGMENTATION = Path(__file__).resolve().parent / "results"
+SEGMENTATION = Path(__file__).resolve().parent / "results" / "segmentation"
 # the shipped tasks in the order of the segmentation table and the how-to
 ORDER = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball", "disassemble", "peg-insert-side",
          "box-close", "hammer")

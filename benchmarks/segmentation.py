@@ -1,7 +1,7 @@
 """Segmentation benchmark: `digail pretrain` + `digail segment` with the defaults, K given, on data no
 setting was tuned for.
 
-    python benchmarks/segmentation.py          # every task, seeds 0 1 2 -> benchmarks/results/segmentation.json
+    python benchmarks/segmentation.py    # every task, seeds 0 1 2 -> benchmarks/results/segmentation/segmentation.json
     python benchmarks/segmentation.py --tasks shuttle square --seeds 0 --out runs/seg.json
     python benchmarks/segmentation.py --set vae.smoothing-weight=0.3 ...   (extra flags for every `digail pretrain`)
 
@@ -35,7 +35,8 @@ Two measurements of the label-free choices (`digail.algos.model_selection`), wri
         (the number of distinct oracle labels); `--set vae.k-criterion=vae` measures the other criterion;
         `--curve-only` computes the curve and the choice exactly as `--codes auto` does but skips training the
         chosen K's VAE afterwards (which does not change the choice)
-    python benchmarks/segmentation.py --measure codes-figure --out benchmarks/results/segmentation_codes_auto.json
+    python benchmarks/segmentation.py --measure codes-figure \
+        --out benchmarks/results/segmentation/segmentation_codes_auto.json
         -> results/figures/segmentation_codes.png: every task's curve of seed 0, the choice and the true K
 """
 
@@ -190,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=task_names(), choices=task_names())
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--out", type=Path, default=HERE / "results" / "segmentation.json")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "segmentation" / "segmentation.json")
     parser.add_argument("--runs", type=Path, default=Path("runs/segbench"))
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     parser.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",

@@ -3,7 +3,7 @@
     python benchmarks/throughput.py [--env Hopper-v5] [--num-envs 8] [--batch 4096] [--iterations 3] [--rounds 5]
 
 Writes runs/bench/throughput.json (`--out`; what `make bench` runs; the published measurements are
-benchmarks/results/throughput*.json, copied there on purpose) with environment steps per second:
+benchmarks/results/speed/throughput*.json, copied there on purpose) with environment steps per second:
 - random_sps: the single-process vector env stepping random actions (the one-core ceiling of the old trainer);
   random_sps_<backend>: the same on every training backend (`digail.envs.vector`);
 - rollout_sps: digail's rollout on the single-process (sync) env (macro-policy q + sub-task policy pi + value), no

@@ -3,7 +3,7 @@
 # Directed-Info GAIL, but the VAE starts from one code per room visit (`--vae.init-pieces env`) found by linear
 # sub-task policies on the agent's position (`--vae.init-obs 0 26 --vae.init-ridge 0.01`), no ELBO epochs.
 #   bash scripts/fourrooms_room_visits.sh SEED [ITERATIONS]   (ITERATIONS of Directed-Info GAIL, default 1000)
-#   bash scripts/fourrooms_room_visits.sh collect             -> benchmarks/results/new-orders/fourrooms_room_visits.json
+#   bash scripts/fourrooms_room_visits.sh collect             -> benchmarks/studies/results/fourrooms_room_visits.json
 #   CODES=5 (default 4) runs K = 5 into runs/fourrooms_room_visits/k5 (collected as k5/...)
 # Runs under runs/fourrooms_room_visits: vae_sSEED (its segmentation.json; evaluated too) and digail_iITERATIONS_sSEED
 # (eval.json over 300 episodes, segmentation.json of the macro-policy q it keeps). Steps already done are skipped.
@@ -26,7 +26,7 @@ for run in sorted(p for p in [*out.iterdir(), *out.glob("k*/*")] if (p / "eval.j
 result = {"command": "bash scripts/fourrooms_room_visits.sh SEED [ITERATIONS] for SEED in 0 1 2, ITERATIONS "
                      "1000 and 2000, and CODES=5 bash scripts/fourrooms_room_visits.sh SEED 2000; then bash "
                      "scripts/fourrooms_room_visits.sh collect", "runs": rows}
-path = Path("benchmarks/results/new-orders/fourrooms_room_visits.json")
+path = Path("benchmarks/studies/results/fourrooms_room_visits.json")
 path.write_text(json.dumps(result, indent=1) + "\n")
 print(f"wrote {path}")
 PY

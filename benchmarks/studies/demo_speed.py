@@ -6,7 +6,7 @@ by side in one run.
 Each round runs the whole pipeline once with the baseline's `src` (extracted with `git archive`) and once with this
 checkout's, in fresh processes and alternating which goes first, so that a shared machine's drifting load hits both
 alike; one torch thread each (`OMP_NUM_THREADS=1`), run folders in a temporary directory. Writes
-runs/bench/demo_speed.json (`--out`; published: benchmarks/results/demo_speed*.json): each side's
+runs/bench/demo_speed.json (`--out`; published: benchmarks/results/speed/demo_speed.json): each side's
 wall-clock seconds per round and stage (`timings.json` of the run folder),
 the medians, the new-over-old speed-up (median of per-round ratios) and the headline results of every run
 (evaluation, segmentation, composition), so that "the same results" can be checked.

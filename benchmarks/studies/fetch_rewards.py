@@ -2,7 +2,8 @@
 that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (the reward variants are suffixes there).
 
     python benchmarks/studies/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
-        --out benchmarks/studies/results/fetch_rewards.json --page docs/results.md
+        --out benchmarks/studies/results/fetch_rewards.json \
+        --page docs/experiments/2026-12-07-results-history.md
 
 Per run (`runs/fetchfew/d<N>/<method>_s<seed>` for each method of `LABELS`): the 100-episode evaluations after 30
 iterations (122,880 env steps: the run's eval.json, or the eval.iteration-30.json a longer run keeps) and after 50

@@ -8,7 +8,7 @@ one after the other, so that a shared machine's drifting load hits both alike: `
 version of the preset (its hard-EM start where it has one; `--epochs` overrides the epochs), then `polish` for
 `--polish-steps` (default: the preset's; 0: none), one torch thread. Round r uses seed `--seed` + r, so that three
 rounds score three seeds. Writes runs/bench/vae_speed.json (`--out`; the published measurements are
-benchmarks/results/vae_speed*.json): each side's epochs, start and seconds of pre-training
+benchmarks/results/speed/vae_speed.json): each side's epochs, start and seconds of pre-training
 and polish (medians over rounds), the new-over-old speed-ups (medians of per-round ratios, wall clock and the
 process's CPU time), a hash of each side's final weights (equal hashes: the same numbers bit for bit) and, where
 the demonstrations carry oracle labels, each side's segmentation scores per seed (causal decoding after the
