@@ -3,8 +3,11 @@ refusals."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,6 +15,7 @@ import pytest
 from digail.algos.generate import (
     GenerationPlan,
     Segment,
+    attempt,
     chunk_segments,
     frames_from_text,
     generate,
@@ -102,12 +106,8 @@ def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> Non
     assert state.env_steps == sum(len(t) for t in kept)
 
 
-@pytest.mark.mujoco
-def test_fetch_from_one_labelled_demo_generates_successes(tmp_path: Path) -> None:
-    """Fetch's first expert demonstration, cut at its phase labels, succeeds in at least 0.7 of 20 new scenes
-    (measured: 0.83 over 30); a generation stopped after 25 attempts and continued gives the same episodes as one
-    run straight through."""
-    from digail.algos.generate import CHECKPOINT_EVERY
+def _fetch_plan() -> tuple[GenerationPlan, Callable[[], Any]]:
+    """Fetch's first expert demonstration cut at its phase labels, and a maker of its env."""
     from digail.data.minari_io import load_dataset
     from digail.envs.registry import env_spec, make_env
 
@@ -115,20 +115,36 @@ def test_fetch_from_one_labelled_demo_generates_successes(tmp_path: Path) -> Non
     demo = load_dataset(FETCH).trajs[0]
     segs = runs_to_segments(np.asarray(demo.subtasks)[:len(demo)], 3)
     scene = env_spec(env_id).scene
-    plan = GenerationPlan(env_id, [demo], [0], [segs], infer_frames([demo], [segs], scene), scene, seed=500)
-    kept, state = generate(plan, lambda: make_env(env_id), 20, None, tmp_path / "a", progress=False)
+    plan = GenerationPlan(env_id, [demo], [0], [segs], infer_frames([demo], [segs], scene), scene, seed=1_000_000)
+    return plan, lambda: make_env(env_id)
+
+
+@pytest.mark.mujoco
+def test_fetch_from_one_labelled_demo_generates_successes(tmp_path: Path) -> None:
+    """Fetch from its first expert demonstration succeeds in at least 0.7 of 20 new scenes (measured: 0.95 over 40,
+    0.83 without the straight moves between sub-tasks)."""
+    plan, make = _fetch_plan()
+    kept, state = generate(plan, make, 20, None, tmp_path / "a", progress=False)
     assert state.successes / state.attempts >= 0.7
     assert len(kept) == state.successes and all(len(t) == 50 for t in kept)  # Fetch's episodes run to the limit
 
-    whole, _ = generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY + 3, None, tmp_path / "b", progress=False)
-    generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY, None, tmp_path / "c", progress=False)
-    resumed, st = generate(plan, lambda: make_env(env_id), CHECKPOINT_EVERY + 3, None, tmp_path / "c",
-                           progress=False)
+
+@pytest.mark.mujoco
+@pytest.mark.slow
+def test_resumed_generation_is_the_uninterrupted_one(tmp_path: Path) -> None:
+    """A generation stopped after its first save and continued gives the same episodes as one run straight through;
+    a folder of other settings is refused."""
+    from digail.algos.generate import CHECKPOINT_EVERY
+
+    plan, make = _fetch_plan()
+    whole, _ = generate(plan, make, CHECKPOINT_EVERY + 3, None, tmp_path / "b", progress=False)
+    generate(plan, make, CHECKPOINT_EVERY, None, tmp_path / "c", progress=False)
+    resumed, st = generate(plan, make, CHECKPOINT_EVERY + 3, None, tmp_path / "c", progress=False)
     assert st.attempts == CHECKPOINT_EVERY + 3 and len(resumed) == len(whole)
     assert all(np.array_equal(a.obs, b.obs) for a, b in zip(resumed, whole, strict=True))
-    other = GenerationPlan(env_id, [demo], [0], [segs], plan.frames, scene, gain=0.5, seed=500)
+    other = dataclasses.replace(plan, gain=0.5)
     with pytest.raises(UserError, match="other settings"):
-        generate(other, lambda: make_env(env_id), 30, None, tmp_path / "c", progress=False)
+        generate(other, make, 30, None, tmp_path / "c", progress=False)
 
 
 @pytest.mark.mujoco
@@ -165,3 +181,23 @@ def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pyte
     assert (out / "data" / "main_data.hdf5").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gen"]
     json.dumps(record)
+
+
+@pytest.mark.mujoco
+def test_metaworld_tracks_on_the_integrated_target() -> None:
+    """Meta-World's mocap accumulates the actions, so paths are tracked on the dead-reckoned target: pick-place from
+    3 labelled demonstrations succeeds in at least 0.7 of 10 new scenes (measured 12 of 12; tracking the hand
+    instead gave 6 of 12 on box-close)."""
+    from digail.data.minari_io import load_dataset
+    from digail.envs.registry import env_spec, make_env
+
+    env_id = "metaworld/pick-place-v3"
+    demos = load_dataset("digail/metaworld-pick-place/expert-v0").trajs[:3]
+    segs = [runs_to_segments(np.asarray(t.subtasks)[:len(t)], 3) for t in demos]
+    scene = env_spec(env_id).scene
+    assert scene.integrating
+    env = make_env(env_id)
+    wins = [attempt(env, demos[i % 3], segs[i % 3], infer_frames(demos, segs, scene), scene, 2_000 + i,
+                    hold=10, interp_speed=1.0).success
+            for i in range(10)]
+    assert sum(wins) >= 7

@@ -18,6 +18,7 @@ smoothly without extra steps. Attempts that reach the env's success are kept (`g
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -124,7 +125,8 @@ def _success(info: dict[str, Any]) -> bool:
 
 
 def attempt(env: Any, source: Trajectory, segments: Sequence[Segment], frames: dict[int, Frame],
-            scene: SceneColumns, seed: int, *, gain: float = 1.0, blend: int = 5, hold: int = 0) -> AttemptResult:
+            scene: SceneColumns, seed: int, *, gain: float = 1.0, blend: int = 5, hold: int = 0,
+            interp_speed: float = 0.0) -> AttemptResult:
     """Play one attempt in `env` reset with `seed` (module doc): the source's segments, in the given order, each in
     its frame's position in the new scene.
 
@@ -139,21 +141,35 @@ def attempt(env: Any, source: Trajectory, segments: Sequence[Segment], frames: d
             action bounds allow).
         blend: steps over which a segment's start offset decays to zero.
         hold: steps the last target and gripper action are held after the path while the env has not succeeded.
+        interp_speed: 0, or action units per step of a straight move inserted before a segment whose moved path
+            starts further away than one such step (MimicGen's interpolation, which costs steps but never asks the
+            end-effector to go faster than the source did).
     """
     obs, info = env.reset(seed=int(seed))
     obs = np.asarray(obs, np.float64)
     obs_list, acts, rews, labels = [obs], [], [], [info.get(SUBTASK_KEY)]
     src_obs = np.asarray(source.obs, np.float64)
     src_acts = np.asarray(source.acts, np.float32)
+    if scene.integrating:
+        # the target the source's actions accumulated, from where its end-effector started
+        moves = np.clip(src_acts[:, scene.move_actions], -1.0, 1.0) * scene.action_scale
+        src_pos = src_obs[0, scene.ee] + np.concatenate([np.zeros((1, 3)), np.cumsum(moves, 0)])
+    else:
+        src_pos = src_obs[:, scene.ee]
+    command = obs[scene.ee].copy()  # the integrating target, dead-reckoned
     done, last_info, steps = False, info, 0
     record: list[dict[str, Any]] = []
     final: np.ndarray | None = None  # the path's last target, held after it
 
+    def here() -> np.ndarray:
+        return command if scene.integrating else obs[scene.ee]
+
     def step(target: np.ndarray, template: np.ndarray) -> None:
-        nonlocal obs, done, last_info, steps
+        nonlocal obs, done, last_info, steps, command
         act = template.copy()
-        move = gain * (target - obs[scene.ee]) / scene.action_scale
-        act[scene.move_actions] = np.clip(move, -1.0, 1.0)
+        move = np.clip(gain * (target - here()) / scene.action_scale, -1.0, 1.0)
+        act[scene.move_actions] = move
+        command = command + move * scene.action_scale
         obs_next, rew, terminated, truncated, info = env.step(act)
         obs = np.asarray(obs_next, np.float64)
         obs_list.append(obs)
@@ -171,11 +187,20 @@ def attempt(env: Any, source: Trajectory, segments: Sequence[Segment], frames: d
         frame = frames[seg.key]
         # the path after each of the segment's actions, moved from the source scene's frame to this one's
         shift = origin(obs, frame, scene) - origin(src_obs[seg.start], frame, scene)
-        path = src_obs[seg.start + 1:seg.end + 1, scene.ee] + shift
-        offset = obs[scene.ee] - (src_obs[seg.start, scene.ee] + shift)
+        start = src_pos[seg.start] + shift
+        record.append({"start": seg.start, "end": seg.end, "key": seg.key, "frame": frame, "at": steps})
+        gap = float(np.linalg.norm(start - here()))
+        if interp_speed > 0 and gap > interp_speed * scene.action_scale:
+            template = acts[-1] if acts else src_acts[seg.start]
+            n, here_0 = math.ceil(gap / (interp_speed * scene.action_scale)), here().copy()
+            for i in range(n):
+                if done:
+                    break
+                step(here_0 + (start - here_0) * (i + 1) / n, template)
+        path = src_pos[seg.start + 1:seg.end + 1] + shift
+        offset = here() - start
         n = len(path)
         ramp = max(1, min(blend, n))
-        record.append({"start": seg.start, "end": seg.end, "key": seg.key, "frame": frame, "at": steps})
         for i in range(n):
             if done:
                 break
@@ -232,6 +257,8 @@ class GenerationPlan:
     """steps over which a segment's start offset decays"""
     hold: int = 10
     """steps the path's end is held after it, until success"""
+    interp_speed: float = 1.0
+    """0, or action units per step of the straight moves inserted before segments that start far away"""
     seed: int = 0
     """attempt i is reset with seed + i, from source i mod len(sources)"""
 
@@ -241,6 +268,7 @@ class GenerationPlan:
                 "segments": [[asdict(s) for s in segs] for segs in self.segments],
                 "frames": {str(k): v for k, v in sorted(self.frames.items())},
                 "gain": self.gain, "blend": self.blend, "hold": self.hold, "seed": self.seed,
+                "interp_speed": self.interp_speed, "integrating": self.scene.integrating,
                 "source_steps": [len(t) for t in self.sources]}
 
 
@@ -326,7 +354,7 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
             i = state.attempts
             src = i % len(plan.sources)
             result = attempt(env, plan.sources[src], plan.segments[src], plan.frames, plan.scene, plan.seed + i,
-                             gain=plan.gain, blend=plan.blend, hold=plan.hold)
+                             gain=plan.gain, blend=plan.blend, hold=plan.hold, interp_speed=plan.interp_speed)
             state.attempts += 1
             state.env_steps += result.steps
             if result.success:

@@ -57,6 +57,9 @@ class GenerateArgs:
     """steps over which the gap between the end-effector and a sub-task's moved path closes"""
     hold: int = 10
     """steps the path's last point is held after it while the env has not yet succeeded"""
+    interp_speed: float = 1.0
+    """before a sub-task whose moved path starts away from the end-effector, a straight move there at this many
+    action units per step (1: the action bound; 0: none, the gap closes over --blend steps instead)"""
     env: str | None = None
     """the env to generate in (default: the dataset's)"""
     ee: str | None = None
@@ -84,6 +87,8 @@ class GenerateArgs:
         check_at_least(self.blend, "--blend")
         check_at_least(self.hold, "--hold", low=0)
         check_seed(self.seed, count=self.attempts, count_flag="--attempts")
+        if not 0 <= self.interp_speed <= 1:
+            raise UserError(f"--interp-speed must be in [0, 1] (action units per step), not {self.interp_speed}.")
         if not 0 < self.gain <= 2:
             raise UserError(f"--gain must be in (0, 2] (the share of the error corrected per step), not {self.gain}.")
         if self.segments == "codes" and (self.vae is None) == (self.codes is None):
@@ -237,7 +242,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
                         "source shows.")
     plan = GenerationPlan(env_id=env_id, sources=[trajs[i] for i in usable], source_ids=[ids[i] for i in usable],
                           segments=[planned[i] or [] for i in usable], frames=frames, scene=scene, gain=args.gain,
-                          blend=args.blend, hold=args.hold, seed=args.seed)
+                          blend=args.blend, hold=args.hold, interp_speed=args.interp_speed, seed=args.seed)
     work = args.out.with_name(args.out.name + ".partial")
     check_not_locked(work)
     name = env_id.rpartition("/")[2].lower().rsplit("-v", 1)[0]
@@ -254,7 +259,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             "frames": {str(k): v for k, v in sorted(frames.items())}, "order": order, "attempts": state.attempts,
             "successes": state.successes, "rate": rate, "env_steps": state.env_steps,
             "kept_steps": int(sum(len(t) for t in kept)), "gain": args.gain, "blend": args.blend,
-            "hold": args.hold, "seed": args.seed}
+            "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed}
         if not kept:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
                             "to write; try other --segments or --frames, or more --attempts.")

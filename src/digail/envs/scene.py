@@ -29,6 +29,10 @@ class SceneColumns:
     """the action column that opens and closes the gripper (kept from the source demonstration); None: none"""
     action_scale: float
     """metres the end-effector's target moves per unit of a move action"""
+    integrating: bool = False
+    """the move actions displace a target that accumulates them (Meta-World's mocap, which the hand follows with a
+    lag), rather than one placed relative to the end-effector at every step (Fetch's): paths are then tracked on
+    that target, dead-reckoned from the actions, so that the hand lags as it lagged in the source"""
 
     def check(self, obs_dim: int, act_dim: int) -> None:
         """Refuse, in one sentence, columns outside an observation of `obs_dim` numbers or actions of `act_dim`."""
@@ -71,6 +75,6 @@ FETCH = SceneColumns(ee=slice(0, 3), object=slice(3, 6), goal=slice(25, 28), mov
 """digail/FetchPickAndPlace-v4 (`digail.envs.fetch`): gripper, cube and goal; one action unit moves the mocap
 target 5 cm"""
 METAWORLD = SceneColumns(ee=slice(0, 3), object=slice(4, 7), goal=slice(36, 39), move_actions=slice(0, 3),
-                         gripper_action=3, action_scale=0.01)
+                         gripper_action=3, action_scale=0.01, integrating=True)
 """every Meta-World v3 task (`digail.envs.metaworld`): the hand, the first object and the goal; one action unit moves
 the mocap 1 cm (Meta-World's `action_scale`)"""
