@@ -44,7 +44,7 @@ def task_info(task: str) -> dict[str, Any]:
             "codes": phase_counts()[f"{task}-v3"]}
 
 
-def digail(cmd: list[str], log: list[list[str]], job: Path) -> None:
+def digail(cmd: list[str], log: list[list[str]], job: Path, may_fail: bool = False) -> None:
     """Run one digail command in-process, noting it in the job's commands.json first."""
     from digail.cli import main
 
@@ -52,7 +52,7 @@ def digail(cmd: list[str], log: list[list[str]], job: Path) -> None:
         log.append(cmd)
         (job / "commands.json").write_text(json.dumps([shlex.join(["digail", *c]) for c in log], indent=1))
     print("$ digail " + shlex.join(cmd), flush=True)
-    if main(cmd) != 0:
+    if main(cmd) != 0 and not may_fail:
         raise SystemExit(f"failed: digail {shlex.join(cmd)}")
 
 
@@ -74,9 +74,12 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
             extra = ["--vae", str(vae)]
         if segments == "chunks":
             extra = ["--chunk", str(args.chunk)]
+        stop = ["--successes", str(max(args.sizes))] if args.sizes else []
         digail(["generate", "--demos", info["demos"], "--sources", sources, "--segments", segments, *extra,
-                "--attempts", str(args.attempts), "--successes", str(max(args.sizes)), "--seed",
-                str(1_000_000 + 100_000 * seed), *args.generate_args, "--out", str(data)], log, job)
+                "--attempts", str(args.attempts), *stop, "--seed", str(1_000_000 + 100_000 * seed),
+                *args.generate_args, "--out", str(data)], log, job, may_fail=True)
+        if not data.exists():  # no attempt succeeded: the rate is 0, and there is nothing to train on
+            return
     have = _generation(data)["successes"]
     for size in args.sizes:
         if size > have:
@@ -99,6 +102,11 @@ def _saved(job: Path) -> list[list[str]]:
 
 
 def _generation(data: Path) -> dict[str, Any]:
+    partial = data.with_name(data.name + ".partial") / "state.json"
+    if not data.exists() and partial.exists():  # a generation that kept nothing leaves only its progress
+        state = json.loads(partial.read_text())
+        return {**state, "rate": state["successes"] / max(state["attempts"], 1),
+                "frames": state["plan"]["frames"], "order": None}
     meta = json.loads((data / "data" / "metadata.json").read_text())
     return meta["digail"]["generation"]
 
@@ -113,8 +121,10 @@ def _steps_for(gen: dict[str, Any], size: int) -> int:
 
 def table(args: argparse.Namespace) -> dict[str, Any]:
     jobs, rows = [], []
-    for data in sorted(ROOT.glob("*/*/d*_s*/data")):
-        job = data.parent
+    for job in sorted(ROOT.glob("*/*/d*_s*")):
+        data = job / "data"
+        if not data.exists() and not (job / "data.partial").exists():
+            continue
         task, segments = job.parent.parent.name, job.parent.name
         if args.task and task not in args.task:
             continue
@@ -168,7 +178,7 @@ def main() -> None:
     r.add_argument("--demos", type=int, nargs="+", default=[1])
     r.add_argument("--seeds", type=int, nargs="+", default=[0])
     r.add_argument("--segments", nargs="+", default=["labels"])
-    r.add_argument("--sizes", type=int, nargs="+", default=[100, 500, 1000])
+    r.add_argument("--sizes", type=int, nargs="*", default=[100, 500, 1000], help="none: generation only")
     r.add_argument("--methods", nargs="*", default=["bc", "flatbc"])
     r.add_argument("--attempts", type=int, default=1500)
     r.add_argument("--chunk", type=int, default=10)

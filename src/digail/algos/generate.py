@@ -366,17 +366,26 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
             bar.set_postfix(successes=state.successes, rate=f"{state.successes / state.attempts:.2f}",
                             refresh=False)
             if state.attempts % CHECKPOINT_EVERY == 0:
-                if pending:
-                    _save_chunk(work, chunks, pending)
-                    chunks += 1
-                    kept += pending
-                    pending = []
-                write_json(state_file, {"plan": fingerprint, **asdict(state), "chunks": chunks})
+                chunks, pending = _save(work, state_file, fingerprint, state, chunks, pending, kept)
+        # the end is saved too: a generation that kept nothing still says what it tried
+        chunks, pending = _save(work, state_file, fingerprint, state, chunks, pending, kept)
     finally:
         bar.close()
         env.close()
-    kept += pending
     return kept, state
+
+
+def _save(work: Path, state_file: Path, fingerprint: dict[str, Any], state: GenerationState, chunks: int,
+          pending: list[Trajectory], kept: list[Trajectory]) -> tuple[int, list[Trajectory]]:
+    """Write the pending episodes as the next chunk, then the state naming it; the pending join `kept`."""
+    from digail.fsio import write_json
+
+    if pending:
+        _save_chunk(work, chunks, pending)
+        chunks += 1
+        kept += pending
+    write_json(state_file, {"plan": fingerprint, **asdict(state), "chunks": chunks})
+    return chunks, []
 
 
 def generation_rate(state: GenerationState) -> float:

@@ -262,7 +262,8 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed}
         if not kept:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
-                            "to write; try other --segments or --frames, or more --attempts.")
+                            f"to write (the attempts are recorded in {work}); try other --segments or --frames, or "
+                            "more --attempts.")
         write_dataset(kept, args.out, env_id, dataset_id, seeds=[e["seed"] for e in state.episodes],
                       algorithm_name="digail generate", description="demonstrations generated from the sub-tasks "
                       f"of {len(plan.sources)} source demonstration(s) of {args.demos}",
