@@ -3,6 +3,7 @@
     python benchmarks/generate.py run --task fetch --demos 1 --seeds 0 1 2 --sizes 100 500 1000 --methods bc flatbc
     python benchmarks/generate.py run --task pick-place --demos 3 --seeds 0 --segments codes ...
     python benchmarks/generate.py table --out benchmarks/results/generate/fetch.json --task fetch
+    python benchmarks/generate.py figure   # -> benchmarks/results/figures/generate_paths.png
 
 A job (task, source demonstrations N, seed S, segment source) runs, resumably, under
 `runs/generate/<task>/<segments>/d<N>_s<S>/`:
@@ -170,6 +171,46 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def figure(args: argparse.Namespace) -> Path:
+    """The source demonstration's gripper path beside generated ones in new scenes, seen from above (x, y) and from
+    the side (x, z), each with its object's start and its goal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from digail.data.minari_io import load_dataset
+
+    gen = load_dataset(args.data)
+    record = gen.metadata["digail"]["generation"]
+    source = load_dataset(record["demos"]).trajs[record["sources"][0]]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    colours = plt.get_cmap("tab10")
+    shown = [("source", source, "black")] + [(f"generated {i}", t, colours(i % 10))
+                                             for i, t in enumerate(gen.trajs[:args.episodes])]
+    for name, traj, colour in shown:
+        obs = np.asarray(traj.obs)
+        for ax, (a, b) in zip(axes, ((0, 1), (0, 2)), strict=True):
+            ax.plot(obs[:, a], obs[:, b], color=colour, lw=2.2 if name == "source" else 1.0,
+                    label=name if a == 0 and b == 1 and name == "source" else None)
+            ax.scatter(obs[0, 3 + a], obs[0, 3 + b], color=colour, marker="s", s=30)
+            ax.scatter(obs[0, 25 + a], obs[0, 25 + b], color=colour, marker="*", s=80)
+    for ax, (x, y) in zip(axes, (("x", "y"), ("x", "z")), strict=True):
+        ax.set_xlabel(f"{x} (m)")
+        ax.set_ylabel(f"{y} (m)")
+    axes[0].set_title("from above")
+    axes[1].set_title("from the side")
+    axes[0].legend(loc="best", fontsize=8)
+    fig.suptitle(f"Fetch: the source demonstration (black) and {len(shown) - 1} generated in new scenes; "
+                 "square: the cube at the start, star: the goal", fontsize=10)
+    fig.tight_layout()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.out, dpi=110)
+    print(f"wrote {args.out}")
+    return args.out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -187,7 +228,14 @@ def main() -> None:
     t = sub.add_parser("table", help="gather the jobs into one JSON")
     t.add_argument("--task", nargs="*")
     t.add_argument("--out", type=Path)
+    f = sub.add_parser("figure", help="source and generated gripper paths (Fetch)")
+    f.add_argument("--data", default="runs/generate/fetch/labels/d1_s0/data")
+    f.add_argument("--episodes", type=int, default=6)
+    f.add_argument("--out", type=Path, default=Path("benchmarks/results/figures/generate_paths.png"))
     args = parser.parse_args()
+    if args.what == "figure":
+        figure(args)
+        return
     if args.what == "table":
         table(args)
         return
