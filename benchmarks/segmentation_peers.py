@@ -287,14 +287,15 @@ def main(argv: list[str] | None = None) -> None:
     result["commands"] = sorted({*result.get("commands", []), command})
     for name in tasks:
         demos, codes, _, description = bench.task_data(name, args.data)
-        trajs = load_dataset(demos).trajs
         entry = result["tasks"].setdefault(name, {"description": description, "codes": codes, "demos": demos,
                                                   "peers": {}})
+        trajs = None
         for peer in args.peers:
             rows = entry["peers"].setdefault(peer, {"seeds": []})
             for seed in args.seeds:
                 if any(r["seed"] == seed for r in rows["seeds"]):
                     continue
+                trajs = load_dataset(demos).trajs if trajs is None else trajs
                 row = {"seed": seed, **run_peer(peer, trajs, codes, seed), "command": command}
                 rows["seeds"] = sorted([*rows["seeds"], row], key=lambda r: r["seed"])
                 rows["median"] = median(rows["seeds"])
