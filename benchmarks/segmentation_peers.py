@@ -329,6 +329,7 @@ def merged_table(ours: dict[str, Any], peers: dict[str, Any]) -> str:
     lines = ["| task | K | digail | " + " | ".join(head) + " | best peer | digail - best peer |",
              "| --- | --- | --- | " + " | ".join("---" for _ in head) + " | --- | --- |"]
     diffs: list[float] = []
+    columns: dict[str, list[float]] = {"digail": [], **{p: [] for p in names}}  # Meta-World tasks with every cell
     for name, task in peers["tasks"].items():
         digail = ours.get("tasks", {}).get(name, {}).get("median", {}).get("accuracy")
         accs = {p: _peer_accuracy(task, p) for p in names}
@@ -338,12 +339,20 @@ def merged_table(ours: dict[str, Any], peers: dict[str, Any]) -> str:
         gap = "-"
         if best is not None and digail is not None:
             gap = f"{digail - known[best]:+.3f}"
-            if name.startswith("metaworld-"):
+            if name.startswith("metaworld-") and len(known) == len(names):
                 diffs.append(digail - known[best])
+                columns["digail"].append(digail)
+                for p in names:
+                    columns[p].append(known[p])
         lines.append(f"| {name} | {task['codes']} | {'-' if digail is None else f'{digail:.3f}'} | "
                      + " | ".join(cells) + f" | {best or '-'} | {gap} |")
     if diffs:
-        lines.append(f"\nMedian of digail - best peer over the {len(diffs)} Meta-World tasks: "
+        meds = {k: float(np.median(v)) for k, v in columns.items()}
+        best = max(names, key=meds.__getitem__)
+        lines.append(f"| median, {len(diffs)} Meta-World tasks | | {meds['digail']:.3f} | "
+                     + " | ".join(f"{meds[p]:.3f}" for p in names)
+                     + f" | {best} | {meds['digail'] - meds[best]:+.3f} |")
+        lines.append(f"\nMedian of digail - best peer (per task) over the {len(diffs)} Meta-World tasks: "
                      f"{float(np.median(diffs)):+.3f}.")
     lines.append(f"\nMedian accuracy over seeds. * {TOLD_NOTE}.")
     return "\n".join(lines)
@@ -363,7 +372,7 @@ def accuracy_figure(ours: dict[str, Any], peers: dict[str, Any], out: Path) -> N
         label = f"{p} (told the segment counts)" if p in TOLD else p
         series[label] = [np.nan if (a := _peer_accuracy(peers["tasks"][t], p)) is None else a for t in tasks]
     width = 0.8 / len(series)
-    fig, ax = plt.subplots(figsize=(max(8.0, 0.7 * len(tasks) + 2), 4.2))
+    fig, ax = plt.subplots(figsize=(max(8.0, 0.7 * len(tasks) + 4), 4.2))
     x = np.arange(len(tasks))
     for i, (label, values) in enumerate(series.items()):
         ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, label=label)
@@ -371,7 +380,7 @@ def accuracy_figure(ours: dict[str, Any], peers: dict[str, Any], out: Path) -> N
     ax.set_ylabel("accuracy (median over seeds)")
     ax.set_ylim(0, 1.02)
     ax.axhline(0.9, color="grey", lw=0.6, ls="--")
-    ax.legend(fontsize=7, ncol=3, loc="lower left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax.set_title("Segmentation: digail's defaults against peer segmenters, same data, same scorer, K given",
                  fontsize=9)
     fig.tight_layout()

@@ -85,6 +85,7 @@ def test_table_merges_digail_with_the_peers_and_says_who_was_told() -> None:
     assert "| metaworld-a | 4 | 0.700 | 0.800 | 0.850 | kernel-cpd-told | -0.150 |" in lines
     assert "| metaworld-b | 3 | 0.900 | 0.600 | 0.700 | kernel-cpd-told | +0.200 |" in lines
     assert "| shuttle | 2 | - | 1.000 | - | hmm-actions | - |" in lines  # digail has no row for it yet
+    assert "| median, 2 Meta-World tasks | | 0.800 | 0.700 | 0.775 | kernel-cpd-told | +0.025 |" in lines
     assert "over the 2 Meta-World tasks: +0.025" in text
     assert "told the true number of segments of every episode" in text
 
