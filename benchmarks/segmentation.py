@@ -82,7 +82,8 @@ DERIVED: dict[str, dict[str, Any]] = {
 """shipped data sets relabelled with a phase computed from the observation (written into `--data` once)"""
 
 METAWORLD = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball", "disassemble", "peg-insert-side",
-             "box-close", "hammer")
+             "box-close", "hammer", "push-wall", "plate-slide-back", "stick-push", "door-lock", "hand-insert",
+             "pick-out-of-hole", "coffee-pull")
 """Meta-World tasks: the shipped demonstrations (50 episodes of the scripted expert) with the expert's phase as the
 label, runs shorter than `digail.envs.metaworld.MIN_SEGMENT` steps merged into their neighbour (written into `--data`
 once); K is the number of phases left"""

@@ -5,7 +5,7 @@
 set -euo pipefail
 DIGAIL=${DIGAIL:-digail}
 PYTHON=${PYTHON:-python}
-TASKS=${TASKS:-"pick-place assembly stick-pull shelf-place basketball disassemble peg-insert-side box-close hammer"}
+TASKS=${TASKS:-"pick-place assembly stick-pull shelf-place basketball disassemble peg-insert-side box-close hammer push-wall plate-slide-back stick-push door-lock hand-insert pick-out-of-hole coffee-pull"}
 for task in $TASKS; do
     $DIGAIL demos "metaworld/$task-v3" --episodes 50 --seed 0 --force \
         --out "src/digail/datasets/digail/metaworld-$task/expert-v0"
