@@ -70,15 +70,35 @@ def test_render_returns_rgb_uint8(env_id: str) -> None:
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_subtask_in_info_at_reset_and_every_step(env_id: str) -> None:
+    """Every step's `info["subtask"]` is one of the labels the env's registry entry names (what the segmentation
+    metrics score against), an int from reset on, under random actions; the expert's episode, which does the task,
+    runs through two labels or more, each once (a label left is never taken up again), and ends in the last one."""
+    import itertools
+
+    from digail.envs.registry import env_spec
+    from digail.experts.scripted import get_scripted_expert
+
+    labels = range(len(env_spec(env_id).labels))
     env = gym.make(env_id)
     env.action_space.seed(0)
     _, info = env.reset(seed=0)
-    assert isinstance(info["subtask"], int)
+    seen = [info["subtask"]]
     done = False
     while not done:
         _, _, terminated, truncated, info = env.step(env.action_space.sample())
-        assert isinstance(info["subtask"], int)
+        seen.append(info["subtask"])
         done = terminated or truncated
+    assert all(type(s) is int and s in labels for s in seen), sorted(set(seen))
+    expert = get_scripted_expert(env_id)
+    assert expert is not None
+    _, info = env.reset(seed=1)
+    seen, done = [info["subtask"]], False
+    while not done:
+        _, _, terminated, truncated, info = env.step(expert(env))
+        seen.append(info["subtask"])
+        done = terminated or truncated
+    runs = [label for label, _ in itertools.groupby(seen)]
+    assert len(runs) >= 2 and len(set(runs)) == len(runs) and runs[-1] == labels[-1], runs
 
 
 def test_registered_time_limits() -> None:

@@ -1,52 +1,45 @@
-"""Failure paths, fifth round (the code side): no code runs because a data file names it, D's views of the user's
-own fail in one sentence, a run whose view breaks leaves no folder without a checkpoint, and the messages that said
-the wrong thing.
-
-Each probe is what a user might try and what digail must give back: accepted, or refused with one sentence holding
-the expected phrase (exit status 2 from the CLI, no traceback). The probes that plant a module check that it never
-ran: the module writes a marker file beside itself when imported.
+"""Failure-path probes of code named by data: no module runs because a dataset, a run folder or a sweep
+spec names it; D's views of the user's own fail in one sentence; the messages that once said the wrong thing. The
+planted modules check that they never ran. The probes, with what each gets, are the reliability page's section of
+the same name (docs/reference/errors.md).
 """
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import signal
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
-from test_failure_paths_round4 import CW, CW_DEMOS, Probe, cli, sweep_check
+from probe_kit import (
+    CW,
+    CW_DEMOS,
+    MW_DEMOS,
+    RUN,
+    Probe,
+    ProbeTable,
+    assert_published,
+    check_probe,
+    cli,
+    mw_train,
+    plant,
+    ran,
+    sweep_check,
+)
 
-import digail.user_envs
+from digail.cli import main
 from digail.errors import UserError
 
-PROBES: list[Probe] = []
-
-
-def probe(pid: str, what: str, expect: str | None) -> Callable[[Callable[[Path], object]], Callable[[Path], object]]:
-    def add(fn: Callable[[Path], object]) -> Callable[[Path], object]:
-        PROBES.append(Probe(pid, what, fn, expect))
-        return fn
-
-    return add
-
-
-RUN = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "runs" / "pendulum_vae_s2"
-"""a committed run folder (a Pendulum VAE)"""
-
-
-def plant(folder: Path, name: str, body: str = "") -> Path:
-    """A module `name`.py in `folder` that leaves `name`.ran beside itself when imported, then runs `body`."""
-    folder.mkdir(parents=True, exist_ok=True)
-    marker = folder / f"{name}.ran"
-    (folder / f"{name}.py").write_text(f"open({str(marker)!r}, 'w').close()\n{body}")
-    return marker
-
-
-def ran(tmp: Path) -> list[str]:
-    """The planted modules that ran."""
-    return sorted(p.name for p in tmp.rglob("*.ran"))
+PROBES = ProbeTable()
+probe = PROBES.add
 
 
 def _spec(env_id: str, entry: str) -> str:
@@ -72,6 +65,8 @@ def _dataset_naming(tmp: Path, env_id: str, entry: str) -> Path:
     meta["env_spec"] = _spec(env_id, entry)
     meta_file.write_text(json.dumps(meta))
     return path
+
+
 
 
 # ------------------------------------------------------------------------------------------------ no code from data
@@ -173,7 +168,6 @@ def _report_env_module(tmp: Path) -> None:
 
 
 def _in(tmp: Path, fn: Callable[[], object]) -> object:
-    import os
 
     old = Path.cwd()
     os.chdir(tmp)
@@ -288,8 +282,6 @@ FORMATS = Path(__file__).resolve().parents[1] / "tests" / "data" / "formats"
 def _lerobot_huge(tmp: Path) -> None:
     import shutil
 
-    import pyarrow as pa
-    import pyarrow.parquet as pq
 
     shutil.copytree(FORMATS / "lerobot", tmp / "lr")
     frames = tmp / "lr" / "data" / "chunk-000" / "file-000.parquet"
@@ -305,44 +297,52 @@ def _lerobot_huge(tmp: Path) -> None:
     cli(tmp, "import", "lr", "--out", "out")
 
 
-# ------------------------------------------------------------------------------------------------ the test
-def outcome(p: Probe, tmp: Path) -> str | None:
-    """The probe's sentence when refused, None when accepted; it starts with no module named by the user and leaves
-    the import path as it was (the probes plant modules)."""
-    state = (set(digail.user_envs._NAMED), dict(digail.user_envs._UNNAMED), list(sys.path))
-    digail.user_envs._NAMED.clear()
-    digail.user_envs._UNNAMED.clear()
-    try:
-        p.run(tmp)
-    except UserError as exc:
-        return " ".join(str(exc).split())
-    finally:
-        digail.user_envs._NAMED.clear()
-        digail.user_envs._NAMED.update(state[0])
-        digail.user_envs._UNNAMED.clear()
-        digail.user_envs._UNNAMED.update(state[1])
-        sys.path[:] = state[2]
-    return None
+# ------------------------------------------------------------------------------------------------ on Meta-World
+for _pid, _value, _expect in [
+    ("again-view-stdlib-shutil", "shutil:rmtree", "Python's standard library"),
+    ("again-view-importlib", "importlib:import_module", "Python's standard library"),
+    ("again-view-dotted-stdlib", "os.path:join", "Python's standard library"),
+    ("again-view-fetch-on-metaworld", "digail.envs.fetch:relative_view", None),
+    ("again-view-class", "collections:OrderedDict", "Python's standard library"),
+    ("again-view-missing-function", "digail.envs.fetch:no_such_view", "has no 'no_such_view'"),
+    ("again-view-trailing-colon", "mymod:", "all, relative or module:function"),
+    ("again-view-two-colons", "a:b:c", "all, relative or module:function"),
+]:
+    probe(_pid, f"`digail train --demos {MW_DEMOS} --train.disc-obs {_value}`", _expect)(
+        lambda tmp, v=_value: mw_train(tmp, "--train.disc-obs", v))
 
 
-def assert_answer(p: Probe, sentence: str | None) -> None:
-    """A probe expecting acceptance was accepted; one expecting refusal got one line holding its words."""
-    if p.expect is None:
-        assert sentence is None, f"{p.id} was refused: {sentence}"
-    else:
-        assert sentence is not None, f"{p.id} was accepted"
-        assert p.expect in sentence, sentence
-        assert "\n" not in sentence and "Traceback" not in sentence
+for _pid, _text, _expect in [
+    ("again-spec-disc-obs-os", f'envs = ["{CW}"]\n[set]\n"train.disc_obs" = "os:system"\n', "standard library"),
+    ("again-spec-grid-disc-obs", f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.disc_obs" = ["all", "sys:exit"] }}\n',
+     "standard library"),
+]:
+    probe(_pid, f"`digail sweep --spec spec.toml` whose spec sets {_text.split(chr(10))[-2]}", _expect)(
+        lambda tmp, t=_text: sweep_check(spec=t, tmp=tmp))
 
 
-@pytest.mark.parametrize("p", PROBES, ids=[p.id for p in PROBES])
-def test_probe(p: Probe, tmp_path: Path) -> None:
-    sentence = outcome(p, tmp_path)
-    assert_answer(p, sentence)
-    if p.id.startswith("data-"):
-        assert ran(tmp_path) == [], f"{p.id} ran a module a data file named"
-    for out in ("out", "run-new"):
-        assert not (tmp_path / out).exists(), f"{p.id} wrote {out}"
+@probe("again-mw-run-folder-module", "`digail report run` where a Meta-World run's config.json names env "
+       "`evil6b:MW-v0` and evil6b.py is in the current folder", None)
+def _mw_run_module(tmp: Path) -> None:
+    shutil.copytree(RUN, tmp / "run")
+    config = json.loads((tmp / "run" / "config.json").read_text())
+    config["env_id"] = "evil6b:MW-v0"
+    (tmp / "run" / "config.json").write_text(json.dumps(config))
+    plant(tmp, "evil6b")
+    cli(tmp, "report", "run")
+
+
+@probe("again-resume-env-module", "`digail train --resume run` where config.json's env is `evil6c:MW-v0`",
+       "pass --env evil6c:MW-v0 to allow it")
+def _mw_resume(tmp: Path) -> None:
+    plant(tmp, "evil6c")
+    (tmp / "run").mkdir()
+    (tmp / "run" / "config.json").write_text(json.dumps({
+        "kind": "gail", "env_id": "evil6c:MW-v0", "seed": 0,
+        "args": {"env": "evil6c:MW-v0", "demos": MW_DEMOS, "seed": 0, "method": "gail", "preset": "smoke"}}))
+    cli(tmp, "train", "--resume", "run")
+
+
 
 
 # ------------------------------------------------------------------------------------------------ Ctrl-C, NaN loss
@@ -350,7 +350,6 @@ def test_ctrl_c_while_the_command_still_imports_is_one_line(monkeypatch: pytest.
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     """Ctrl-C in the first seconds of `digail train --resume RUN` (torch still importing) ends it cleanly."""
     import digail.utils
-    from digail.cli import main
 
     def interrupted(n: int) -> None:
         raise KeyboardInterrupt
@@ -363,8 +362,6 @@ def test_ctrl_c_while_the_command_still_imports_is_one_line(monkeypatch: pytest.
 
 def test_ctrl_c_while_the_package_imports_is_one_line(tmp_path: Path) -> None:
     """The `digail` script interrupted while `import digail` runs (its first second): one line, status 130."""
-    import signal
-    import subprocess
 
     code = ("import builtins, os, signal, sys\n"
             "sys.argv[0] = '/usr/bin/digail'\n"
@@ -387,7 +384,6 @@ def test_ctrl_c_while_the_package_imports_is_one_line(tmp_path: Path) -> None:
 def test_a_training_error_is_one_sentence(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """Training that cannot go on (a NaN loss) ends with one sentence and status 1, not a traceback."""
     import digail.commands.evaluate
-    from digail.cli import main
     from digail.errors import TrainingError
 
     def fails(args: object) -> None:
@@ -398,16 +394,6 @@ def test_a_training_error_is_one_sentence(monkeypatch: pytest.MonkeyPatch, capsy
     assert main(["evaluate", "run"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("digail evaluate: error: non-finite loss"), err
-
-
-def test_the_reliability_page_lists_every_probe() -> None:
-    """docs/reference/errors.md publishes these probes in the fifth round's section: one row each."""
-    page = (Path(__file__).resolve().parents[1] / "docs" / "reference" / "errors.md").read_text()
-    section = page.split("## Code named by data", 1)[1].split("\n## ", 1)[0]
-    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith(("| tried", "| ---"))]
-    assert len(rows) == len(PROBES)
-    missing = [p.id for p in PROBES if f"| {p.what.replace('|', chr(92) + '|')} |" not in section]
-    assert not missing, f"probes without a row in the reliability page: {missing}"
 
 
 def test_an_id_with_a_module_part_needs_the_module_named_or_imported(tmp_path: Path,
@@ -427,3 +413,13 @@ def test_an_id_with_a_module_part_needs_the_module_named_or_imported(tmp_path: P
     assert check_no_module("mine5p:Mine-v0") == "Mine-v0"
     assert check_no_module("Plain-v0") == "Plain-v0"
     assert ran(tmp_path) == ["mine5p.ran"]
+
+
+# ------------------------------------------------------------------------------------------------ the probes
+@pytest.mark.parametrize("p", PROBES, ids=[p.id for p in PROBES])
+def test_probe(p: Probe, tmp_path: Path, request: pytest.FixtureRequest) -> None:
+    check_probe(p, tmp_path, request.getfixturevalue("base") if p.on_base else None)
+
+
+def test_the_reliability_page_lists_every_probe() -> None:
+    assert_published(PROBES, "Probes: code named by data")
