@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from digail.algos.decode import segment, segment_many
+from digail.algos.decode import read_codes, segment, segment_many, segment_offline_many
 from digail.checkpoint import save_model
 from digail.commands.segment import SegmentArgs, segment_command
 from digail.data.trajectory import Trajectory
@@ -167,6 +167,40 @@ def test_viterbi_follows_the_decoder_and_the_prior() -> None:
     np.testing.assert_array_equal(viterbi(model, traj), [0, 0, 0, 1, 0, 0, 1, 1, 1, 1])
 
 
+def _left_right_model(sticky: float) -> HierarchicalPolicy:
+    """pi: code 0 moves right (+1), code 1 left (-1); q: keeps the previous code with logit `sticky`, whatever the
+    state (the start input: no preference)."""
+    model = HierarchicalPolicy(1, 2, ActionSpec(False, 1), hidden=(4,))
+    with torch.no_grad():
+        for p in [*model.pi.parameters(), *model.q.parameters()]:
+            p.zero_()
+        model.pi.net[0].weight[0, 1] = 1.0  # hidden unit 0 = [code 0]
+        model.pi.net[0].weight[1, 2] = 1.0  # hidden unit 1 = [code 1]
+        model.pi.net[-1].weight[0, 0], model.pi.net[-1].weight[0, 1] = 1.0, -1.0
+        model.pi.log_std.fill_(0.0)
+        first, last = model.q.net[0], model.q.net[-1]
+        first.weight[0, 1] = 1.0  # hidden unit 0 = [previous code 0]
+        first.weight[1, 2] = 1.0  # hidden unit 1 = [previous code 1]
+        last.weight[0, 0], last.weight[1, 1] = sticky, sticky
+    return model
+
+
+def test_offline_reading_weighs_the_actions_and_the_macro_policy() -> None:
+    acts = np.array([1, 1, 1, -1, 1, 1, -1, -1, -1, -1], np.float32)[:, None]
+    traj = Trajectory(np.zeros((11, 1), np.float32), acts)
+    # a sticky q outweighs one odd action; the causal reading, blind to the actions, never leaves its first code
+    np.testing.assert_array_equal(segment_offline_many(_left_right_model(3.0), [traj])[0], [0] * 6 + [1] * 4)
+    # with no preference for staying, every action decides its own code
+    np.testing.assert_array_equal(read_codes(_left_right_model(0.0), [traj], "offline")[0],
+                                  [0, 0, 0, 1, 0, 0, 1, 1, 1, 1])
+    assert len(set(read_codes(_left_right_model(3.0), [traj], "causal")[0].tolist())) == 1
+    short = Trajectory(np.zeros((4, 1), np.float32), acts[:3])
+    batched = segment_offline_many(_left_right_model(3.0), [traj, short])
+    np.testing.assert_array_equal(batched[1], [0, 0, 0])
+    with pytest.raises(UserError, match="unknown reading"):
+        read_codes(_left_right_model(3.0), [traj], "smoothed")
+
+
 # ------------------------------------------------------------------------------------------------ command
 @dataclasses.dataclass
 class _FakeDataset:
@@ -198,17 +232,19 @@ def test_segment_command_writes_codes_metrics_and_figure(tmp_path: Path, monkeyp
     run.mkdir()
     save_model(run / "model.pt", model, kind="vae", config={"demos": "toy"}, env_id="toy/TwoPhase-v0")
     (run / "config.json").write_text(json.dumps({"demos": "toy"}))
-    metrics = segment_command(SegmentArgs(run))
+    metrics = segment_command(SegmentArgs(run, reading="causal"))
     assert metrics["accuracy"] == 1.0 and metrics["boundary_f1"] == 1.0 and metrics["switches_per_episode"] == 1
     saved = json.loads((run / "segmentation.json").read_text())
     assert saved["accuracy"] == 1.0 and saved["matching"] == "one-to-one" and "viterbi" in saved
+    assert saved["reading"] == "causal" and set(saved["readings"]) == {"causal", "offline"}
+    assert saved["readings"]["causal"]["accuracy"] == 1.0
     codes = np.load(run / "codes.npz")
     assert len(codes.files) == 5 and codes["episode_00000"].shape == (21,)
     assert (run / "figures" / "segmentation.png").stat().st_size > 1000
 
     unlabeled = [Trajectory(t.obs, t.acts) for t in trajs]
     fake_minari(monkeypatch, unlabeled)
-    metrics = segment_command(SegmentArgs(run, demos="other"))
+    metrics = segment_command(SegmentArgs(run, demos="other", reading="causal"))
     assert metrics["labels"] is False and metrics["switches_per_episode"] == 1.0
 
     fake_minari(monkeypatch, trajs, env_id="digail/CircleWorld-v0")

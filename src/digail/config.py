@@ -111,6 +111,11 @@ class VAEConfig:
     """`em`: ridge on the state weights of the start's sub-task policies (large: about one constant action per
     code, as a straight leg of a course or a phase of a manipulation is; small, e.g. 0.01: actions that turn with
     the state, such as a curved path or heading for a corridor; docs/howto/choosing-k.md)"""
+    init_actions: Literal["auto", "gaussian"] = "auto"
+    """`em` with continuous actions: how the start's sub-task policies model each action dimension: `auto` reads
+    off the demonstrations which dimensions are clipped at a bound (scored only up to it) and which take a few
+    values (a gripper's command: a softmax over them), `gaussian` is a Gaussian on every dimension
+    (`segment_models.ACTION_MODELS`)"""
     init_outlier_share: float = 1e-3
     """`em` with continuous actions: share of each action dimension's likelihood that is uniform over its range,
     which caps what one step no linear policy predicts can cost (`segment_init.OUTLIER_SHARE`; 0: a plain
@@ -157,6 +162,8 @@ class VAEConfig:
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)
         _require(self.init_model in ("linear", "rff"), "--vae.init-model", "linear or rff", self.init_model)
+        _require(self.init_actions in ("auto", "gaussian"), "--vae.init-actions", "auto or gaussian",
+                 self.init_actions)
         _require(self.k_criterion in ("linear", "rff", "vae"), "--vae.k-criterion", "linear, rff or vae",
                  self.k_criterion)
         if self.init_obs is not None:

@@ -90,3 +90,60 @@ def hierarchical_act(model: HierarchicalPolicy, to_env: Callable[[Any], Any] | N
         return to_env(acts_np) if to_env is not None else acts_np
 
     return act
+
+
+READINGS = ("causal", "offline")
+"""the two readings of a segmentation (`read_codes`): `causal`, what the macro-policy q decides step by step without
+looking ahead (the paper's q, what the hierarchical policy does in closed loop); `offline`, the code path that best
+explains the whole demonstration, actions included (`segment_offline_many`), for annotations and generation"""
+
+
+@torch.no_grad()
+def segment_offline_many(model: HierarchicalPolicy, trajs: Sequence[Trajectory]) -> list[np.ndarray]:
+    """The offline reading: per demonstration, the code path maximising
+    sum_t log q(c_t | s_t, c_{t-1}) + log pi(a_t | s_t, c_t) (Viterbi; c_{-1} the start input), the most likely codes
+    under the hierarchical policy's own model of the actions given the states.
+
+    Why beside the causal reading: q decides c_t from s_t alone and cannot see that the next actions belong to
+    another sub-task, so its switches come late or flicker where two sub-tasks look alike; the offline reading
+    also weighs every action the sub-task policies would have taken, before and after. An annotation is written
+    after the fact, so it may use the whole demonstration.
+
+    Returns:
+        One (T_i,) int64 array per demonstration: c_t for the states s_0 .. s_{T_i - 1}.
+    """
+    from digail.algos.segment_search import _viterbi_trans
+
+    if len(trajs) == 0:
+        return []
+    K = model.codes
+    if K == 1:
+        return [np.zeros(len(t), dtype=np.int64) for t in trajs]
+    obs_n, lengths = padded_obs(model, trajs)
+    B, T, _ = obs_n.shape
+    device = obs_n.device
+    acts = np.zeros((B, T), np.int64) if model.action.discrete else np.zeros((B, T, model.action.dim), np.float32)
+    for i, t in enumerate(trajs):
+        acts[i, :len(t)] = np.asarray(t.acts).reshape(acts[i, :len(t)].shape)
+    acts_t = torch.as_tensor(acts, device=device)
+    eye = torch.eye(K, device=device)
+    loglik = torch.zeros(B, T, K, device=device)
+    logtrans = torch.zeros(B, T, K, K, device=device)
+    for k in range(K):
+        code = eye[k].expand(B, T, K)
+        loglik[..., k] = model.pi.log_prob_entropy(obs_n, code, acts_t)[0]
+        logtrans[:, :, k] = torch.log_softmax(model.q(obs_n, code), -1)
+    start = torch.log_softmax(model.q(obs_n[:, 0], torch.zeros(B, K, device=device)), -1)
+    loglik[:, 0] += start
+    mask = torch.as_tensor(np.arange(T)[None] < lengths[:, None], device=device)
+    loglik = loglik * mask[..., None]
+    logtrans = logtrans * mask[..., None, None]
+    return _viterbi_trans(loglik.double().cpu().numpy(), logtrans.double().cpu().numpy(), lengths)
+
+
+def read_codes(model: HierarchicalPolicy, trajs: Sequence[Trajectory], reading: str = "offline"
+               ) -> list[np.ndarray]:
+    """The codes of `trajs` in one of the `READINGS`."""
+    if reading not in READINGS:
+        raise UserError(f"unknown reading {reading!r}; choose one of {', '.join(READINGS)}.")
+    return segment_offline_many(model, trajs) if reading == "offline" else segment_many(model, trajs)

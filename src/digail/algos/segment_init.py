@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -123,15 +124,19 @@ class _FeatureMap:
 def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool, *, seed: int = 0,
                          rounds: int = 30, starts: int = 4, ridge: float = 1.0,
                          shared_variance: bool = True, switch_costs: str = "learned",
-                         outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
+                         outlier_share: float = OUTLIER_SHARE, model: str = "linear",
+                         actions: str = "auto") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) of the switching-linear-policy segmentation (module
-    docstring): from K equal consecutive pieces, from the ordered cut (learned switch costs only) and from
-    `starts` - 1 k-means starts (`_hard_em`), up to `rounds` of Viterbi and refit each (stopping when nothing
-    changes); the segmentation with the shortest description length wins. `shared_variance=False`: one action
+    docstring): from K equal consecutive pieces, from the ordered cut (learned switch costs only), from
+    `starts` - 1 k-means starts (`_hard_em`) and, with learned switch costs and `actions="auto"`, from more codes
+    merged down to K (`_merged_down`), up to `rounds` of Viterbi and refit each (stopping when nothing changes);
+    the segmentation with the shortest description length wins. `shared_variance=False`: one action
     variance per code (the first version, kept for the runs made with it); `switch_costs="fixed"`: log T +
     log(K - 1) nats per switch throughout (also kept for the runs made with it); `outlier_share`: the share of
     each continuous action dimension's likelihood that is uniform over its range (0: plain Gaussian, as the
-    presets' runs were made); `model`: the sub-task policies' features (`MODELS`, module docstring)."""
+    presets' runs were made); `model`: the sub-task policies' features (`MODELS`, module docstring); `actions`:
+    how continuous actions are modelled (`segment_models.ACTION_MODELS`: `auto` reads clipped and few-valued
+    dimensions off the data)."""
     rng = np.random.default_rng(seed)
     best: tuple[float, list[np.ndarray]] | None = None
     # fixed switch costs keep the starts their runs were made with
@@ -139,16 +144,94 @@ def hard_em_segmentation(trajs: Sequence[Trajectory], codes: int, discrete: bool
     for first in firsts:
         cost, seg = _hard_em(trajs, codes, discrete, rng, rounds, first=first, ridge=ridge,
                              shared_variance=shared_variance, switch_costs=switch_costs, outlier_share=outlier_share,
-                             model=model, seed=seed)
+                             model=model, seed=seed, actions=actions)
+        if best is None or cost < best[0]:
+            best = (cost, seg)
+    if switch_costs == "learned" and codes > 1 and actions == "auto":
+        cost, seg = _merged_down(trajs, codes, discrete, rng, rounds, ridge=ridge, shared_variance=shared_variance,
+                                 outlier_share=outlier_share, model=model, seed=seed, actions=actions)
         if best is None or cost < best[0]:
             best = (cost, seg)
     assert best is not None
     return best[1]
 
 
+MERGE_EXTRA = 4
+"""`_merged_down` starts from K + min(K, MERGE_EXTRA) codes"""
+
+
+def _merged_down(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator, rounds: int,
+                 **kw: Any) -> tuple[float, list[np.ndarray]]:
+    """A start from above: hard EM with more codes than asked for (K + min(K, `MERGE_EXTRA`), from the equal and
+    the ordered pieces), then, one code at a time, the two codes whose merged policy costs least over their steps
+    become one and hard EM runs again from there, until K codes are left. Returns (description length, codes).
+
+    Why: from K pieces or k-means, hard EM can settle where two sub-tasks that differ little (Meta-World's hammer:
+    above the hammer, then onto it, 7 cm lower) share a code and another sub-task is cut in two, although the
+    segmentation with the sub-tasks apart describes the actions in far fewer nats (docs/experiments.md). With
+    more codes than sub-tasks both are apart at first; the merges then join what differs least."""
+    fine = codes + min(codes, MERGE_EXTRA)
+    best: tuple[float, list[np.ndarray]] | None = None
+    for first in ("chunks", "ordered"):
+        cost, seg = _hard_em(trajs, fine, discrete, rng, rounds, first=first, **kw)
+        if best is None or cost < best[0]:
+            best = (cost, seg)
+    assert best is not None
+    cost, seg = best
+    p_all, a_all, n_act = _policy_design(trajs, discrete, kw["model"], kw["seed"])
+    bounds = np.cumsum([0, *[len(t) for t in trajs]])
+    for k in range(fine, codes, -1):
+        flat = np.concatenate(seg)
+        policies = _LinearPolicies(k, p_all.shape[1], n_act, discrete, kw["ridge"], kw["shared_variance"],
+                                   kw["outlier_share"], kw["actions"])
+        policies.fit(p_all, a_all, flat)
+        own = -policies.loglik(p_all, a_all)[np.arange(len(flat)), flat]
+        per_code = np.bincount(flat, weights=own, minlength=k)
+        pair, rise = (k - 2, k - 1), math.inf
+        for i in range(k):
+            for j in range(i + 1, k):
+                rows = (flat == i) | (flat == j)
+                if not rows.any():  # two unused codes: merging them costs nothing
+                    pair, rise = (i, j), -math.inf
+                    continue
+                merged = -float(_one_policy(policies, i, p_all[rows], a_all[rows]).sum())
+                if merged - per_code[i] - per_code[j] < rise:
+                    pair, rise = (i, j), merged - per_code[i] - per_code[j]
+        i, j = pair
+        flat = np.where(flat == j, i, flat)
+        flat = np.where(flat > j, flat - 1, flat)
+        start = [flat[bounds[e]:bounds[e + 1]] for e in range(len(trajs))]
+        cost, seg = _hard_em(trajs, k - 1, discrete, rng, rounds, start=start, **kw)
+    return cost, seg
+
+
+def _one_policy(like: _LinearPolicies, code: int, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Each row's log-likelihood under one policy fitted to all of `x`, `a` from code `code`'s policy of `like`,
+    with the noise level, the action dimensions' kinds and the ranges of `like` (so merges of different pairs
+    compare)."""
+    one = _LinearPolicies(1, x.shape[1], like.w.shape[2], like.discrete,
+                          1.0, like.shared_variance, like.outlier_share, like.actions)
+    one.ridge = like.ridge
+    one.kinds = like.kinds
+    one.w[0] = like.w[code]
+    one.w_values = {d: w[code:code + 1].copy() for d, w in like.w_values.items()}
+    one.fit(x, a, np.zeros(len(x), np.int64))
+    one.log_var[:], one.log_span = like.log_var[:1], like.log_span
+    return one.loglik(x, a)[:, 0]
+
+
+def _policy_design(trajs: Sequence[Trajectory], discrete: bool, model: str, seed: int
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """What the sub-task policies see of every step ([s_n, 1] through the feature map `model`), the actions and
+    the number of discrete actions (or action dimensions)."""
+    x_all, a_all, n_act, _, _ = _design(trajs, discrete)
+    return _FeatureMap(model, seed=seed).fit(x_all)(x_all), a_all, n_act
+
+
 def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarray], codes: int, discrete: bool, *,
                           seed: int = 0, ridge: float = 1.0, starts: int = 8, rounds: int = 30,
-                          outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> list[np.ndarray]:
+                          outlier_share: float = OUTLIER_SHARE, model: str = "linear",
+                          actions: str = "auto") -> list[np.ndarray]:
     """Codes (one (T_i,) int64 array per demonstration) when every piece of a demonstration takes one code: hard EM
     over the pieces (`pieces[i]` numbers demonstration i's steps by piece, e.g. Four Rooms' room visits, where an
     environment knows where its sub-tasks can change). Each round gives every piece the code whose linear policy
@@ -177,7 +260,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
         per_piece = np.zeros((n_pieces, codes))
         for _ in range(rounds):
             policies = _LinearPolicies(codes, x.shape[1], n_act, discrete, ridge,
-                                       outlier_share=outlier_share)
+                                       outlier_share=outlier_share, actions=actions)
             policies.fit(x, a, piece_codes[piece])
             per_piece = np.zeros((n_pieces, codes))
             np.add.at(per_piece, piece, policies.loglik(x, a))
@@ -197,7 +280,7 @@ def piece_em_segmentation(trajs: Sequence[Trajectory], pieces: Sequence[np.ndarr
 def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory], candidates: Sequence[int],
                         discrete: bool, *, seed: int = 0, ridge: float = 1.0,
                         switch_costs: str = "fixed", outlier_share: float = OUTLIER_SHARE,
-                        model: str = "linear", starts: int = 4) -> list[dict[str, float]]:
+                        model: str = "linear", starts: int = 4, actions: str = "auto") -> list[dict[str, float]]:
     """Per K in `candidates`: the switching-linear-policy model fitted by hard EM on `fit_on`, scored on `held`
     by the description length of its best (Viterbi) segmentation there, in nats per held-out step. With learned
     switch costs the macro-policy fitted on `fit_on` charges the held-out switches.
@@ -219,10 +302,10 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     curve = []
     for k in candidates:
         seg = (hard_em_segmentation(fit_on, k, discrete, seed=seed, ridge=ridge, switch_costs=switch_costs,
-                                    outlier_share=outlier_share, model=model, starts=starts) if k > 1
+                                    outlier_share=outlier_share, model=model, starts=starts, actions=actions) if k > 1
                else [np.zeros(len(t), np.int64) for t in fit_on])
         policies = _LinearPolicies(k, p_fit.shape[1], n_act, discrete, ridge,
-                                   outlier_share=outlier_share)
+                                   outlier_share=outlier_share, actions=actions)
         policies.fit(p_fit, a_fit, np.concatenate(seg))
         flat = policies.loglik(p_held, a_held)
         if switch_costs == "learned":
@@ -248,19 +331,21 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
 
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,
                  rounds: int = 30, ridge: float = 1.0, switch_costs: str = "learned",
-                 outlier_share: float = OUTLIER_SHARE, model: str = "linear") -> tuple[float, list[np.ndarray]]:
+                 outlier_share: float = OUTLIER_SHARE, model: str = "linear",
+                 actions: str = "auto") -> tuple[float, list[np.ndarray]]:
     """(description length in nats, codes) of hard EM started from the segmentation `start` (`rounds=0`: the
     cost of `start` itself). For diagnosis: started from oracle labels it shows whether the criterion ranks
     the truth above what the search finds."""
     return _hard_em(trajs, codes, discrete, np.random.default_rng(0), rounds, ridge=ridge,
                     start=[np.asarray(c, np.int64) for c in start], switch_costs=switch_costs,
-                    outlier_share=outlier_share, model=model)
+                    outlier_share=outlier_share, model=model, actions=actions)
 
 
 def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.random.Generator,
              rounds: int, first: str = "kmeans", ridge: float = 1e-3, shared_variance: bool = True,
              start: list[np.ndarray] | None = None, switch_costs: str = "learned",
-             outlier_share: float = 0.0, model: str = "linear", seed: int = 0) -> tuple[float, list[np.ndarray]]:
+             outlier_share: float = 0.0, model: str = "linear", seed: int = 0,
+             actions: str = "gaussian") -> tuple[float, list[np.ndarray]]:
     """One hard-EM run: (description length in nats, codes per demonstration). It starts from `start` when given,
     else (`first`) from k-means clusters of (action, state) pairs, or from every demonstration cut into K
     consecutive pieces with codes 0, 1, ..., K - 1 in time: `chunks` of equal length, or the `ordered` cut the
@@ -287,7 +372,7 @@ def _hard_em(trajs: Sequence[Trajectory], codes: int, discrete: bool, rng: np.ra
     fmap = _FeatureMap(model, seed=seed).fit(x_all)
     p_all = fmap(x_all)
     policies = _LinearPolicies(codes, p_all.shape[1], n_act, discrete, ridge,
-                               shared_variance, outlier_share)
+                               shared_variance, outlier_share, actions)
     mean_len = float(np.mean(lengths))
     penalty = math.log(mean_len) + math.log(max(codes - 1, 1))
     trans = _Transitions(codes, x_all.shape[1], mean_len) if switch_costs == "learned" else None

@@ -57,22 +57,85 @@ def _pairs(seg: Sequence[np.ndarray], bounds: np.ndarray) -> tuple[np.ndarray, n
             np.concatenate([np.arange(bounds[i] + 1, bounds[i + 1]) for i in range(len(seg))]))
 
 
+ACTION_MODELS = ("auto", "gaussian")
+"""how the start's sub-task policies model continuous actions (`VAEConfig.init_actions`): `auto` reads two facts off
+the demonstrations' actions, per dimension, and models them (`_ActionKinds`); `gaussian` is one Gaussian per
+dimension throughout (how the runs before `auto` were made)"""
+
+CENSOR_SHARE = 0.02
+"""an action dimension whose lowest or highest value is taken by at least this share of the steps is read as
+clipped at that value (`_ActionKinds`)"""
+
+FEW_VALUES = 4
+"""an action dimension whose at most this many values cover `FEW_VALUES_COVER` of the steps is a command from a
+small set (a gripper's open / close), modelled by a softmax over its values (`_ActionKinds`)"""
+
+FEW_VALUES_COVER = 0.99
+
+
+class _ActionKinds:
+    """What each continuous action dimension is, read off the demonstrations (`ACTION_MODELS`, `auto`).
+
+    Clipped dimensions: scripted experts (Meta-World's, Fetch's) send a proportional controller's output clipped to
+    the action bounds. At the bound the action only says the controller's output was beyond it, so a step there is
+    scored by how far the prediction falls short of the bound and not at all past it (a censored, Tobit-like
+    residual). Without it a phase whose clipped output changes regime half-way (first saturated, then
+    proportional) costs a linear policy more than two codes do, and the start cut such phases in two.
+
+    Few-valued dimensions: a gripper command takes two or three values and switches where the object is reached,
+    which need not be where the arm's sub-task changes. As a Gaussian, a code that never sees the switch fits it
+    exactly and pays for it nothing, so the start cut the arm's phases where the gripper switched (Meta-World's
+    pick-place: reach and descend merged, descend cut at the grasp). A softmax over the values, linear in the
+    state, explains a switch that the state predicts within one code."""
+
+    def __init__(self, a: np.ndarray) -> None:
+        lo, hi = a.min(0), a.max(0)
+        self.lo = np.where((np.abs(a - lo) < 1e-6).mean(0) >= CENSOR_SHARE, lo, -np.inf)
+        self.hi = np.where((np.abs(a - hi) < 1e-6).mean(0) >= CENSOR_SHARE, hi, np.inf)
+        self.values: dict[int, np.ndarray] = {}
+        for d in range(a.shape[1]):
+            vals, counts = np.unique(np.round(a[:, d], 6), return_counts=True)
+            top = np.argsort(counts)[::-1][:FEW_VALUES]
+            if len(vals) > 1 and counts[top].sum() >= FEW_VALUES_COVER * len(a):
+                self.values[d] = np.sort(vals[top])
+        self.gaussian = np.array([d not in self.values for d in range(a.shape[1])])
+
+    def index(self, a: np.ndarray, d: int) -> np.ndarray:
+        """Each step's value of few-valued dimension `d` as an index into its values (the nearest)."""
+        return np.abs(a[:, d, None] - self.values[d][None]).argmin(1)
+
+    def residual(self, a: np.ndarray, pred: np.ndarray) -> np.ndarray:
+        """a - pred, but 0 where a sits at a clipped bound and pred lies beyond it (broadcasts over codes)."""
+        at_hi = (a >= self.hi - 1e-6) & (pred > a)
+        at_lo = (a <= self.lo + 1e-6) & (pred < a)
+        return np.where(at_hi | at_lo, 0.0, a - pred)
+
+
 class _LinearPolicies:
-    """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete)."""
+    """One linear policy per code on features x = [s_n, 1]: Gaussian (continuous) or softmax (discrete); with
+    `actions="auto"` a continuous dimension may be clipped or few-valued (`_ActionKinds`)."""
 
     def __init__(self, k: int, dim_x: int, act_dim: int, discrete: bool, ridge: float = 1e-3,
-                 shared_variance: bool = True, outlier_share: float = 0.0) -> None:
+                 shared_variance: bool = True, outlier_share: float = 0.0, actions: str = "gaussian") -> None:
+        if actions not in ACTION_MODELS:
+            raise ValueError(f"unknown action model {actions!r}; choose one of {', '.join(ACTION_MODELS)}.")
         self.k, self.discrete, self.shared_variance, self.outlier_share = k, discrete, shared_variance, outlier_share
+        self.actions = actions
+        self.kinds: _ActionKinds | None = None
         self.log_span = np.zeros(act_dim)  # log of each action dimension's range in the fitted steps
         # the state weights shrink towards a constant policy per code; the bias (last feature) hardly at all
         self.ridge = np.r_[np.full(dim_x - 1, ridge), 1e-6]
         self.w = np.zeros((k, dim_x, act_dim))
+        self.w_values: dict[int, np.ndarray] = {}
         self.log_var = np.zeros((k, act_dim))
 
     def fit(self, x: np.ndarray, a: np.ndarray, codes: np.ndarray) -> None:
         sq_resid = np.zeros_like(self.log_var)
         if not self.discrete:
             self.log_span = np.log(np.maximum(a.max(0) - a.min(0), 1e-6))
+            if self.actions == "auto" and self.kinds is None:  # read once, from the steps first fitted
+                self.kinds = _ActionKinds(a)
+                self.w_values = {d: np.zeros((self.k, x.shape[1], len(v))) for d, v in self.kinds.values.items()}
         for j in range(self.k):
             sel = codes == j
             if sel.sum() == 0:
@@ -80,16 +143,34 @@ class _LinearPolicies:
             xj, aj = x[sel], a[sel]
             if self.discrete:
                 self.w[j] = _softmax_regression(xj, aj, self.w.shape[2], self.w[j], self.ridge)
-            else:
-                gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
+                continue
+            gram = xj.T @ xj + len(xj) * np.diag(self.ridge)
+            censored = self.kinds is not None and bool(np.isfinite(np.r_[self.kinds.lo, self.kinds.hi]).any())
+            if not censored or not self.w[j].any():
                 self.w[j] = np.linalg.solve(gram, xj.T @ aj)
-                resid = aj - xj @ self.w[j]
-                sq_resid[j] = (resid ** 2).sum(0)
-                if not self.shared_variance:
-                    self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
+            if censored:
+                assert self.kinds is not None
+                # censored least squares by imputation, from the code's last weights: a clipped step's target
+                # follows the prediction past its bound; each round lowers the convex censored loss
+                for _ in range(CENSOR_ROUNDS):
+                    pred = xj @ self.w[j]
+                    self.w[j] = np.linalg.solve(gram, xj.T @ (pred + self.kinds.residual(aj, pred)))
+            resid = aj - xj @ self.w[j] if self.kinds is None else self.kinds.residual(aj, xj @ self.w[j])
+            sq_resid[j] = (resid ** 2).sum(0)
+            if not self.shared_variance:
+                self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
+            if self.kinds is not None:
+                for d, w in self.w_values.items():
+                    w[j] = _softmax_regression(xj, self.kinds.index(aj, d), w.shape[2], w[j], self.value_ridge,
+                                               steps=VALUE_STEPS)
         if not self.discrete and self.shared_variance:
             # one noise level per action dimension for all codes (module docstring: why not one per code)
             self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
+
+    @property
+    def value_ridge(self) -> np.ndarray:
+        """the few-valued dimensions' softmax ridge: light, so that a switch the state predicts becomes cheap"""
+        return np.r_[np.full(len(self.ridge) - 1, VALUE_RIDGE), 1e-6]
 
     def loglik(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """(T, K) log-likelihood of each step's action under each code's policy."""
@@ -99,12 +180,37 @@ class _LinearPolicies:
             logp = out - np.log(np.exp(out).sum(-1, keepdims=True))
             return np.take_along_axis(logp, a.astype(np.int64)[:, None, None].repeat(self.k, 1), 2)[..., 0]
         var = np.exp(self.log_var)[None]
-        per_dim = -0.5 * (((a[:, None, :] - out) ** 2) / var + self.log_var[None] + math.log(2 * math.pi))
+        resid = a[:, None, :] - out if self.kinds is None else self.kinds.residual(a[:, None, :], out)
+        per_dim = -0.5 * ((resid ** 2) / var + self.log_var[None] + math.log(2 * math.pi))
         if self.outlier_share > 0:
             # a share of the steps uniform over the range: what one unpredictable step can cost is capped
             per_dim = np.logaddexp(math.log1p(-self.outlier_share) + per_dim,
                                    math.log(self.outlier_share) - self.log_span)
-        return per_dim.sum(-1)
+        if self.kinds is None:
+            return per_dim.sum(-1)
+        total = per_dim[..., self.kinds.gaussian].sum(-1)
+        for d, w in self.w_values.items():
+            z = np.einsum("td,kdv->tkv", x, w)
+            z = z - z.max(-1, keepdims=True)
+            logp = z - np.log(np.exp(z).sum(-1, keepdims=True))
+            idx = self.kinds.index(a, d)
+            lp = np.take_along_axis(logp, idx[:, None, None].repeat(self.k, 1), 2)[..., 0]
+            if self.outlier_share > 0:
+                lp = np.logaddexp(math.log1p(-self.outlier_share) + lp,
+                                  math.log(self.outlier_share / w.shape[2]))
+            total = total + lp
+        return total
+
+
+CENSOR_ROUNDS = 8
+"""rounds of the censored least squares (`_LinearPolicies.fit`); each starts from the last code's weights"""
+
+VALUE_RIDGE = 1e-3
+"""ridge on the state weights of a few-valued action dimension's softmax (`_LinearPolicies.value_ridge`)"""
+
+VALUE_STEPS = 15
+"""L-BFGS iterations per fit of a few-valued dimension's softmax; each fit starts from the code's last weights,
+so hard EM's rounds add up to a converged fit where the codes settle"""
 
 
 def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ridge: np.ndarray,

@@ -325,10 +325,12 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
         assert pieces is not None  # `pretrain` checked
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
         return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
-                                     outlier_share=cfg.init_outlier_share, model=cfg.init_model)
+                                     outlier_share=cfg.init_outlier_share, model=cfg.init_model,
+                                     actions=cfg.init_actions)
     return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
                                 shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
-                                outlier_share=cfg.init_outlier_share, model=cfg.init_model)
+                                outlier_share=cfg.init_outlier_share, model=cfg.init_model,
+                                actions=cfg.init_actions)
 
 
 def write_losses_csv(path: Path, history: dict[str, list[float]]) -> None:
@@ -362,7 +364,7 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
     # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
     curve: list[dict[str, Any]] = heldout_codes_curve(fit_on, held, candidates, discrete, seed=seed,
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
-                                                      model=cfg.k_criterion)
+                                                      model=cfg.k_criterion, actions=cfg.init_actions)
     pick = smallest_within_one_se(curve)
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json

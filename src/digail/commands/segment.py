@@ -37,6 +37,10 @@ class SegmentArgs:
     (default: the keys the run's dataset was imported with, in that order)"""
     force: bool = False
     """replace an existing --out"""
+    reading: Literal["offline", "causal"] = "offline"
+    """which codes to write and export: `offline`, the code path that best explains each whole demonstration under
+    the macro-policy and the sub-task policies (for annotations), or `causal`, what the macro-policy decides step
+    by step in closed loop (the paper's q); segmentation.json scores both"""
 
 
 def segment_command(args: SegmentArgs) -> dict[str, Any]:
@@ -47,12 +51,13 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     input, the run or its dataset; `digail.data.annotations.check_export`) and observation keys in another order
     than the run was trained on. Returns the metrics written to RUN/segmentation.json.
     """
+    from digail.algos.decode import read_codes
     from digail.checkpoint import load_model, read_config
     from digail.commands.common import check_output_folder
     from digail.data.annotations import check_export, code_names, export_segmentation
     from digail.data.importers import is_import_source, prepare_import
     from digail.data.minari_io import load_dataset
-    from digail.eval.segmentation import segment_many, summary_line, write_segmentation
+    from digail.eval.segmentation import summary_line, write_segmentation
     from digail.fsio import run_dir_lock
 
     if args.export is None and (args.out is not None or args.names is not None):
@@ -100,17 +105,18 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
             if min(labels) < 0 or max(labels) >= len(args.label_map):
                 raise UserError(f"--label-map gives {len(args.label_map)} labels but {demos} has labels "
                                 f"{min(labels)} to {max(labels)}; give one number per oracle label.")
-        codes = segment_many(model, trajs)
+        codes = read_codes(model, trajs, args.reading)
         if args.export is not None and args.out is not None:
             # written before the run folder: a refusal the export finds only in the source (a clash of names, a
             # column already there, a frame gap) leaves the run's segmentation as it was
             notes: list[str] = []
             path = export_segmentation(args.export, args.out, episode_keys, codes, names, source=source,
-                                       force=args.force, notes=notes)
+                                       force=args.force, notes=notes, reading=args.reading)
             for note in notes:
                 print(f"note: {note}.")
             print(f"wrote the segmentation as {args.export} annotations ({', '.join(names)}) to {path}")
-        metrics = write_segmentation(run, model, trajs, demos=str(demos), label_map=args.label_map, codes=codes)
+        metrics = write_segmentation(run, model, trajs, demos=str(demos), label_map=args.label_map, codes=codes,
+                                     reading=args.reading)
         print(summary_line(metrics))
         print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
     return metrics

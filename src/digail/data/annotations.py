@@ -147,8 +147,11 @@ def _digail_export(fmt: str, path: Path) -> bool:
 
 def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes: Sequence[np.ndarray],
                         names: Sequence[str], *, source: str | None = None, force: bool = False,
-                        notes: list[str] | None = None) -> Path:
-    """Write the codes of each episode to `out` in `fmt` (see the module docstring); returns `out`.
+                        notes: list[str] | None = None, reading: str = "causal") -> Path:
+    """Write the codes of each episode to `out` in `fmt` (see the module docstring); returns `out`. The export
+    names the reading its codes are in (`reading`, `digail.algos.decode.READINGS`): the JSON's `reading` key, the
+    CSV's `reading` column, the robomimic file's `digail_reading` attribute beside the signals, the LeRobot
+    names table's `digail_reading` schema metadata.
 
     Args:
         fmt: one of `EXPORTS`.
@@ -175,17 +178,20 @@ def export_segmentation(fmt: str, out: Path, episode_keys: Sequence[str], codes:
                             "and segment again.")
         try:
             if fmt == "robomimic":
-                return write_subtask_signals(source, out, episode_keys, codes, names, force=force, notes=notes)
-            return write_subtask_index(source, out, episode_keys, codes, names, force=force)
+                return write_subtask_signals(source, out, episode_keys, codes, names, force=force, notes=notes,
+                                             reading=reading)
+            return write_subtask_index(source, out, episode_keys, codes, names, force=force, reading=reading)
         except FileNotFoundError as exc:  # the source moved away while it was copied
             raise UserError(f"{exc.filename or source} disappeared while the export was written; nothing was "
                             "written, put the source back and segment again.") from None
     rows = segment_rows(episode_keys, codes, names)
     if fmt == "json":
-        data = (json.dumps({"names": list(names), "segments": rows}, indent=1) + "\n").encode()
+        data = (json.dumps({"names": list(names), "reading": reading, "segments": rows}, indent=1) + "\n").encode()
     else:
+        rows = [{**row, "reading": reading} for row in rows]
         buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=["episode", "start", "end", "code", "name"], lineterminator="\n")
+        writer = csv.DictWriter(buf, fieldnames=["episode", "start", "end", "code", "name", "reading"],
+                                lineterminator="\n")
         writer.writeheader()
         writer.writerows(rows)
         data = buf.getvalue().encode()

@@ -213,7 +213,8 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
 
 
 def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Sequence[str],
-                        codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False) -> Path:
+                        codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False,
+                        reading: str = "causal") -> Path:
     """Copy the LeRobot dataset `source` to `out` with a per-frame `subtask_index` column and its names table.
 
     Args:
@@ -224,6 +225,8 @@ def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Seque
             before it. Frames of episodes not listed get -1.
         names: the name of each code, row k of `meta/subtasks.parquet` for code k.
         force: replace an existing `out`.
+        reading: which reading of the segmentation the codes are (`digail.algos.decode.READINGS`), kept in the
+            names table's schema metadata under `digail_reading`.
 
     Raises:
         UserError: `out` is the source or inside it, exists without `force`, the dataset already has a
@@ -276,7 +279,8 @@ def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Seque
             {"name": "subtask", "field_name": "subtask", "pandas_type": "unicode", "numpy_type": "object",
              "metadata": None}], "pandas_version": "2.2.0"}
         names_table = names_table.replace_schema_metadata({b"pandas": json.dumps(pandas_meta).encode(),
-                                                           DIGAIL_KEY: b"segmentation"})
+                                                           DIGAIL_KEY: b"segmentation",
+                                                           b"digail_reading": reading.encode()})
         pq.write_table(names_table, tmp / SUBTASKS_TABLE)
     return out
 

@@ -414,7 +414,7 @@ def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
 
 def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Sequence[str],
                           codes: Sequence[np.ndarray], names: Sequence[str], *, force: bool = False,
-                          notes: list[str] | None = None) -> Path:
+                          notes: list[str] | None = None, reading: str = "causal") -> Path:
     """Copy the robomimic file `source` to `out` with each demonstration's codes as MimicGen termination signals:
     one boundary per sub-task in every demonstration, in one order for all (`plan_subtasks`).
 
@@ -427,6 +427,8 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
         names: one signal name per code (`datagen_info/subtask_term_signals/<name>`).
         force: replace an existing `out`.
         notes: where to append the one line saying which sub-tasks, in which order, were written (`plan_line`).
+        reading: which reading of the segmentation the codes are (`digail.algos.decode.READINGS`), kept in each
+            demonstration's signals group as the attribute `digail_reading`.
 
     Raises:
         UserError: `out` is the source or exists without `force`, a name already in the file, codes that do not
@@ -470,6 +472,7 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
                     group.create_dataset(name, data=signal)
                 earlier = [n for n in group if n not in names and n not in _oracle_signals(group)]
                 group.attrs["digail_signals"] = json.dumps(sorted([*earlier, *names]))
+                group.attrs["digail_reading"] = reading
         os.replace(tmp, out)
         if notes is not None:
             notes.append(plan_line(plan, names))

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from digail.algos.decode import padded_obs, segment_many
+from digail.algos.decode import READINGS, padded_obs, read_codes
 from digail.data.trajectory import Trajectory
 from digail.fsio import atomic_write_bytes, write_json
 from digail.nets.vae import HierarchicalPolicy
@@ -184,11 +184,19 @@ def merge_labels(labels: np.ndarray, label_map: Sequence[int]) -> np.ndarray:
 
 
 # -------------------------------------------------------------------------------------------- run folder
+READING_TEXT = {"causal": "causal: argmax q(c_t | s_t, c_{t-1}) step by step",
+                "offline": "offline: the code path maximising sum_t log q(c_t | s_t, c_{t-1}) + log pi(a_t | s_t, c_t)"}
+"""what `segmentation.json`'s `decoding` says of each reading"""
+
+
 def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Trajectory],
                        demos: str | None = None, label_map: Sequence[int] | None = None,
-                       codes: Sequence[np.ndarray] | None = None) -> dict[str, Any]:
-    """Segment `trajs` (or take their `codes`, `segment_many`'s); write `codes.npz`, `segmentation.json` and
-    `figures/segmentation.png` into `run`.
+                       codes: Sequence[np.ndarray] | None = None, reading: str = "causal") -> dict[str, Any]:
+    """Segment `trajs` in the reading `reading` (`decode.READINGS`; or take their `codes`, read so); write
+    `codes.npz`, `segmentation.json` and `figures/segmentation.png` into `run`.
+
+    `segmentation.json` names the reading its codes are in (`reading`) and, with oracle labels, holds the scores of
+    both readings under `readings` (the top-level scores are those of `reading`).
 
     With `label_map`, scores (and the figure) use the merged labels (`merge_labels`); the map is recorded.
 
@@ -197,13 +205,13 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
         smoother) when every demonstration has oracle labels, otherwise only the switch count.
     """
     run = Path(run)
-    codes = segment_many(model, trajs) if codes is None else list(codes)
+    codes = read_codes(model, trajs, reading) if codes is None else list(codes)
     buf = io.BytesIO()
     arrays: dict[str, Any] = {f"episode_{i:05d}": c for i, c in enumerate(codes)}
     np.savez_compressed(buf, **arrays)
     atomic_write_bytes(run / "codes.npz", buf.getvalue())
     labeled = all(t.subtasks is not None for t in trajs)
-    result: dict[str, Any] = {"demos": demos, "decoding": "causal argmax q(c_t | s_t, c_{t-1})",
+    result: dict[str, Any] = {"demos": demos, "reading": reading, "decoding": READING_TEXT[reading],
                               "codes": model.codes, "labels": labeled}
     if labeled:
         labels = [np.asarray(t.subtasks) for t in trajs]
@@ -211,6 +219,10 @@ def write_segmentation(run: Path, model: HierarchicalPolicy, trajs: Sequence[Tra
             labels = [merge_labels(lab, label_map) for lab in labels]
             result["label_map"] = list(label_map)
         result.update(segmentation_metrics(codes, labels))
+        result["readings"] = {}
+        for other in READINGS:
+            m = result if other == reading else segmentation_metrics(read_codes(model, trajs, other), labels)
+            result["readings"][other] = {k: m[k] for k in ("accuracy", "nmi", "boundary_f1", "switches_per_episode")}
         smoothed = [viterbi(model, t) for t in trajs]
         viterbi_metrics = segmentation_metrics(smoothed, labels)
         result["viterbi"] = {k: viterbi_metrics[k] for k in ("accuracy", "nmi", "boundary_f1",
