@@ -50,7 +50,7 @@ SURFACES: dict[str, tuple[str, list[tuple[str, str]]]] = {
         ("rs-export-", "Exports of robosuite-made robomimic files")]),
     "sweeps": ("Probes: sweeps", [
         ("set-", "Sweep overrides (`--set`)"), ("spec-", "Sweep spec files"),
-        ("reward-set-", "Imitation-reward settings in a sweep"), ("options-", "The sweep's own options")]),
+        ("reward-set-", "Imitation-reward settings in a sweep"), ("options-", "The sweep's own options and folder")]),
     "code": ("Probes: code named by data", [
         ("data-", "Code named by a dataset or a run folder"), ("sweep-", "Sweep values of `train.disc_obs`"),
         ("view-", "D's views of your own (`--train.disc-obs module:function`)"), ("msg-", "Messages"),

@@ -5,6 +5,7 @@ reliability page's section of the same name (docs/reference/errors.md).
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import types
@@ -92,6 +93,23 @@ for _pid, _argv, _expect in [
 ]:
     probe(_pid, f"`digail sweep --envs {CW} {' '.join(_argv)} --out sweep`", _expect)(
         lambda tmp, a=tuple(_argv): cli(tmp, "sweep", "--envs", CW, *a, "--out", "sweep"))
+
+
+def _sweep_targets(tmp: Path) -> None:
+    """A folder of the user's, a link to it and a FIFO, where a sweep folder could be aimed."""
+    (tmp / "mine").mkdir()
+    (tmp / "mine" / "results.md").write_text("a user's notes\n")
+    (tmp / "link").symlink_to(tmp / "mine")
+    os.mkfifo(tmp / "fifo")
+
+
+for _pid, _out, _what, _expect in [
+    ("options-out-users-folder", "mine", "a folder of the user's", "is a folder digail did not make"),
+    ("options-out-link", "link", "a link to a folder of the user's", "is a symbolic link"),
+    ("options-out-fifo", "fifo", "a FIFO", "is a file, not a folder"),
+]:
+    probe(_pid, f"`digail sweep --envs {CW} --out {_out}`: {_what}", _expect, setup=_sweep_targets)(
+        lambda tmp, o=_out: cli(tmp, "sweep", "--envs", CW, "--out", o))
 
 
 # ---------------------------------------------------------------------------------------- tests beyond the probes

@@ -104,6 +104,7 @@ def places(tmp_path_factory):
     (root / "broken").mkdir()
     (root / "broken" / "sweep.json").write_text('{"name": "x", "jo')
     (root / "truncated" / "trials").mkdir(parents=True)
+    (root / "truncated" / ".digail").write_text("\n")  # a sweep folder, as every sweep marks its own
     (root / "truncated" / "trials" / "digail-CircleWorld-v0__vae_s0.json").write_text('{"stat')
     return root
 

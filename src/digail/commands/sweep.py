@@ -90,7 +90,7 @@ def sweep_command(args: SweepArgs) -> dict[str, Any]:
     else:
         if args.out is None:
             raise UserError("no sweep folder given; pass --out SWEEP (or --summarize SWEEP for the tables).")
-        check_out(Path(args.out).resolve())
+        check_out(Path(args.out))
         spec = build_spec(envs=args.envs, methods=args.methods, seeds=args.seeds, preset=args.preset,
                           episodes=args.episodes, sets=args.set, spec_file=args.spec, retries=args.retries,
                           cpus_per_trial=args.cpus_per_trial, gpus_per_trial=args.gpus_per_trial,

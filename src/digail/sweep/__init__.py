@@ -34,10 +34,19 @@ def _require_ray() -> None:
 
 
 def check_out(out: Path) -> None:
-    """Refuse a sweep folder that is a file (or under one)."""
+    """Refuse, before Ray starts, a sweep folder the output rule (`digail.fsio.check_output`) refuses: a file (or a
+    path under one), a link, a FIFO or a device, a folder digail did not make (a sweep writes its marker, plan and
+    tables into it), or one that cannot be written. A sweep's own folder is continued."""
+    from digail.fsio import check_output, digail_made
+
+    out = Path(out)
     for parent in (out, *out.parents):
-        if parent.exists() and not parent.is_dir():
+        if parent.exists() and not parent.is_dir() and not (parent == out and out.is_symlink()):
             raise UserError(f"{parent} is a file, not a folder; pass a folder (new or a sweep's) to --out.")
+    if out.is_dir() and not out.is_symlink() and not digail_made(out):
+        raise UserError(f"{out} is a folder digail did not make; a sweep writes only into a new folder or its own "
+                        "(to continue it), choose another --out.")
+    check_output(out, "folder", force=True, writes="a sweep writes a folder")
 
 
 def run_sweep(spec: SweepSpec, out: Path | str, *, address: str | None = None, num_cpus: int | None = None,
