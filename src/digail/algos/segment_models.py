@@ -150,11 +150,7 @@ class _LinearPolicies:
                 self.w[j] = np.linalg.solve(gram, xj.T @ aj)
             if censored:
                 assert self.kinds is not None
-                # censored least squares by imputation, from the code's last weights: a clipped step's target
-                # follows the prediction past its bound; each round lowers the convex censored loss
-                for _ in range(CENSOR_ROUNDS):
-                    pred = xj @ self.w[j]
-                    self.w[j] = np.linalg.solve(gram, xj.T @ (pred + self.kinds.residual(aj, pred)))
+                self.w[j] = _censored_least_squares(xj, aj, self.w[j], len(xj) * np.diag(self.ridge), self.kinds)
             resid = aj - xj @ self.w[j] if self.kinds is None else self.kinds.residual(aj, xj @ self.w[j])
             sq_resid[j] = (resid ** 2).sum(0)
             if not self.shared_variance:
@@ -203,7 +199,34 @@ class _LinearPolicies:
 
 
 CENSOR_ROUNDS = 8
-"""rounds of the censored least squares (`_LinearPolicies.fit`); each starts from the last code's weights"""
+"""most Newton steps of the censored least squares (`_censored_least_squares`) per fit; each fit starts from the
+code's last weights"""
+
+
+def _censored_least_squares(x: np.ndarray, a: np.ndarray, w: np.ndarray, penalty: np.ndarray,
+                            kinds: _ActionKinds) -> np.ndarray:
+    """Weights minimising sum over steps of `kinds.residual(a, x w)`^2 plus w' `penalty` w, per action dimension:
+    a step at a clipped bound counts only while the prediction falls short of it.
+
+    The loss is convex and piecewise quadratic; each Newton step solves least squares on the steps that count at
+    the current weights (those inside the bounds, and those at a bound the prediction does not reach, with the
+    bound as target) and stops when that set no longer changes: exact in a few steps, where imputing the clipped
+    steps' targets converges slowly when most steps are clipped."""
+    w = w.copy()
+    for d in range(a.shape[1]):
+        if np.isinf(kinds.lo[d]) and np.isinf(kinds.hi[d]):
+            continue
+        at_hi, at_lo = a[:, d] >= kinds.hi[d] - 1e-6, a[:, d] <= kinds.lo[d] + 1e-6
+        counted = None
+        for _ in range(CENSOR_ROUNDS):
+            pred = x @ w[:, d]
+            now = ~((at_hi & (pred > a[:, d])) | (at_lo & (pred < a[:, d])))
+            if counted is not None and np.array_equal(now, counted):
+                break
+            counted = now
+            xc = x[counted]
+            w[:, d] = np.linalg.solve(xc.T @ xc + penalty, xc.T @ a[counted, d])
+    return w
 
 VALUE_RIDGE = 1e-3
 """ridge on the state weights of a few-valued action dimension's softmax (`_LinearPolicies.value_ridge`)"""
