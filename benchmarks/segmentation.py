@@ -88,7 +88,8 @@ METAWORLD = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball"
 label, runs shorter than `digail.envs.metaworld.MIN_SEGMENT` steps merged into their neighbour (written into `--data`
 once); K is the number of phases left"""
 
-KEYS = ("accuracy", "nmi", "boundary_f1", "switches_per_episode", "true_switches_per_episode", "time_s")
+KEYS = ("accuracy", "nmi", "boundary_f1", "boundary_f1_5", "switches_per_episode", "true_switches_per_episode",
+        "time_s")
 
 
 def task_names() -> list[str]:
@@ -171,6 +172,8 @@ def run_one(name: str, seed: int, runs: Path, data_root: Path, extra: list[str])
     seg = json.loads((run / "segmentation.json").read_text())
     config = json.loads((run / "config.json").read_text())
     row = {k: seg[k] for k in KEYS if k in seg}
+    row.update(reading=seg.get("reading", "causal"), boundary_f1_5=seg.get("boundary_f1_5"),
+               readings=seg.get("readings", {}))
     row.update(time_s=round(elapsed, 1), seed=seed, steps=seg["steps"], episodes=seg["episodes"],
                epochs=config["vae"].get("epochs_run", config["vae"]["epochs"]),
                command=f"digail {shlex.join(pretrain)}")
@@ -184,8 +187,15 @@ def extra_flags(args: argparse.Namespace) -> list[str]:
     return [part for item in args.set for part in (f"--{item.split('=', 1)[0]}", *item.split("=", 1)[1].split())]
 
 
-def summarize(rows: list[dict[str, Any]]) -> dict[str, float]:
-    return {k: float(np.median([r[k] for r in rows])) for k in KEYS if all(k in r for r in rows)}
+def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {k: float(np.median([r[k] for r in rows])) for k in KEYS
+                           if all(r.get(k) is not None for r in rows)}
+    readings = {name for r in rows for name in r.get("readings", {})}
+    if readings and all(set(r.get("readings", {})) == readings for r in rows):
+        # both readings' medians, the causal (the paper's q) and the offline one (for annotations)
+        out["readings"] = {name: {k: float(np.median([r["readings"][name][k] for r in rows]))
+                                  for k in rows[0]["readings"][name]} for name in sorted(readings)}
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -375,14 +385,18 @@ def measure(args: argparse.Namespace, out: Path) -> None:
 
 
 def table(result: dict[str, Any]) -> str:
-    lines = ["| task | K | accuracy | NMI | boundary F1 | switches / episode (truth) | time |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| task | K | accuracy | NMI | boundary F1 (±2 / ±5) | causal reading: accuracy, F1 ±5 | "
+             "switches / episode (truth) | time |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for name, task in result["tasks"].items():
         m = task["median"]
         accs = " / ".join(f"{r['accuracy']:.2f}" for r in task["seeds"])
+        f1_5 = f" / {m['boundary_f1_5']:.2f}" if "boundary_f1_5" in m else ""
+        causal = m.get("readings", {}).get("causal")
+        causal_cell = f"{causal['accuracy']:.3f}, {causal['boundary_f1_5']:.2f}" if causal else "-"
         lines.append(f"| {name} | {task['codes']} | {m['accuracy']:.3f} ({accs}) | {m['nmi']:.2f} | "
-                     f"{m['boundary_f1']:.2f} | {m['switches_per_episode']:.2f} ({m['true_switches_per_episode']:.2f})"
-                     f" | {m['time_s']:.0f} s |")
+                     f"{m['boundary_f1']:.2f}{f1_5} | {causal_cell} | {m['switches_per_episode']:.2f} "
+                     f"({m['true_switches_per_episode']:.2f}) | {m['time_s']:.0f} s |")
     return "\n".join(lines)
 
 

@@ -77,6 +77,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="append the previous action (the first step: its own) to every observation")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--starts", type=int, default=4, help="the start's starts (`hard_em_segmentation`)")
+    parser.add_argument("--actions", choices=["auto", "gaussian"], default="auto",
+                        help="how the start models continuous actions (`segment_models.ACTION_MODELS`)")
     parser.add_argument("--data", type=Path, default=Path("runs/segbench/datasets"))
     args = parser.parse_args(argv)
     set_torch_threads(1)
@@ -108,7 +110,8 @@ def main(argv: list[str] | None = None) -> None:
                 t0 = time.perf_counter()
                 train, held = heldout_split(len(trajs), 0.2, seed)
                 curve = heldout_codes_curve([trajs[i] for i in train], [trajs[i] for i in held], list(range(2, 9)),
-                                            discrete, seed=seed, ridge=ridge, model=args.curve)
+                                            discrete, seed=seed, ridge=ridge, model=args.curve,
+                                            actions=args.actions)
                 chosen = curve[smallest_within_one_se(curve)]["codes"]
                 print(f"{args.task} {args.curve} ridge {ridge} seed {seed}: K = {chosen} (true {k}); DL per step "
                       + " ".join(f"{c['dl_per_step']:.3f}" for c in curve) + "; switches per episode "
@@ -116,15 +119,16 @@ def main(argv: list[str] | None = None) -> None:
                       + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
             continue
         if args.oracle:  # the labels' costs do not depend on the start's seed
-            oracle, _ = hard_em_from(trajs, labels, k, discrete, rounds=0, ridge=ridge)
-            from_oracle, seg = hard_em_from(trajs, labels, k, discrete, ridge=ridge)
+            oracle, _ = hard_em_from(trajs, labels, k, discrete, rounds=0, ridge=ridge, actions=args.actions)
+            from_oracle, seg = hard_em_from(trajs, labels, k, discrete, ridge=ridge, actions=args.actions)
             labels_note = f"oracle labels {oracle:.1f}, hard EM from them {from_oracle:.1f} ({score(seg)})"
         for seed in args.seeds:
             t0 = time.perf_counter()
-            found = hard_em_segmentation(trajs, k, discrete, seed=seed, ridge=ridge, starts=args.starts)
+            found = hard_em_segmentation(trajs, k, discrete, seed=seed, ridge=ridge, starts=args.starts,
+                                         actions=args.actions)
             line = f"{args.task} ridge {ridge} seed {seed}: {score(found)} ({time.perf_counter() - t0:.0f} s)"
             if args.oracle:
-                own, _ = hard_em_from(trajs, found, k, discrete, rounds=0, ridge=ridge)
+                own, _ = hard_em_from(trajs, found, k, discrete, rounds=0, ridge=ridge, actions=args.actions)
                 line += f"; nats: {labels_note}, found {own:.1f}"
             print(line, flush=True)
 

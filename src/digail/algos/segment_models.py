@@ -157,8 +157,7 @@ class _LinearPolicies:
                 self.log_var[j] = np.log(np.maximum(resid.var(0), 1e-4))
             if self.kinds is not None:
                 for d, w in self.w_values.items():
-                    w[j] = _softmax_regression(xj, self.kinds.index(aj, d), w.shape[2], w[j], self.value_ridge,
-                                               steps=VALUE_STEPS)
+                    w[j] = _softmax_lbfgs(xj, self.kinds.index(aj, d), w[j], self.value_ridge, VALUE_STEPS)
         if not self.discrete and self.shared_variance:
             # one noise level per action dimension for all codes (module docstring: why not one per code)
             self.log_var[:] = np.log(np.maximum(sq_resid.sum(0) / len(x), 1e-4))
@@ -234,6 +233,28 @@ VALUE_RIDGE = 1e-3
 VALUE_STEPS = 15
 """L-BFGS iterations per fit of a few-valued dimension's softmax; each fit starts from the code's last weights,
 so hard EM's rounds add up to a converged fit where the codes settle"""
+
+
+def _softmax_lbfgs(x: np.ndarray, idx: np.ndarray, w0: np.ndarray, ridge: np.ndarray, steps: int) -> np.ndarray:
+    """Weights (dim_x, n) of a softmax over n values, linear in `x`, fitted to the value indices `idx` by scipy's
+    L-BFGS from `w0` (mean cross-entropy plus the ridge). NumPy and SciPy, not torch: the fits are small and many,
+    and torch's optimiser costs more per call than the arithmetic."""
+    from scipy.optimize import minimize
+
+    n = w0.shape[1]
+    onehot = np.eye(n)[idx]
+
+    def loss(flat: np.ndarray) -> tuple[float, np.ndarray]:
+        w = flat.reshape(w0.shape)
+        z = x @ w
+        z = z - z.max(1, keepdims=True)
+        logp = z - np.log(np.exp(z).sum(1, keepdims=True))
+        value = -float((onehot * logp).sum()) / len(x) + float((ridge[:, None] * w ** 2).sum())
+        grad = x.T @ (np.exp(logp) - onehot) / len(x) + 2 * ridge[:, None] * w
+        return value, grad.ravel()
+
+    res = minimize(loss, w0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": steps})
+    return np.asarray(res.x).reshape(w0.shape)
 
 
 def _softmax_regression(x: np.ndarray, a: np.ndarray, n: int, w0: np.ndarray, ridge: np.ndarray,
