@@ -133,6 +133,9 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
         gen = _generation(data)
         jobs.append({"task": task, "segments": segments, "demos": n, "seed": seed, "attempts": gen["attempts"],
                      "successes": gen["successes"], "rate": round(gen["rate"], 4), "env_steps": gen["env_steps"],
+                     # the same attempts (seeds) for every segment source: the first 200
+                     "rate_first_200": round(sum(e["attempt"] < 200 for e in gen["episodes"])
+                                             / min(200, gen["attempts"]), 4),
                      "frames": gen["frames"], "order": gen.get("order"),
                      "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                   if c[0] == "generate" or str(job / "vae") in c]})
