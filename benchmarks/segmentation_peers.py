@@ -280,7 +280,7 @@ def main(argv: list[str] | None = None) -> None:
 
     bench = benchmark_module()
     tasks = args.tasks or task_list(bench)
-    command = "python benchmarks/segmentation_peers.py " + shlex.join(argv)
+    command = shlex.join(["python", "benchmarks/segmentation_peers.py", *argv])
     result: dict[str, Any] = {"note": TOLD_NOTE, "told_segment_count": sorted(TOLD), "tasks": {}}
     if args.out.exists():
         result.update(json.loads(args.out.read_text()))
