@@ -23,6 +23,11 @@ from digail.checks import check_seed as check_seed
 from digail.errors import UserError
 from digail.imitation_config import ImitationConfig
 
+CONTROLLER_RIDGE = 1e-4
+"""the start's ridge for continuous actions under `init_actions auto` (`VAEConfig.start_ridge`): small enough that a
+code's linear policy fits a proportional controller's gains (Meta-World's scripted experts: 10-25), which a ridge
+of 1.0 halved, merging phases that steer to nearby points (docs/howto/choosing-k.md)"""
+
 
 @dataclass(frozen=True)
 class VAEConfig:
@@ -107,10 +112,11 @@ class VAEConfig:
     init_model: Literal["linear", "rff"] = "linear"
     """`em`: what a sub-task policy of the start is linear in: the normalised state (`linear`), or the state and
     random Fourier features of it (`rff`, a smooth function of the state; `segment_init.MODELS`)"""
-    init_ridge: float = 1.0
+    init_ridge: float | None = None
     """`em`: ridge on the state weights of the start's sub-task policies (large: about one constant action per
-    code, as a straight leg of a course or a phase of a manipulation is; small, e.g. 0.01: actions that turn with
-    the state, such as a curved path or heading for a corridor; docs/howto/choosing-k.md)"""
+    code, as a straight leg of a course is; small: a policy that follows the state, as a proportional controller
+    towards an object does). None: 1e-4 for continuous actions under `init_actions auto`, 1.0 otherwise (discrete
+    actions, the Gaussian start); docs/howto/choosing-k.md"""
     init_actions: Literal["auto", "gaussian"] = "auto"
     """`em` with continuous actions: how the start's sub-task policies model each action dimension: `auto` reads
     off the demonstrations which dimensions are clipped at a bound (scored only up to it) and which take a few
@@ -137,6 +143,12 @@ class VAEConfig:
     segmentation (pi keeps the segmentation as it is): the macro-policy then switches when the agent passes
     near the end of a sub-task, not only exactly where the expert switched"""
 
+    def start_ridge(self, discrete: bool) -> float:
+        """The ridge of the start's sub-task policies (`init_ridge`, or its default for these actions)."""
+        if self.init_ridge is not None:
+            return self.init_ridge
+        return CONTROLLER_RIDGE if self.init_actions == "auto" and not discrete else 1.0
+
     def __post_init__(self) -> None:
         check_codes(self.codes)
         _check_numbers(self, "--vae.", dict(steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
@@ -157,7 +169,8 @@ class VAEConfig:
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
         _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
                  self.hidden)
-        _require(_finite(self.init_ridge) and self.init_ridge > 0, "--vae.init-ridge", "positive", self.init_ridge)
+        _require(self.init_ridge is None or (_finite(self.init_ridge) and self.init_ridge > 0), "--vae.init-ridge",
+                 "positive", self.init_ridge)
         _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
                  "in [0, 1)", self.init_outlier_share)
         _require(self.init_pieces in ("steps", "env"), "--vae.init-pieces", "steps or env", self.init_pieces)

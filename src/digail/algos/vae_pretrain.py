@@ -324,10 +324,10 @@ def _start(trajs: Sequence[Trajectory], cfg: VAEConfig, discrete: bool, seed: in
     if cfg.init_pieces == "env":
         assert pieces is not None  # `pretrain` checked
         cuts = [pieces(np.asarray(t.obs)[:len(t)]) for t in trajs]
-        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
+        return piece_em_segmentation(seen, cuts, cfg.codes, discrete, seed=seed, ridge=cfg.start_ridge(discrete),
                                      outlier_share=cfg.init_outlier_share, model=cfg.init_model,
                                      actions=cfg.init_actions)
-    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.init_ridge,
+    return hard_em_segmentation(seen, cfg.codes, discrete, seed=seed, ridge=cfg.start_ridge(discrete),
                                 shared_variance=cfg.init_variance == "shared", switch_costs=cfg.init_switch_costs,
                                 outlier_share=cfg.init_outlier_share, model=cfg.init_model,
                                 actions=cfg.init_actions)
