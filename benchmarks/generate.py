@@ -2,7 +2,7 @@
 
     python benchmarks/generate.py run --task fetch --demos 1 --seeds 0 1 2 --sizes 100 500 1000 --methods bc flatbc
     python benchmarks/generate.py run --task pick-place --demos 3 --seeds 0 --segments codes ...
-    python benchmarks/generate.py table --out benchmarks/results/generate/fetch.json --task fetch
+    python benchmarks/generate.py table --out benchmarks/results/generate/generate.json [--publish]
     python benchmarks/generate.py figure   # -> benchmarks/results/figures/generate_paths.png
 
 A job (task, source demonstrations N, seed S, segment source) runs, resumably, under
@@ -161,6 +161,21 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                         "median_generation_rate": statistics.median(j["rate"] for j in gens),
                         "median_generation_env_steps": statistics.median(r["generation_env_steps"] for r in group),
                         "training_env_steps": 0})
+    if args.publish:  # the median seed's run folder of every row with three seeds, beside the other published runs
+        from digail.sweep.publish import portable_text, publish_run
+
+        for m in medians:
+            group = [r for r in rows if (r["task"], r["segments"], r["demos"], r["method"], r["size"])
+                     == (m["task"], m["segments"], m["demos"], m["method"], m["size"])]
+            if len(group) < 3:
+                continue
+            median = sorted(group, key=lambda r: r["success_rate"])[len(group) // 2]
+            dest = Path("benchmarks/results/runs") / (f"generate_{m['task']}_{m['segments']}_d{m['demos']}_"
+                                                      f"{m['method']}_n{m['size']}_s{median['seed']}")
+            publish_run(Path(median["run"]), dest)
+            for file in dest.glob("*.json"):  # publish_run makes config.json portable; segmentation.json too
+                file.write_text(portable_text(file.read_text()))
+            m["median_run"] = str(dest)
     result = {"about": "digail generate from N source demonstrations, then behaviour cloning on SIZE generated "
               "ones; success over 100 evaluation episodes on fresh scenes (seeds 10000 on)",
               "script": "benchmarks/generate.py", "jobs": jobs, "rows": rows, "table": medians}
@@ -231,6 +246,7 @@ def main() -> None:
     t = sub.add_parser("table", help="gather the jobs into one JSON")
     t.add_argument("--task", nargs="*")
     t.add_argument("--out", type=Path)
+    t.add_argument("--publish", action="store_true", help="copy each row's median run to benchmarks/results/runs")
     f = sub.add_parser("figure", help="source and generated gripper paths (Fetch)")
     f.add_argument("--data", default="runs/generate/fetch/labels/d1_s0/data")
     f.add_argument("--episodes", type=int, default=6)
