@@ -328,6 +328,7 @@ def merged_table(ours: dict[str, Any], peers: dict[str, Any]) -> str:
     head = [f"{p} *" if p in TOLD else p for p in names]
     lines = ["| task | K | digail | " + " | ".join(head) + " | best peer | digail - best peer |",
              "| --- | --- | --- | " + " | ".join("---" for _ in head) + " | --- | --- |"]
+    most = max((len(r.get("seeds", [])) for t in peers["tasks"].values() for r in t["peers"].values()), default=0)
     diffs: list[float] = []
     columns: dict[str, list[float]] = {"digail": [], **{p: [] for p in names}}  # Meta-World tasks with every cell
     for name, task in peers["tasks"].items():
@@ -335,7 +336,10 @@ def merged_table(ours: dict[str, Any], peers: dict[str, Any]) -> str:
         accs = {p: _peer_accuracy(task, p) for p in names}
         known = {p: a for p, a in accs.items() if a is not None}
         best = max(known, key=known.__getitem__) if known else None
-        cells = [("-" if a is None else f"{a:.3f}") for a in accs.values()]
+        seeds = {p: len(task["peers"].get(p, {}).get("seeds", [])) for p in names}
+        # a cell measured on fewer seeds than the others (a run still going) says so
+        cells = [("-" if a is None else f"{a:.3f}" + (f" ({seeds[p]} of {most})" if 0 < seeds[p] < most else ""))
+                 for p, a in accs.items()]
         gap = "-"
         if best is not None and digail is not None:
             gap = f"{digail - known[best]:+.3f}"

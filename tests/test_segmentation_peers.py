@@ -117,3 +117,10 @@ def test_table_mode_writes_the_figure(tmp_path: Path, capsys: pytest.CaptureFixt
                 "--figure", str(figure)])
     assert figure.stat().st_size > 1000
     assert "kernel-cpd-told *" in capsys.readouterr().out
+
+
+def test_table_marks_cells_with_fewer_seeds() -> None:
+    theirs = {"tasks": {"metaworld-a": {"codes": 4, "peers": {
+        "hmm-actions": {"seeds": [{}, {}, {}], "median": {"accuracy": 0.8}},
+        "linreg-hmm": {"seeds": [{}], "median": {"accuracy": 0.6}}}}}}
+    assert "| metaworld-a | 4 | - | 0.800 | 0.600 (1 of 3) | hmm-actions | - |" in peers.merged_table({}, theirs)
