@@ -112,19 +112,21 @@ def check_export_target(fmt: str, out: Path, force: bool,
                  writes=writes, example=f"segments.{suffix}")
 
 
-_TABLE_HEADS = {"csv": b"episode,start,end,code,name\n", "json": b'{\n "names": ['}
-"""how the tables `export_segmentation` writes begin: what tells an earlier export from a user's file"""
+_TABLE_HEADS = {"csv": (b"episode,start,end,code,name,reading\n", b"episode,start,end,code,name\n"),
+                "json": (b'{\n "names": [',)}
+"""how the tables `export_segmentation` writes begin (today's, then those written before the `reading` column):
+what tells an earlier export from a user's file"""
 
 
 def _digail_export(fmt: str, path: Path) -> bool:
     """Whether the regular file `path` is an export of kind `fmt` digail wrote (which `--force` may replace)."""
     if fmt in _TABLE_HEADS:
-        head = _TABLE_HEADS[fmt]
         try:
             with open(path, "rb") as f:
-                return f.read(len(head)) == head
+                start = f.read(max(map(len, _TABLE_HEADS[fmt])))
         except OSError:
             return False
+        return any(start.startswith(head) for head in _TABLE_HEADS[fmt])
     import h5py
 
     from digail.data.robomimic import SIGNALS_PATH, demo_keys
