@@ -222,13 +222,16 @@ def test_lerobot_export_is_a_copy_with_a_column(tmp_path):
 def test_table_exports(tmp_path):
     im = read_demonstrations(ROBOSUITE)
     codes = [np.where(np.arange(len(t)) < 5, 0, 1) for t in im.trajs]
-    path = export_segmentation("csv", tmp_path / "seg.csv", im.episode_keys, codes, ["reach", "carry"])
+    path = export_segmentation("csv", tmp_path / "seg.csv", im.episode_keys, codes, ["reach", "carry"],
+                               reading="offline")
     rows = list(csv.DictReader(path.open()))
-    assert rows[:2] == [{"episode": "demo_0", "start": "0", "end": "5", "code": "0", "name": "reach"},
-                        {"episode": "demo_0", "start": "5", "end": "14", "code": "1", "name": "carry"}]
+    assert rows[:2] == [{"episode": "demo_0", "start": "0", "end": "5", "code": "0", "name": "reach",
+                         "reading": "offline"},
+                        {"episode": "demo_0", "start": "5", "end": "14", "code": "1", "name": "carry",
+                         "reading": "offline"}]
     data = json.loads(export_segmentation("json", tmp_path / "seg.json", im.episode_keys, codes,
-                                          ["reach", "carry"]).read_text())
-    assert data["names"] == ["reach", "carry"] and len(data["segments"]) == 6
+                                          ["reach", "carry"], reading="causal").read_text())
+    assert data["names"] == ["reach", "carry"] and len(data["segments"]) == 6 and data["reading"] == "causal"
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -265,10 +268,13 @@ def test_cli_segment_exports(robomimic_vae, capsys):
         for key in ("demo_0", "demo_1", "demo_2"):
             group = f[f"data/{key}/datagen_info/subtask_term_signals"]
             assert {"a", "b", "grasp"} <= set(group) and len(group["a"]) == f[f"data/{key}/actions"].shape[0]
+            assert group.attrs["digail_reading"] == "offline"
     # from the file itself, as a table
     assert main(["segment", str(root / "vae"), "--demos", str(ROBOSUITE), "--export", "csv", "--out",
                  str(root / "seg.csv")]) == 0
-    assert (root / "seg.csv").read_text().startswith("episode,start,end,code,name\ndemo_0,0,")
+    table = (root / "seg.csv").read_text()
+    # the default reading is the offline one, named in every row
+    assert table.startswith("episode,start,end,code,name,reading\ndemo_0,0,") and ",offline\n" in table
     assert digest(ROBOSUITE) == before
     # refused before any work: an existing --out, a LeRobot export of a robomimic source, names of the wrong count
     for argv, phrase in (

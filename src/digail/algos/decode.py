@@ -131,7 +131,7 @@ def segment_offline_many(model: HierarchicalPolicy, trajs: Sequence[Trajectory])
     logtrans = torch.zeros(B, T, K, K, device=device)
     for k in range(K):
         code = eye[k].expand(B, T, K)
-        loglik[..., k] = model.pi.log_prob_entropy(obs_n, code, acts_t)[0]
+        loglik[..., k] = model.pi.log_prob_entropy_of(model.pi.inputs(obs_n, code), acts_t)[0]
         logtrans[:, :, k] = torch.log_softmax(model.q(obs_n, code), -1)
     start = torch.log_softmax(model.q(obs_n[:, 0], torch.zeros(B, K, device=device)), -1)
     loglik[:, 0] += start

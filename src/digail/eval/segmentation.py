@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from digail.algos.decode import READINGS, padded_obs, read_codes
+from digail.algos.decode import segment_many as segment_many  # where report and older callers import it
 from digail.data.trajectory import Trajectory
 from digail.fsio import atomic_write_bytes, write_json
 from digail.nets.vae import HierarchicalPolicy
