@@ -59,7 +59,7 @@ def digail(cmd: list[str], log: list[list[str]], job: Path, may_fail: bool = Fal
 
 def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespace) -> None:
     info = task_info(task)
-    job = ROOT / task / segments / f"d{n}_s{seed}"
+    job = ROOT / task / (segments + (f"-{args.tag}" if args.tag else "")) / f"d{n}_s{seed}"
     job.mkdir(parents=True, exist_ok=True)
     log = _saved(job)
     sources = ",".join(str(i) for i in range(seed * n, seed * n + n))
@@ -243,6 +243,7 @@ def main() -> None:
     r.add_argument("--chunk", type=int, default=10)
     r.add_argument("--eval-episodes", type=int, default=100)
     r.add_argument("--generate-args", nargs="*", default=[], help="more `digail generate` flags, e.g. --gain 0.5")
+    r.add_argument("--tag", default="", help="a variant's name: its jobs go to runs/generate/<task>/<segments>-<tag>")
     t = sub.add_parser("table", help="gather the jobs into one JSON")
     t.add_argument("--task", nargs="*")
     t.add_argument("--out", type=Path)
