@@ -296,7 +296,15 @@ def main(argv: list[str] | None = None) -> None:
                 if any(r["seed"] == seed for r in rows["seeds"]):
                     continue
                 trajs = load_dataset(demos).trajs if trajs is None else trajs
-                row = {"seed": seed, **run_peer(peer, trajs, codes, seed), "command": command}
+                try:
+                    row = {"seed": seed, **run_peer(peer, trajs, codes, seed), "command": command}
+                except RuntimeError as err:  # e.g. every EM start diverged: recorded, and the other rows go on
+                    failure = {"task": name, "peer": peer, "seed": seed, "error": str(err), "command": command}
+                    result["failures"] = [*(f for f in result.get("failures", [])
+                                            if (f["task"], f["peer"], f["seed"]) != (name, peer, seed)), failure]
+                    args.out.write_text(json.dumps(result, indent=1) + "\n")
+                    print(f"== {name} {peer} seed {seed}: FAILED ({err})", flush=True)
+                    continue
                 rows["seeds"] = sorted([*rows["seeds"], row], key=lambda r: r["seed"])
                 rows["median"] = median(rows["seeds"])
                 print(f"== {name} {peer} seed {seed}: accuracy {row['accuracy']:.3f}  NMI {row['nmi']:.3f}  "
