@@ -253,9 +253,10 @@ def curved(tmp_path_factory: pytest.TempPathFactory) -> list:
 
 def test_curved_legs_need_policies_whose_action_turns_with_the_state(curved: list) -> None:
     """Three arcs joined smoothly: the direction never jumps, only the curvature changes. With the state weights
-    shrunk hard (ridge 1.0, the Gaussian start's default) a code's policy is nearly one constant action and the arcs are cut into
-    stretches of nearly constant direction; a small ridge (0.01, what docs/howto/choosing-k.md advises for curved
-    paths) lets one code's action turn with the position (a rotation field is linear in it)."""
+    shrunk hard (ridge 1.0, the Gaussian start's default) a code's policy is nearly one constant action and the arcs
+    are cut into stretches of nearly constant direction; a small ridge (0.01, what docs/howto/choosing-k.md advises
+    for the Gaussian start on curved paths) lets one code's action turn with the position (a rotation field is
+    linear in it)."""
     trajs = curved[:8]
     labels = _labels(trajs)
     # the Gaussian start, whose ridge this is about (the default start's ridge for continuous actions is small)
