@@ -210,11 +210,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--measure", choices=["table", "restarts", "codes", "figure", "codes-figure"],
                         default="table")
     parser.add_argument("--restarts", type=int, default=3, help="restarts per (task, seed) with --measure restarts")
+    parser.add_argument("--merge", nargs="+", type=Path, metavar="JSON",
+                        help="join table files of separate calls (other tasks or seeds) into --out, medians anew")
     parser.add_argument("--curve-only", action="store_true",
                         help="--measure codes: only the K curve and the choice, without training the chosen K")
     args = parser.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     extra = extra_flags(args)
+    if args.merge:
+        merge(args.merge, args.out)
+        return
     if args.measure == "codes-figure":
         from digail.viz.figures import codes_curve
 
@@ -250,6 +255,27 @@ def main(argv: list[str] | None = None) -> None:
               f"{med['time_s']:.0f} s", flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(table(result))
+
+
+def merge(parts: list[Path], out: Path) -> None:
+    """Join the table files `parts` (calls that ran other tasks or other seeds with the same settings) into `out`:
+    each task's seeds together, its medians computed anew, every call's command kept."""
+    result: dict[str, Any] = {"commands": [], "settings": None, "tasks": {}}
+    for part in parts:
+        data = json.loads(part.read_text())
+        if result["settings"] is not None and data.get("settings") != result["settings"]:
+            raise SystemExit(f"{part} was run with other settings ({data.get('settings')}); merge like with like.")
+        result["settings"] = data.get("settings")
+        result["commands"].append(data["command"])
+        for name, task in data["tasks"].items():
+            into = result["tasks"].setdefault(name, {k: v for k, v in task.items() if k not in ("seeds", "median")})
+            seeds = {r["seed"]: r for r in into.get("seeds", [])}
+            seeds.update({r["seed"]: r for r in task["seeds"]})
+            into["seeds"] = [seeds[k] for k in sorted(seeds)]
+            into["median"] = summarize(into["seeds"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1) + "\n")
     print(table(result))
 
 
