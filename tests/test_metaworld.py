@@ -366,7 +366,7 @@ def test_segmentations_export_to_robomimic_lerobot_and_csv(metaworld, tmp_path) 
     assert set(frames.column("subtask_index").to_pylist()) <= {0, 1}
     assert main(["segment", str(vae), "--demos", demos, "--export", "csv", "--out", str(tmp_path / "seg.csv")]) == 0
     lines = (tmp_path / "seg.csv").read_text().splitlines()
-    assert lines[0] == "episode,start,end,code,name" and len(lines) > len(trajs)
+    assert lines[0] == "episode,start,end,code,name,reading" and len(lines) > len(trajs)
 
 
 @pytest.mark.slow
