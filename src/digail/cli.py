@@ -17,6 +17,7 @@ from collections.abc import Iterator, Sequence
 from types import ModuleType
 from typing import Any
 
+from digail.commands.flags import refuse_renamed_flags
 from digail.commands.parse import parse_and_run
 from digail.errors import TrainingError, UserError
 
@@ -153,8 +154,8 @@ def _main(argv: Sequence[str] | None) -> int:
 
     set_torch_threads(1)  # small nets: a second thread buys nothing and costs much under load
     cls, handler, defaults = _command(name)
-    rest = _renamed_flags(name, rest, getattr(_module(name), "ALIASES", {}))
     try:
+        refuse_renamed_flags(rest)
         _check_utf8(rest)
         with _terminate_as_interrupt():
             takes_env = any(f.name == "env" for f in dataclasses.fields(cls))
@@ -226,19 +227,6 @@ def _env_modules_imported(name: str, argv: list[str], takes_env: bool = True) ->
             out.append(import_env_module(tok))
         else:
             out.append(tok)
-    return out
-
-
-def _renamed_flags(name: str, argv: list[str], aliases: dict[str, str]) -> list[str]:
-    """`argv` with a command's old flag spellings (`ALIASES` in its module: old -> new) replaced by the new ones,
-    each announced once on stderr."""
-    out = []
-    for tok in argv:
-        flag, eq, value = tok.partition("=")
-        if flag in aliases:
-            print(f"digail {name}: {flag} is deprecated; use {aliases[flag]}.", file=sys.stderr)
-            tok = aliases[flag] + eq + value
-        out.append(tok)
     return out
 
 

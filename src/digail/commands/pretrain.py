@@ -54,10 +54,6 @@ class PretrainArgs:
         check_codes(self.max_codes, "--max-codes")
 
 
-ALIASES = {"--vae.codes": "--codes"}
-"""old spellings of flags, still read (with a warning naming the new one)"""
-
-
 def defaults(argv: Sequence[str]) -> PretrainArgs:
     """Defaults whose VAE settings start from the preset the command line asks for."""
     from digail.commands.common import preset_from_argv
