@@ -77,7 +77,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
       digail train --resume "$run"
     fi
   else
-    digail train --demos $D --demos-episodes "$N" --bc-weight 1.0 --seed "$S" --train.iterations "$ITERS" \
+    digail train --demos $D --demos-episodes "$N" --train.bc-weight 1.0 --seed "$S" --train.iterations "$ITERS" \
         --train.eval-every "$EVERY" --train.eval-episodes 20 --train.checkpoint-every 5 --out "$run" "$@"
   fi
   digail evaluate "$run" --episodes 100

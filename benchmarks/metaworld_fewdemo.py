@@ -11,7 +11,7 @@ Per (task, method, seed), from the first `--demos` episodes of the task's shippe
             digail pretrain --demos D --demos-episodes N --codes 1 --seed S --out R/TASK/flatbc_sS
     digail-l2, flatbc-l2  (with --iterations N) Directed-Info GAIL + L2 from bc's VAE, GAIL + L2 from flatbc's
             policy (one code: no bonus), the task's preset (PPO, batch 4096 over 8 envs, the step-cost reward):
-            digail train --demos D --demos-episodes N --vae R/TASK/bc_sS --bc-weight 1.0 --train.iterations I ...
+            digail train --demos D --demos-episodes N --vae R/TASK/bc_sS --train.bc-weight 1.0 --train.iterations I ...
             (a run of fewer iterations is continued: digail train --resume RUN --until I). The first 10 iterations
             train the value function only (`--train.value-warmup`): the policy moves from iteration 11 on.
     digail-l2-noise, flatbc-l2-noise  the same with D's inputs noised (`--train.imitation.disc-noise 0.15`), the
@@ -70,7 +70,7 @@ def one(task: str, method: str, seed: int, args: argparse.Namespace) -> dict[str
             commands.append(["train", "--resume", str(folder)])
         else:
             extra = ["--train.imitation.disc-noise", "0.15"] if method.endswith("-noise") else []
-            commands.append(["train", *common, "--vae", str(start), "--bc-weight", "1.0", "--train.iterations",
+            commands.append(["train", *common, "--vae", str(start), "--train.bc-weight", "1.0", "--train.iterations",
                              str(args.iterations), "--train.checkpoint-every", "5", *extra, "--out", str(folder),
                              "--force"])
     commands.append(["evaluate", str(folder), "--episodes", str(args.episodes)])

@@ -31,7 +31,7 @@ TABLES: dict[str, dict[str, Any]] = {
     "digail/CircleWorld-v0": {
         "rows": [("vae", "VAE after the polish (DI-GAIL's initialisation)"),
                  ("digail", "Directed-Info GAIL (preset)"),
-                 ("digail-l2", "Directed-Info GAIL + L2 (`--bc-weight 100`)"),
+                 ("digail-l2", "Directed-Info GAIL + L2 (`--train.bc-weight 100`)"),
                  ("gail", "GAIL (`--method gail --train.ppo.policy-lr 3e-4 --train.anchor-weight 0`, one code)")],
         "cols": [("order_correct_rate", "order_correct", ".3f"), ("radius_error", "radius_error", ".3f"),
                  ("closure_error", "closure_error", ".2f"), ("mean_return", "mean return", ".0f")],

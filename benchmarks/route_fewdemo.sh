@@ -40,7 +40,7 @@ train() {  # train NAME ARGS... -> trains RUN = ROOT/NAME_sS (or resumes it), th
   if [ -f "$run/config.json" ]; then
     digail train --resume "$run"
   else
-    digail train --demos $D --demos-episodes "$N" --bc-weight "$bc" --train.disc-grad-penalty "$gp" --seed "$S" \
+    digail train --demos $D --demos-episodes "$N" --train.bc-weight "$bc" --train.disc-grad-penalty "$gp" --seed "$S" \
         --train.iterations "$ITERS" --train.eval-every 100 --train.eval-episodes 20 --train.checkpoint-every 100 --out "$run" "$@"
   fi
   digail evaluate "$run" --episodes 100

@@ -138,7 +138,7 @@ def test_fetch_smoke_pipeline_pretrain_digail_l2_evaluate(tmp_path) -> None:
     demos, vae, run = tmp_path / "demos", tmp_path / "vae", tmp_path / "digail"
     assert main(["demos", FETCH_ENV_ID, "--episodes", "4", "--out", str(demos)]) == 0
     assert main(["pretrain", "--demos", str(demos), "--preset", "smoke", "--codes", "4", "--out", str(vae)]) == 0
-    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--bc-weight", "1",
+    assert main(["train", "--demos", str(demos), "--vae", str(vae), "--preset", "smoke", "--train.bc-weight", "1",
                  "--out", str(run)]) == 0
     config = json.loads((run / "config.json").read_text())
     assert config["train"]["bc_weight"] == 1.0 and config["train"]["iterations"] == 2

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from digail.errors import UserError
 
 RENAMED_FLAGS: dict[str, str] = {
+    "--bc-weight": "--train.bc-weight",
     "--vae.codes": "--codes",
 }
 """old flag -> the flag that replaced it, for every command (no command reuses an old name); a boolean's

@@ -37,8 +37,6 @@ class TrainArgs:
     """settings preset (default: the env's)"""
     out: Path | None = None
     """run folder (default: runs/<env>__<method>__s<seed>__<time>)"""
-    bc_weight: float | None = None
-    """weight of the BC / L2 term (paper's Fetch experiment; default: the preset's)"""
     resume: Path | None = None
     """continue a killed run from its last checkpoint (other flags are ignored, except `--until`)"""
     until: int | None = None
@@ -60,8 +58,6 @@ class TrainArgs:
         check_at_least(self.until, "--until")
         if self.until is not None and self.resume is None:
             raise UserError("--until extends a training run: pass the run folder with --resume RUN as well.")
-        if self.bc_weight is not None and not (self.bc_weight >= 0 and self.bc_weight != float("inf")):
-            raise UserError(f"--bc-weight must be a finite number, not negative, got {self.bc_weight!r}.")
 
 
 def defaults(argv: Sequence[str]) -> TrainArgs:
@@ -99,8 +95,6 @@ def train_command(args: TrainArgs) -> Path:
                                seed=args.seed)
     cfg = args.train
     cfg = replace(cfg, method=args.method)
-    if args.bc_weight is not None:
-        cfg = replace(cfg, bc_weight=args.bc_weight)
     vae_model = None
     if args.vae is not None:
         from digail.checkpoint import load_model
@@ -220,6 +214,8 @@ def resume_args(run_dir: Path) -> TrainArgs:
         what = "no config.json" if not config else "its config.json records no training arguments"
         raise UserError(f"{run_dir} is not a training run folder ({what}); pass a folder made by `digail train` "
                         "or `digail run`.")
+    if saved.get("bc_weight") is not None:  # a run started with the old top-level --bc-weight, which overrode this
+        saved = {**saved, "train": {**(saved.get("train") or {}), "bc_weight": saved["bc_weight"]}}
     args = saved_args(TrainArgs, saved, run_dir, "training")
     vae = resolve_ref(run_dir, args.vae)
     return replace(args, demos=resolve_ref(run_dir, args.demos) or "", vae=None if vae is None else Path(vae),

@@ -89,8 +89,6 @@ def flag_name(key: str) -> str:
     head, _, rest = key.partition(".")
     if head in ("pretrain", "evaluate", "segment"):
         return "--" + rest.replace("_", "-")
-    if key == "train.bc_weight":
-        return "--bc-weight"
     if head == "demos":
         return "--demos-" + rest.replace("_", "-")
     return "--" + key.replace("_", "-")

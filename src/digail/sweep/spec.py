@@ -18,7 +18,7 @@ set = { "train.iterations" = 732 }
 
 Override keys name a field of the stage that takes it: `vae.*` and `train.*` are the nested configs of
 `digail pretrain` / `digail train` (`train.ppo.policy_lr`), `pretrain.X`, `evaluate.X` and `segment.X` a stage's own
-flag (`pretrain.codes`). `train.bc_weight` becomes `--bc-weight`, which also sets the weight of the `-l2` methods.
+flag (`pretrain.codes`). `train.bc_weight` also sets the weight of the `-l2` methods.
 `demos.episodes` and `demos.subsample` choose the demonstrations of both the VAE and the training
 (`--demos-episodes`, `--demos-subsample`).
 
