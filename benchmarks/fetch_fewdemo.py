@@ -134,13 +134,34 @@ def _command(run: Path, script: str) -> str:
     method = {"bc_k4": "bc", "bc_k1": "flatbc", "bc_k2": "bc2", "bc_k8": "bc8"}.get(name, name)
     words = [script, demos, method, seed]
     config = run / "config.json"
-    if not name.startswith("bc_") and not name.endswith("-1m") and config.is_file():
-        # a length other than the script's default is its fourth argument
+    lines = variant("route" if "route" in script else "fetch", method)
+    if not name.startswith("bc_") and "continue" not in lines and config.is_file():
+        # a length other than the script's default (the variant's budget) is its fourth argument
         iterations = json.loads(config.read_text()).get("train", {}).get("iterations")
-        default = 2000 if "route" in script else 400 if name.endswith("-sac") else 100
+        default = 2000 if "route" in script else int(lines.get("budget", ["100"])[0])
         if iterations not in (None, default):
             words.append(str(iterations))
     return shlex.join(words)
+
+
+VARIANTS = Path(__file__).resolve().parent / "variants"
+"""the variants the job scripts run: `variants/<task>/<method>.variant`, one per method name"""
+
+
+def variant(task: str, method: str) -> dict[str, list[str]]:
+    """A job script's variant file as directive -> its words (`flags`: the `digail train` flags); empty for a
+    method without one."""
+    path = VARIANTS / task / f"{method}.variant"
+    out: dict[str, list[str]] = {}
+    for line in path.read_text().splitlines() if path.is_file() else []:
+        words = line.split()
+        if not words or words[0].startswith("#"):
+            continue
+        if words[0].startswith("--"):
+            out.setdefault("flags", []).extend(words)
+        else:
+            out[words[0]] = words[1:]
+    return out
 
 
 def record(run: Path, task: str = "fetch") -> dict[str, Any]:

@@ -1,5 +1,5 @@
 """The imitation-reward screen on few-demonstration Fetch: one table and its results file from the run folders
-that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (the reward variants are suffixes there).
+that `benchmarks/fetch_fewdemo.sh N METHOD SEED ITERATIONS` writes (each METHOD's flags: benchmarks/variants/fetch/).
 
     python benchmarks/studies/fetch_rewards.py runs/fetchfew --demos 4 --seed 0 \
         --out benchmarks/studies/results/fetch_rewards.json \
