@@ -114,7 +114,7 @@ def _usage() -> str:
     for name in COMMANDS:
         first = (_command(name)[0].__doc__ or "").strip().splitlines()[0]
         lines.append(f"  {name:<{width}}  {first}")
-    lines += ["", "`digail COMMAND --help` shows a command's options."]
+    lines += ["", "`digail COMMAND --help` shows a command's options (`--help-all`: its study switches as well)."]
     return "\n".join(lines)
 
 
