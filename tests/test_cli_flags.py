@@ -130,7 +130,8 @@ def _variant_flags(path: Path) -> list[str]:
 
 def test_every_published_method_has_a_variant():
     names = {p.stem for p in VARIANTS}  # fetch_fewdemo.py names the landmark route's methods too
-    for script in ("fetch_reward_table.py", "fetch_fewdemo.py", "studies/fetch_rewards.py", "studies/fetch_rot_screen.py"):
+    scripts = ("fetch_reward_table.py", "fetch_fewdemo.py", "studies/fetch_rewards.py", "studies/fetch_rot_screen.py")
+    for script in scripts:
         text = (ROOT / "benchmarks" / script).read_text()
         for method in re.findall(r'"((?:digail|flatbc|gail)-l2[a-z0-9-]*)"', text):
             assert method in names, (script, method)
