@@ -180,7 +180,7 @@ CASES: dict[str, Case] = {
     "minibatch > batch": Case([*TRAIN, "--train.ppo.minibatch-size", "4096"], "must not exceed"),
     "checkpoint-every 0": Case([*TRAIN, "--train.checkpoint-every", "0"], "--train.checkpoint-every"),
     "negative lr": Case([*TRAIN, "--train.ppo.lr", "-0.1"], "--train.ppo.lr"),
-    "negative disc lr": Case([*TRAIN, "--train.disc-lr", "-1e-3"], "--train.disc-lr"),
+    "negative disc lr": Case([*TRAIN, "--train.imitation.disc-lr", "-1e-3"], "--train.imitation.disc-lr"),
     "negative VAE lr": Case(["pretrain", "--demos", "{demos}", "--vae.lr", "-1", "--out", "{tmp}/out"],
                             "--vae.lr"),
     "seed -1": Case([*TRAIN, "--seed", "-1"], "--seed must be between 0 and"),

@@ -1,14 +1,14 @@
-"""The PPO learner's gradient penalty on D (`--train.disc-grad-penalty`, DAC's)."""
+"""The gradient penalty on D (`--train.imitation.disc-grad-penalty`, DAC's) and its default per learner."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from digail.algos.gail.discriminator import discriminator_update, gradient_penalty
+from digail.algos.rewards.discriminator import Discriminator, discriminator_update, gradient_penalty
 from digail.config import TrainConfig
 from digail.errors import UserError
-from digail.nets.critic import Discriminator
+from digail.imitation_config import ImitationConfig
 
 
 def test_the_penalty_is_zero_for_a_unit_slope_and_grows_with_the_slope() -> None:
@@ -47,5 +47,14 @@ def test_with_four_expert_points_the_penalty_keeps_ds_logits_from_a_cliff() -> N
 
 
 def test_a_negative_penalty_is_refused() -> None:
-    with pytest.raises(UserError, match="disc-grad-penalty"):
-        TrainConfig(disc_grad_penalty=-1.0)
+    with pytest.raises(UserError, match="--train.imitation.disc-grad-penalty"):
+        ImitationConfig(disc_grad_penalty=-1.0)
+
+
+def test_one_penalty_setting_whose_default_depends_on_the_learner() -> None:
+    """None: none with PPO, DAC's 10 with SAC; a value set applies to either learner."""
+    assert TrainConfig(learner="ppo").effective_disc_grad_penalty == 0.0
+    assert TrainConfig(learner="sac").effective_disc_grad_penalty == 10.0
+    for learner in ("ppo", "sac"):
+        cfg = TrainConfig(learner=learner, imitation=ImitationConfig(disc_grad_penalty=2.5))  # type: ignore[arg-type]
+        assert cfg.effective_disc_grad_penalty == 2.5

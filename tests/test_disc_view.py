@@ -1,4 +1,4 @@
-"""What D sees of the observation (`--train.disc-obs`): Fetch's relative view."""
+"""What D sees of the observation (`--train.imitation.disc-obs`): Fetch's relative view."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from digail.algos.gail.discriminator import ObsView, obs_view
+from digail.algos.rewards.views import ObsView, obs_view
 from digail.config import PPOConfig, TrainConfig
+from digail.imitation_config import ImitationConfig
 from digail.data.trajectory import Trajectory
 from digail.envs.fetch import relative_view
 from digail.errors import UserError
@@ -55,21 +56,20 @@ def test_the_view_undoes_the_policys_normaliser_and_normalises_its_features_on_t
 
 def test_an_env_without_a_relative_view_is_refused_in_one_sentence():
     assert obs_view("Pendulum-v1", "all", ObsNormalizer(3), np.zeros((2, 3))) is None
-    with pytest.raises(UserError, match="no relative view.*--train.disc-obs all"):
+    with pytest.raises(UserError, match="no relative view.*--train.imitation.disc-obs all"):
         obs_view("Pendulum-v1", "relative", ObsNormalizer(3), np.zeros((2, 3)))
 
 
 def _fetch_trainer(**imitation):
     """A tiny GAIL trainer on Fetch with D on the relative view: two 10-step made-up demonstrations."""
     from digail.algos.directed_info_gail import build_trainer
-    from digail.imitation_config import ImitationConfig
 
     rng = np.random.default_rng(0)
     demos = [Trajectory(obs=_fetch_obs(11, i), acts=rng.uniform(-1, 1, (10, 4)).astype(np.float32))
              for i in range(2)]
-    cfg = TrainConfig(method="gail", disc_obs="relative", hidden=(8,), backend="sync",
+    cfg = TrainConfig(method="gail", hidden=(8,), backend="sync",
                       ppo=PPOConfig(num_envs=1, batch_size=16, minibatch_size=8, epochs=1),
-                      imitation=ImitationConfig(**imitation))
+                      imitation=ImitationConfig(disc_obs="relative", **imitation))
     return build_trainer("digail/FetchPickAndPlace-v4", demos, cfg, vae_model=None, seed=0, run_dir=None,
                          progress=False)
 
@@ -77,8 +77,8 @@ def _fetch_trainer(**imitation):
 def test_a_fetch_trainer_builds_d_on_the_view_for_agent_and_expert_alike():
     trainer = _fetch_trainer()
     try:
-        assert trainer.disc.net[0].in_features == 24 + 4
-        assert trainer.expert_disc_in.shape == (20, 28)
+        assert trainer.reward.disc.net[0].in_features == 24 + 4
+        assert trainer.reward.inputs.expert.shape == (20, 28)
         out = trainer.iterate()
         assert np.isfinite(out["disc/loss"])
     finally:
@@ -90,9 +90,9 @@ def test_goal_relabelling_adds_copies_with_later_goals_to_ds_expert_inputs():
     each whose goal (and so the view's goal-to-object part) is where the object is later; the actions are kept."""
     plain, trainer = _fetch_trainer(), _fetch_trainer(relabel_goals=3)
     try:
-        x = trainer.expert_disc_in
+        x = trainer.reward.inputs.expert
         assert x.shape == (80, 28)
-        torch.testing.assert_close(x[:20], plain.expert_disc_in)
+        torch.testing.assert_close(x[:20], plain.reward.inputs.expert)
         copies = x[20:].reshape(2, 3, 10, 28).permute(1, 0, 2, 3).reshape(3, 20, 28)  # demo-major -> copy-major
         for c in copies:
             torch.testing.assert_close(c[:, 24:], x[:20, 24:])  # the actions
@@ -104,7 +104,7 @@ def test_goal_relabelling_adds_copies_with_later_goals_to_ds_expert_inputs():
 
 
 def test_a_view_of_the_users_own_is_named_as_module_function(tmp_path, monkeypatch):
-    """`--train.disc-obs module:function` builds D on the user's function; a broken one is one sentence."""
+    """`--train.imitation.disc-obs module:function` builds D on the user's function; a broken one is one sentence."""
     (tmp_path / "my_views.py").write_text(
         "import torch\n"
         "def gap(obs):\n    return obs[:, :1] - obs[:, 1:2]\n"
@@ -123,4 +123,4 @@ def test_a_view_of_the_users_own_is_named_as_module_function(tmp_path, monkeypat
         with pytest.raises(UserError, match=phrase):
             obs_view("Pendulum-v1", ref, norm, demo)
     with pytest.raises(UserError, match="all, relative or module:function"):
-        TrainConfig(disc_obs="positions")
+        ImitationConfig(disc_obs="positions")

@@ -74,15 +74,23 @@ def test_gail_has_one_code_and_no_bonus(circle_demos):
     assert torch.all(batch["bonus"] == 0) and torch.all(batch["codes"] == 0)
 
 
+def _update_d(trainer, obs, act_in):
+    """One on-policy update of the trainer's D on (obs, action) rows; its `disc/*` scalars."""
+    from digail.algos.rewards import Rollout, Steps
+
+    trainer.reward.update(Rollout(Steps(obs=obs, acts=act_in, batch={})))
+    return trainer.reward.scalars()
+
+
 def test_discriminator_loss_falls_on_fixed_batches(circle_demos):
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, method="gail"), vae_model=None,
                             seed=0, run_dir=None, progress=False)
     batch = trainer.learner.collect()
     obs = batch["obs"].reshape(-1, 2)
     act_in = trainer.act_input(batch["acts"].reshape(-1, 2))
-    first = trainer.update_discriminator(obs, act_in)["disc/loss"]
+    first = _update_d(trainer, obs, act_in)["disc/loss"]
     for _ in range(200):
-        last = trainer.update_discriminator(obs, act_in)
+        last = _update_d(trainer, obs, act_in)
     assert last["disc/loss"] < 0.7 * first
     assert last["disc/accuracy"] > 0.8
 
@@ -93,10 +101,10 @@ def test_a_rollout_smaller_than_half_ds_minibatch_still_steps_d(circle_demos):
     trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=None, seed=0, run_dir=None,
                             progress=False)
     batch = trainer.learner.collect()
-    before = [p.detach().clone() for p in trainer.disc.parameters()]
-    out = trainer.update_discriminator(batch["obs"].reshape(-1, 2), trainer.act_input(batch["acts"].reshape(-1, 2)))
+    before = [p.detach().clone() for p in trainer.reward.disc.parameters()]
+    out = _update_d(trainer, batch["obs"].reshape(-1, 2), trainer.act_input(batch["acts"].reshape(-1, 2)))
     assert out["disc/loss"] > 0
-    assert any(not torch.equal(a, b) for a, b in zip(before, trainer.disc.parameters(), strict=True))
+    assert any(not torch.equal(a, b) for a, b in zip(before, trainer.reward.disc.parameters(), strict=True))
 
 
 UPDATING = replace(SMALL, iterations=3, value_warmup=0, ppo=replace(SMALL.ppo, batch_size=512))
@@ -160,7 +168,7 @@ def test_nan_loss_stops_with_clear_error_and_keeps_last_good_checkpoint(tmp_path
                             seed=0, run_dir=tmp_path, progress=False)
     trainer.train(2)
     with torch.no_grad():
-        trainer.disc.net[0].weight.fill_(float("nan"))  # poisons the rewards, then the losses
+        trainer.reward.disc.net[0].weight.fill_(float("nan"))  # poisons the rewards, then the losses
     with pytest.raises(TrainingError, match="non-finite"):
         trainer.train(4)
     state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)

@@ -67,16 +67,17 @@ def test_a_sac_run_builds_nothing_of_ppo_and_its_checkpoint_holds_none():
 
 
 def test_the_reward_is_ds_plus_the_weighted_bonus_for_every_learner():
-    """`GAIL.reward`, the one place the reward is written: r = r_D + lambda_1 (log q + log K with the code entropy)."""
+    """`GAIL.with_bonus`, the one place the bonus is added: r = r_D + lambda_1 (log q + log K with the code
+    entropy)."""
     for learner in LEARNERS:
         trainer = _trainer(learner)
         try:
             trainer.cfg = TrainConfig(method="gail", learner=learner, bonus_weight=0.5, bonus_code_entropy=True)
             trainer.K = 3  # the code-entropy term counts only with more than one code
-            logits = torch.tensor([[0.0, 2.0]])
+            imitation = torch.tensor([[0.0, 2.0]])
             batch = {"bonus": torch.tensor([[-1.0, -0.5]]), "rews": torch.zeros(1, 2)}
-            rews, disc_rew = trainer.reward(logits, batch)
-            torch.testing.assert_close(disc_rew, trainer.disc_reward(logits, batch))
+            rews, disc_rew = trainer.with_bonus(imitation, batch)
+            torch.testing.assert_close(disc_rew, imitation)
             torch.testing.assert_close(rews, disc_rew + 0.5 * batch["bonus"] + 0.5 * math.log(3))
         finally:
             trainer.close()

@@ -127,20 +127,20 @@ def _resume_config(tmp: Path, view: str) -> None:
 
 
 @probe("data-resume-disc-obs", "`digail train --resume run` where run/config.json's disc_obs names "
-       "`view5a:view` and view5a.py is in the current folder", "--train.disc-obs view5a:view")
+       "`view5a:view` and view5a.py is in the current folder", "--train.imitation.disc-obs view5a:view")
 def _resume_view(tmp: Path) -> None:
     plant(tmp, "view5a", "def view(x):\n    return x\n")
     _resume_config(tmp, "view5a:view")
     cli(tmp, "train", "--resume", "run")
 
 
-@probe("data-resume-other-disc-obs", "`digail train --resume run --train.disc-obs view5c:view` where config.json "
-       "records `view5b:view`", "--train.disc-obs view5b:view")
+@probe("data-resume-other-disc-obs", "`digail train --resume run --train.imitation.disc-obs view5c:view` where config.json "
+       "records `view5b:view`", "--train.imitation.disc-obs view5b:view")
 def _resume_other_view(tmp: Path) -> None:
     plant(tmp, "view5b", "def view(x):\n    return x\n")
     plant(tmp, "view5c", "def view(x):\n    return x\n")
     _resume_config(tmp, "view5b:view")
-    cli(tmp, "train", "--resume", "run", "--train.disc-obs", "view5c:view")
+    cli(tmp, "train", "--resume", "run", "--train.imitation.disc-obs", "view5c:view")
 
 
 @probe("data-resume-env-module", "`digail train --resume run` where run/config.json's env id is "
@@ -183,8 +183,8 @@ for _pid, _value, _expect in [
     ("sweep-disc-obs-builtins", "builtins:exec", "Python's standard library"),
     ("sweep-disc-obs-missing", "nowhere5:view", "cannot import module 'nowhere5'"),
 ]:
-    probe(_pid, f"`digail sweep --set train.disc_obs={_value}`", _expect)(
-        lambda tmp, v=_value: _in(tmp, lambda: sweep_check((f"train.disc_obs={v}",))))
+    probe(_pid, f"`digail sweep --set train.imitation.disc_obs={_value}`", _expect)(
+        lambda tmp, v=_value: _in(tmp, lambda: sweep_check((f"train.imitation.disc_obs={v}",))))
 
 
 @probe("sweep-env-module", "`digail sweep` whose spec's envs name `walk5s:Walk5s-v0` (the user's module, "
@@ -200,24 +200,24 @@ def _sweep_env_module(tmp: Path) -> None:
     _in(tmp, lambda: sweep_check(spec=spec, tmp=tmp))
 
 
-@probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.disc_obs=view5d:THRESHOLD` (a number in the "
+@probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.imitation.disc_obs=view5d:THRESHOLD` (a number in the "
        "user's module)", "is not a function of yours")
 def _sweep_number(tmp: Path) -> None:
     plant(tmp, "view5d", "THRESHOLD = 3\n")
-    _in(tmp, lambda: sweep_check(("train.disc_obs=view5d:THRESHOLD",)))
+    _in(tmp, lambda: sweep_check(("train.imitation.disc_obs=view5d:THRESHOLD",)))
 
 
-@probe("sweep-disc-obs-two-arguments", "`digail sweep --set train.disc_obs=view5e:view` where view takes two "
+@probe("sweep-disc-obs-two-arguments", "`digail sweep --set train.imitation.disc_obs=view5e:view` where view takes two "
        "arguments", "does not take one argument")
 def _sweep_two(tmp: Path) -> None:
     plant(tmp, "view5e", "def view(x, y):\n    return x\n")
-    _in(tmp, lambda: sweep_check(("train.disc_obs=view5e:view",)))
+    _in(tmp, lambda: sweep_check(("train.imitation.disc_obs=view5e:view",)))
 
 
-@probe("sweep-disc-obs-ok", "`digail sweep --set train.disc_obs=view5f:view` (a view of the user's)", None)
+@probe("sweep-disc-obs-ok", "`digail sweep --set train.imitation.disc_obs=view5f:view` (a view of the user's)", None)
 def _sweep_ok(tmp: Path) -> None:
     plant(tmp, "view5f", "def view(x):\n    return x[:, :1]\n")
-    _in(tmp, lambda: sweep_check(("train.disc_obs=view5f:view",)))
+    _in(tmp, lambda: sweep_check(("train.imitation.disc_obs=view5f:view",)))
 
 
 # ------------------------------------------------------------------------------------------------ D's views
@@ -234,34 +234,34 @@ for _pid, _what, _body, _expect in [
 ]:
     def _view_module(tmp: Path, name: str = _pid.replace("-", "_"), body: str = _body) -> None:
         plant(tmp, name, body)
-        cli(tmp, "train", *SMOKE, "--train.disc-obs", f"{name}:view", "--out", "run-new")
+        cli(tmp, "train", *SMOKE, "--train.imitation.disc-obs", f"{name}:view", "--out", "run-new")
 
-    probe(_pid, f"`digail train --train.disc-obs m:view` with {_what}", _expect)(_view_module)
+    probe(_pid, f"`digail train --train.imitation.disc-obs m:view` with {_what}", _expect)(_view_module)
 
 for _pid, _value, _expect in [
     ("view-relative-module", ".views:view", "not an absolute module name"),
     ("view-sys-exit", "sys:exit", "Python's standard library"),
     ("view-os-system", "os:system", "Python's standard library"),
 ]:
-    probe(_pid, f"`digail train --train.disc-obs {_value}`", _expect)(
-        lambda tmp, v=_value: cli(tmp, "train", *SMOKE, "--train.disc-obs", v, "--out", "run-new"))
+    probe(_pid, f"`digail train --train.imitation.disc-obs {_value}`", _expect)(
+        lambda tmp, v=_value: cli(tmp, "train", *SMOKE, "--train.imitation.disc-obs", v, "--out", "run-new"))
 
 
-@probe("view-nan-on-agent", "`digail train --train.disc-obs m:view` with a view that is finite on the "
+@probe("view-nan-on-agent", "`digail train --train.imitation.disc-obs m:view` with a view that is finite on the "
        "demonstrations and NaN on everything after (the run folder it made must not stay without a checkpoint)",
        "gives NaN or infinite features on observations met during training")
 def _view_nan_later(tmp: Path) -> None:
     plant(tmp, "view_nan5", "calls = [0]\ndef view(x):\n    calls[0] += 1\n"
                             "    return x if calls[0] == 1 else x * float('nan')\n")
-    cli(tmp, "train", *SMOKE, "--train.disc-obs", "view_nan5:view", "--out", "run-new")
+    cli(tmp, "train", *SMOKE, "--train.imitation.disc-obs", "view_nan5:view", "--out", "run-new")
 
 
-@probe("view-width-changes", "`digail train --train.disc-obs m:view` with a view that gives 2 features on the "
+@probe("view-width-changes", "`digail train --train.imitation.disc-obs m:view` with a view that gives 2 features on the "
        "demonstrations and 1 after", "must give the same number of features for every observation")
 def _view_width_later(tmp: Path) -> None:
     plant(tmp, "view_width5", "calls = [0]\ndef view(x):\n    calls[0] += 1\n"
                               "    return x if calls[0] == 1 else x[:, :1]\n")
-    cli(tmp, "train", *SMOKE, "--train.disc-obs", "view_width5:view", "--out", "run-new")
+    cli(tmp, "train", *SMOKE, "--train.imitation.disc-obs", "view_width5:view", "--out", "run-new")
 
 
 # ------------------------------------------------------------------------------------------------ messages
@@ -308,13 +308,13 @@ for _pid, _value, _expect in [
     ("again-view-trailing-colon", "mymod:", "all, relative or module:function"),
     ("again-view-two-colons", "a:b:c", "all, relative or module:function"),
 ]:
-    probe(_pid, f"`digail train --demos {MW_DEMOS} --train.disc-obs {_value}`", _expect)(
-        lambda tmp, v=_value: mw_train(tmp, "--train.disc-obs", v))
+    probe(_pid, f"`digail train --demos {MW_DEMOS} --train.imitation.disc-obs {_value}`", _expect)(
+        lambda tmp, v=_value: mw_train(tmp, "--train.imitation.disc-obs", v))
 
 
 for _pid, _text, _expect in [
-    ("again-spec-disc-obs-os", f'envs = ["{CW}"]\n[set]\n"train.disc_obs" = "os:system"\n', "standard library"),
-    ("again-spec-grid-disc-obs", f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.disc_obs" = ["all", "sys:exit"] }}\n',
+    ("again-spec-disc-obs-os", f'envs = ["{CW}"]\n[set]\n"train.imitation.disc_obs" = "os:system"\n', "standard library"),
+    ("again-spec-grid-disc-obs", f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.imitation.disc_obs" = ["all", "sys:exit"] }}\n',
      "standard library"),
 ]:
     probe(_pid, f"`digail sweep --spec spec.toml` whose spec sets {_text.split(chr(10))[-2]}", _expect)(

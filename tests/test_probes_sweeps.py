@@ -44,9 +44,9 @@ for _pid, _item, _expect in [
     ("set-below-leaf", "train.iterations.x=3", NOT_A_SETTING),
     ("set-flag-value", "train.bonus_weight=--out", "a value may not start with '-'"),
     ("set-flag-in-tuple", "train.hidden=64 --force", "a value may not start with '-'"),
-    ("set-short-flag", "train.reward=-h", "a value may not start with '-'"),
+    ("set-short-flag", "train.imitation.logits_to_reward=-h", "a value may not start with '-'"),
     ("set-negative-number", "train.bonus_weight=-1", None),
-    ("set-equals-in-value", "train.reward=a=b", "train.reward=a=b"),
+    ("set-equals-in-value", "train.imitation.logits_to_reward=a=b", "train.imitation.logits_to_reward=a=b"),
     ("set-zero-episodes", "demos.episodes=0", "--demos-episodes must be at least 1"),
     ("set-nan", "train.bonus_weight=nan", "train.bonus_weight"),
     ("set-no-value", "train.iterations", "write KEY=VALUE"),
@@ -76,10 +76,10 @@ for _pid, _text, _expect in [
 
 
 for _pid, _item, _expect in [
-    ("reward-set-kind", "train.imitation.kind=magic", "takes no such value"),
+    ("reward-set-name", "train.imitation.reward=magic", "takes no such value"),
     ("reward-set-prior", "train.imitation.pu_prior=2", "pu-prior"),
     ("reward-set-whole-section", "train.imitation=ot", "is not a setting a sweep may change"),
-    ("reward-set-ok-kind", "train.imitation.kind=pu,ot", None),
+    ("reward-set-ok-name", "train.imitation.reward=pu,ot", None),
     ("reward-set-range-top-k", "train.imitation.ot_top_k=0..3", "ranges are searched"),
 ]:
     probe(_pid, f"`digail sweep --set {_item}`", _expect)(lambda tmp, i=_item: sweep_check((i,)))

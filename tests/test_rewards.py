@@ -13,7 +13,7 @@ import torch
 from digail.algos.aux_losses import qfiltered_bc_loss
 from digail.algos.directed_info_gail import build_trainer
 from digail.algos.expert_data import ExpertData, relabelled_goals
-from digail.algos.rewards import REWARDS, DiscReward, OTReward, pu_loss, sinkhorn_plan
+from digail.algos.rewards import REWARDS, DiscReward, EnvReward, OTReward, WeightedSum, pu_loss, sinkhorn_plan
 from digail.algos.rewards.ot import ot_step_rewards, window_mask
 from digail.config import PPOConfig, SACConfig, TrainConfig
 from digail.errors import UserError
@@ -167,13 +167,14 @@ def test_qfilter_keeps_bc_only_where_the_expert_action_is_valued_higher():
 def test_registry_has_a_row_for_every_kind_and_each_builds(circle_demos):
     assert set(REWARDS) == set(REWARD_KINDS)
     for kind in REWARD_KINDS:
-        cfg = replace(SMALL, imitation=ImitationConfig(kind=kind))
+        cfg = replace(SMALL, imitation=ImitationConfig(reward=kind))
         trainer = build_trainer("digail/CircleWorld-v0", circle_demos, cfg, vae_model=_vae(circle_demos), seed=0,
                                 run_dir=None, progress=False)
         try:
-            assert isinstance(trainer.rewarder, DiscReward if kind in ("bce", "pu") else OTReward)
-            assert (trainer.disc is None) == kind.startswith("ot")
+            expected = {"bce": DiscReward, "pu": DiscReward, "env": EnvReward}.get(kind, OTReward)
+            assert type(trainer.reward) is expected
             out = trainer.iterate()
+            assert ("disc/loss" in out) == (expected is DiscReward)
             assert math.isfinite(out["rollout/disc_reward"])
             if kind.startswith("ot"):
                 assert out["rollout/disc_reward"] <= 0 and math.isfinite(out["reward/ot_episode"])
@@ -182,8 +183,8 @@ def test_registry_has_a_row_for_every_kind_and_each_builds(circle_demos):
 
 
 def test_bad_imitation_settings_are_one_sentence():
-    with pytest.raises(UserError, match="--train.imitation.kind must be one of"):
-        ImitationConfig(kind="wasserstein")  # type: ignore[arg-type]
+    with pytest.raises(UserError, match="--train.imitation.reward must be one of"):
+        ImitationConfig(reward="wasserstein")  # type: ignore[arg-type]
     with pytest.raises(UserError, match="--train.imitation.pu-prior must be between 0 and 1"):
         ImitationConfig(pu_prior=1.0)
     with pytest.raises(UserError, match="--train.imitation.ot-top-k must be at least 1"):
@@ -216,7 +217,7 @@ def test_relabelled_goals_are_where_the_object_is_later_in_the_same_demonstratio
 
 def test_goal_relabelling_is_refused_where_it_cannot_apply(circle_demos):
     with pytest.raises(UserError, match="--train.imitation.relabel-goals must be 0 with an optimal-transport"):
-        ImitationConfig(kind="ot", relabel_goals=2)
+        ImitationConfig(reward="ot", relabel_goals=2)
     with pytest.raises(UserError, match="--train.imitation.relabel-goals must be a whole number"):
         ImitationConfig(relabel_goals=-1)
     cfg = replace(SMALL, imitation=ImitationConfig(relabel_goals=2))
@@ -232,9 +233,9 @@ def _vae(demos, codes=2):
     return model
 
 
-@pytest.mark.parametrize("imitation", [ImitationConfig(kind="pu", disc_noise=0.1, spectral_norm=True,
+@pytest.mark.parametrize("imitation", [ImitationConfig(reward="pu", disc_noise=0.1, spectral_norm=True,
                                                        disc_dropout=0.1, disc_weight_decay=1e-3),
-                                       ImitationConfig(kind="ot-subtask", ot_time_weight=0.5)])
+                                       ImitationConfig(reward="ot-subtask", ot_time_weight=0.5)])
 def test_ppo_reward_state_round_trips(tmp_path, circle_demos, imitation):
     """A checkpoint restores the reward's state: a fresh trainer and the original, both loaded from it, run the
     same next iteration."""
@@ -254,8 +255,9 @@ def test_ppo_reward_state_round_trips(tmp_path, circle_demos, imitation):
         out_a, out_b = a.iterate(), b.iterate()
         for key in ("rollout/disc_reward", "losses/policy"):
             assert out_a[key] == out_b[key]
-        if a.disc is not None:
-            for p, q in zip(a.disc.parameters(), b.disc.parameters(), strict=True):
+        if isinstance(a.reward, DiscReward):
+            assert isinstance(b.reward, DiscReward)
+            for p, q in zip(a.reward.disc.parameters(), b.reward.disc.parameters(), strict=True):
                 assert torch.equal(p, q)
     finally:
         a.close()
@@ -285,20 +287,21 @@ def _pendulum_trainer(imitation: ImitationConfig, bc_weight: float = 0.0):
 def test_sac_ot_reward_scores_episodes_and_round_trips():
     """Off-policy: each finished episode's steps get their transport reward in the buffer's positions; the
     episodes under way travel in the checkpoint, and a restored reward scores them as the original does."""
-    a = _pendulum_trainer(ImitationConfig(kind="ot"))
-    b = _pendulum_trainer(ImitationConfig(kind="ot"))
+    a = _pendulum_trainer(ImitationConfig(reward="ot"))
+    b = _pendulum_trainer(ImitationConfig(reward="ot"))
     try:
         a.iterate()
-        assert isinstance(a.rewarder, OTReward)
-        replay = a.rewarder._replay
+        assert isinstance(a.reward, OTReward) and isinstance(b.reward, OTReward)
+        replay = a.reward._replay
         assert replay is not None and len(replay) == 100
         # Pendulum's episodes last 200 steps: after 100 none has ended, every position still reads 0
         assert np.all(replay == 0)
         b.load_state_dict(a.state_dict())
         for t in (a, b):
-            t.rewarder.flush()  # both cut the episode here (a checkpoint's restart does the same)
-        assert np.all(a.rewarder._replay < 0)
-        np.testing.assert_array_equal(a.rewarder._replay, b.rewarder._replay)
+            t.rollout_state = None  # both restart their envs, cutting the episode here (as a checkpoint's restart)
+            t.iterate()
+        assert np.all(a.reward._replay[:100] < 0) and np.all(a.reward._replay[100:] == 0)
+        np.testing.assert_array_equal(a.reward._replay, b.reward._replay)
     finally:
         a.close()
         b.close()
@@ -335,21 +338,22 @@ def test_anneal_decays_the_bc_weight_to_zero(circle_demos):
         trainer.close()
 
 
-@pytest.mark.parametrize("imitation", [ImitationConfig(kind="pu", disc_noise=0.1, spectral_norm=True, disc_dropout=0.1),
-                                       ImitationConfig(kind="ot", ot_time_weight=0.5),
-                                       ImitationConfig(kind="ot", ot_cost="euclidean")])
+@pytest.mark.parametrize("imitation", [ImitationConfig(reward="pu", disc_noise=0.1, spectral_norm=True, disc_dropout=0.1),
+                                       ImitationConfig(reward="ot", ot_time_weight=0.5),
+                                       ImitationConfig(reward="ot", ot_cost="euclidean")])
 def test_sac_runs_each_reward_with_plain_gail(imitation):
     """Off-policy, one code: the regularised PU step updates D; the transport reward trains with no D at all."""
     t = _pendulum_trainer(imitation)
     try:
-        before = None if t.disc is None else [p.detach().clone() for p in t.disc.parameters()]
+        disc = t.reward.disc if isinstance(t.reward, DiscReward) else None
+        before = None if disc is None else [p.detach().clone() for p in disc.parameters()]
         out = t.iterate()
         assert math.isfinite(out["losses/critic"])
-        if before is None:
-            assert math.isnan(out["disc/loss"])  # no D: its scalars stay placeholders
+        if disc is None:
+            assert "disc/loss" not in out  # no D, no D scalars
         else:
             assert math.isfinite(out["disc/loss"]) and 0.0 <= out["disc/acc_expert"] <= 1.0
-            assert any(not torch.equal(a, b) for a, b in zip(before, t.disc.parameters(), strict=True))
+            assert any(not torch.equal(a, b) for a, b in zip(before, disc.parameters(), strict=True))
     finally:
         t.close()
 
@@ -365,16 +369,65 @@ def test_a_state_only_d_ignores_the_action(circle_demos, learner):
     else:
         t = _pendulum_trainer(imitation)
     try:
+        d = t.reward
+        assert isinstance(d, DiscReward)
         obs_dim = t.expert.obs_n.shape[1]
-        assert t.expert_disc_in.shape[1] == obs_dim
-        assert t.disc.net[0].in_features == obs_dim
+        assert d.inputs.expert.shape[1] == obs_dim
+        assert d.disc.net[0].in_features == obs_dim
         obs = t.expert.obs_n[:5]
         acts = torch.randn(5, t.expert.disc_in.shape[1] - obs_dim)
-        torch.testing.assert_close(t.rewarder.logits(t.disc_input(obs, acts)),
-                                   t.rewarder.logits(t.disc_input(obs, -acts)))
-        before = [p.detach().clone() for p in t.disc.parameters()]
+        torch.testing.assert_close(d.logits(d.inputs.rows(obs, acts)), d.logits(d.inputs.rows(obs, -acts)))
+        before = [p.detach().clone() for p in d.disc.parameters()]
         out = t.iterate()
         assert math.isfinite(out["disc/loss"])
-        assert any(not torch.equal(a, b) for a, b in zip(before, t.disc.parameters(), strict=True))
+        assert any(not torch.equal(a, b) for a, b in zip(before, d.disc.parameters(), strict=True))
     finally:
         t.close()
+
+
+@pytest.mark.parametrize("learner", ["ppo", "sac"])
+def test_a_weighted_sum_pays_each_term_times_its_weight(circle_demos, learner):
+    """`--train.imitation.terms env:0.25` beside D: the sum pays D's reward plus a quarter of the env's, on a rollout
+    and on replayed transitions, and D still learns (its scalars come through the sum)."""
+    imitation = ImitationConfig(terms=("env:0.25",))
+    if learner == "ppo":
+        t = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, imitation=imitation),
+                          vae_model=_vae(circle_demos), seed=0, run_dir=None, progress=False)
+    else:
+        t = _pendulum_trainer(imitation)
+    try:
+        s = t.reward
+        assert isinstance(s, WeightedSum)
+        (w_d, d), (w_env, env) = s.terms
+        assert (w_d, w_env) == (1.0, 0.25) and isinstance(d, DiscReward) and isinstance(env, EnvReward)
+        out = t.iterate()
+        assert math.isfinite(out["disc/loss"])
+        from digail.algos.rewards import Steps
+
+        if learner == "ppo":
+            batch = t.learner.collect()
+            T, N = batch["logp"].shape
+            flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
+            steps = Steps(obs=batch["obs"].reshape(T * N, -1), acts=t.act_input(flat_acts), batch=batch)
+        else:
+            idx = torch.arange(16)
+            b = t.learner.buffer.get(idx)
+            steps = Steps(obs=b["obs"], acts=b["acts"], batch=b, idx=idx)
+        with torch.no_grad():
+            total, from_d = s.rewards(steps), d.rewards(steps)
+        assert not torch.allclose(total, from_d)  # the env's term counts
+        torch.testing.assert_close(total, from_d + 0.25 * steps.batch["rews"].float())
+    finally:
+        t.close()
+
+
+def test_terms_are_checked_when_set():
+    assert ImitationConfig(terms=("env:0.5",)).term_weights == (("env", 0.5),)
+    with pytest.raises(UserError, match="--train.imitation.terms must be name:weight"):
+        ImitationConfig(terms=("env",))
+    with pytest.raises(UserError, match="--train.imitation.terms must be name:weight with a finite number"):
+        ImitationConfig(terms=("env:lots",))
+    with pytest.raises(UserError, match="--train.imitation.terms must be a reward named once"):
+        ImitationConfig(terms=("bce:1",))
+    with pytest.raises(UserError, match="at most one D-based"):
+        ImitationConfig(terms=("pu:1",))

@@ -14,6 +14,7 @@ import torch
 from digail.algos.sac import SACBatch, SACUpdate
 from digail.config import SACConfig, TrainConfig
 from digail.errors import UserError
+from digail.imitation_config import ImitationConfig
 from digail.nets.policy import ActionSpec, SubtaskPolicy
 
 LOG_2PI = math.log(2 * math.pi)
@@ -255,9 +256,9 @@ def test_resume_continues_to_the_same_weights(tmp_path):
     resumed.load_checkpoint(tmp_path / "b" / "checkpoint.pt")
     assert resumed.learner.buffer.size == 100
     resumed.train(iterations=2)
-    for name in ("model", "disc"):
-        a, b = getattr(straight, name).state_dict(), getattr(resumed, name).state_dict()
-        assert all(torch.equal(a[k], b[k]) for k in a), name
+    for part in (lambda t: t.model, lambda t: t.reward.disc):
+        a, b = part(straight).state_dict(), part(resumed).state_dict()
+        assert all(torch.equal(a[k], b[k]) for k in a)
     ca, cb = straight.learner.sac.critic.state_dict(), resumed.learner.sac.critic.state_dict()
     assert all(torch.equal(ca[k], cb[k]) for k in ca)
     for tr in (straight, first, resumed):
@@ -366,14 +367,14 @@ def _origin_q_model():
 def _toy_trainer(signal: str, sign: float = 1.0):
     from digail.algos.directed_info_gail import DirectedInfoGAIL, build_trainer
 
-    sac = SACConfig(steps_per_iteration=500, learning_starts=300, hidden=(32, 32), policy_warmup=0, disc_every=0,
-                    init_alpha=0.01)
+    sac = SACConfig(steps_per_iteration=500, learning_starts=300, hidden=(32, 32), policy_warmup=0, init_alpha=0.01)
+    no_d = ImitationConfig(disc_every=0)
     if signal == "reward":
-        cfg = TrainConfig(method="gail", learner="sac", hidden=(32, 32), backend="sync", sac=sac)
+        cfg = TrainConfig(method="gail", learner="sac", hidden=(32, 32), backend="sync", sac=sac, imitation=no_d)
         return build_trainer(TOY, _toy_demos(), cfg, vae_model=None, seed=0, run_dir=None, progress=False,
                              reward_fn=lambda logits, batch: sign * batch["rews"])
     cfg = TrainConfig(method="digail", learner="sac", hidden=(32, 32), backend="sync", sac=sac, replay_fraction=0.0,
-                      bonus_weight=sign * 10.0, closed_loop_codes="argmax")
+                      bonus_weight=sign * 10.0, closed_loop_codes="argmax", imitation=no_d)
     return DirectedInfoGAIL(TOY, _toy_demos(), _origin_q_model(), cfg, seed=0, run_dir=None, progress=False,
                             reward_fn=lambda logits, batch: 0 * logits)
 
@@ -396,7 +397,7 @@ def test_bonus_is_log_q_of_the_next_code_and_enters_the_reward():
     np.testing.assert_allclose(buf.bonus[:n], expected, rtol=1e-5, atol=1e-6)
     assert (buf.next_codes[:n] == 0).all()
     b = buf.get(np.arange(n))
-    rews, disc_rew, _ = tr.learner.rewards(b)
+    rews, disc_rew, _ = tr.learner.rewards(b, torch.arange(n))
     torch.testing.assert_close(rews, disc_rew + 2.0 * b["bonus"])
     tr.close()
 
@@ -419,8 +420,7 @@ def test_learns_from_the_relabelled_reward_or_from_the_bonus(signal):
 def test_discriminator_hand_gradient_equals_autograd():
     """D's cross-entropy plus gradient penalty: the hand-written gradient equals autograd's (float64)."""
     from digail.algos.fast.sac_grad import disc_grads
-    from digail.algos.gail.discriminator import disc_loss
-    from digail.nets.critic import Discriminator
+    from digail.algos.rewards.discriminator import Discriminator, disc_loss
 
     torch.manual_seed(0)
     disc = Discriminator(3, 2, (8, 8)).double()
@@ -446,17 +446,18 @@ def test_discriminator_scripted_step_gives_the_bits_of_the_pieces():
     own Adam step: identical weights and optimiser state after three steps."""
     runs = []
     for fused in (False, True):
-        tr = _trainer(disc_every=1, learning_starts=10_000)
-        loop, step = tr.learner, tr.penalty_step
+        tr = _trainer(learning_starts=10_000)
+        loop, d = tr.learner, tr.reward
+        step = d.penalty_step
         assert step.hand
         tr.iterate()  # fills the buffer; no update yet
         if not fused:
             step._d_adam.lists = lambda: None  # type: ignore[method-assign]  # every step in pieces
         for _ in range(3):
-            loop.update_discriminator()
+            d._replay_step(loop.sample)
         assert (step._d_adam.lists() is not None) == fused  # after the first step: the scripted call's condition
-        state = [t.clone() for st in tr.disc_optimizer.state.values() for t in st.values()]
-        runs.append(([p.detach().clone() for p in tr.disc.parameters()], state))
+        state = [t.clone() for st in d.optimizer.state.values() for t in st.values()]
+        runs.append(([p.detach().clone() for p in d.disc.parameters()], state))
         tr.close()
     for a, b in zip(runs[0][0] + runs[0][1], runs[1][0] + runs[1][1], strict=True):
         assert torch.equal(a, b)
@@ -472,13 +473,13 @@ def test_absorbing_states_reach_d_and_the_target():
     sac = SACConfig(steps_per_iteration=60, learning_starts=10_000, hidden=(8,), absorbing=True, gamma=0.9)
     cfg = TrainConfig(method="gail", learner="sac", hidden=(8,), backend="sync", sac=sac)
     tr = build_trainer(TOY, demos, cfg, vae_model=None, seed=0, run_dir=None, progress=False)
-    loop, expert_in = tr.learner, tr.expert_disc_in
-    assert tr.disc.net[0].in_features == 2 + 1 + 2
+    loop, expert_in = tr.learner, tr.reward.inputs.expert
+    assert tr.reward.disc.net[0].in_features == 2 + 1 + 2
     assert len(expert_in) == 60 + 1 and expert_in[-1, 2] == 1.0 and expert_in[:-1, 2].eq(0).all()
     tr.iterate()
     b = loop.buffer.get(np.arange(10))
-    _, _, v_abs = loop.rewards(b)
-    logit = tr.disc.net(tr.absorbing_row()).squeeze()
+    _, _, v_abs = loop.rewards(b, torch.arange(10))
+    logit = tr.reward.disc.net(tr.reward.inputs.absorbing_row()).squeeze()
     torch.testing.assert_close(v_abs, torch.nn.functional.softplus(logit).detach() / 0.1)
     tr.close()
 

@@ -216,7 +216,7 @@ seeds = [0]
 envs = ["digail/FourRooms-v0"]
 methods = ["gail"]
 seeds = [1]
-set = { "train.reward" = "bogus" }
+set = { "train.imitation.logits_to_reward" = "bogus" }
 """
 
 
@@ -363,19 +363,19 @@ def test_search_space_and_sample_runs_named_after_their_values():
 
     spec = build_spec(envs=(FR,), methods=("digail",), seeds=(0, 1), preset="smoke",
                       sets=("train.bonus_weight=0.001..0.1:log", "train.ppo.epochs=1..4",
-                            "train.reward=positive,negative"),
+                            "train.imitation.logits_to_reward=positive,negative"),
                       search="optuna", trials=4, metric="eval/success_rate")
     space = search_space(spec)
     assert str(space["train.bonus_weight"]) == "0.001..0.1:log" and space["train.ppo.epochs"].integer
-    assert space["train.reward"] == ("positive", "negative")
+    assert space["train.imitation.logits_to_reward"] == ("positive", "negative")
     domains = tune_space(space)
     assert isinstance(domains["train.bonus_weight"], tune.search.sample.Float)
     assert isinstance(domains["train.ppo.epochs"], tune.search.sample.Integer)
-    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.reward": "negative"},
+    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.imitation.logits_to_reward": "negative"},
                        tuple(sorted(space)))
     runs = sorted(j.run for j in jobs if j.kind == "trial")
     assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123__train.ppo.epochs=2"
-                       "__train.reward=negative")
+                       "__train.imitation.logits_to_reward=negative")
     assert sorted(j.run for j in jobs if j.kind == "vae") == ["digail-FourRooms-v0/vae_s0",
                                                               "digail-FourRooms-v0/vae_s1"]
     assert check_metric("seg/nmi") == ("segmentation.json", "nmi")

@@ -52,7 +52,7 @@ AT_MOST: dict[str, int] = {
     "--vae.steps": 10**8, "--vae.batch-size": 2**16, "--vae.restarts": 1000, "--vae.polish-steps": 10**8,
     "--vae.init-steps": 10**8, "--vae.warmup-epochs": 10**6, "--vae.q-anticipate": 10**6,
     "--train.iterations": 10**8, "--train.eval-episodes": 10**6, "--train.bc-batch-size": 2**24,
-    "--train.disc-updates": 10**4, "--train.disc-minibatch-size": 2**24, "--train.value-warmup": 10**6,
+    "--train.value-warmup": 10**6,
     "--train.env-workers": 1024,
     "--train.ppo.num-envs": 1024, "--train.ppo.batch-size": 2**24, "--train.ppo.epochs": 10**4,
     "--train.ppo.minibatch-size": 2**24,

@@ -7,7 +7,6 @@ config is written as `config.json` into every run folder.
 from __future__ import annotations
 
 import dataclasses
-import re
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
@@ -267,8 +266,8 @@ class PPOConfig:
 
 @dataclass(frozen=True)
 class SACConfig:
-    """Soft actor-critic (Haarnoja et al. 2018) on pi(a | s, c), with the discriminator's reward relabelled on every
-    sampled batch and absorbing states and a gradient penalty on D as in DAC (Kostrikov et al. 2019)."""
+    """Soft actor-critic (Haarnoja et al. 2018) on pi(a | s, c), with the reward relabelled on every sampled batch
+    and absorbing states as in DAC (Kostrikov et al. 2019); D's schedule and penalty are `imitation`'s."""
 
     num_envs: int = 1
     """environments stepped together; each env step is followed by `utd` updates, so the updates of one batched
@@ -305,10 +304,6 @@ class SACConfig:
     otherwise undo a VAE initialisation in the first few hundred updates (on Hopper it did)"""
     utd: float = 1.0
     """update-to-data ratio: critic and actor updates per environment step"""
-    disc_every: int = 1
-    """environment steps between discriminator updates (0: never, e.g. a run on the env's own reward)"""
-    grad_penalty: float = 10.0
-    """weight of the gradient penalty on D: (|grad D| - 1)^2 on points between expert and agent inputs (0: none)"""
     absorbing: bool = False
     """absorbing states (DAC) for episodes that end by termination (not by time limit): D also judges the absorbing
     state, whose value is its reward forever, so the critic's target at a termination is that value instead of 0.
@@ -319,8 +314,8 @@ class SACConfig:
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.sac.", dict(num_envs=1, steps_per_iteration=1, buffer_size=1, batch_size=1,
-                                                  learning_starts=0, disc_every=0, policy_warmup=0),
-                       ("lr", "policy_lr", "alpha_lr", "grad_penalty", "utd"), ("gamma", "tau"))
+                                                  learning_starts=0, policy_warmup=0),
+                       ("lr", "policy_lr", "alpha_lr", "utd"), ("gamma", "tau"))
         _require(_finite(self.init_alpha) and self.init_alpha > 0, "--train.sac.init-alpha", "positive",
                  self.init_alpha)
         if self.target_entropy is not None:
@@ -373,22 +368,6 @@ class TrainConfig:
     walking away from a precise initialisation where D's reward cannot tell (Circle-World). 0 disables it"""
     bc_batch_size: int = 256
     """expert samples per BC term evaluation"""
-    disc_updates: int = 1
-    """discriminator passes over each batch"""
-    disc_lr: float = 3e-4
-    """discriminator Adam learning rate"""
-    disc_minibatch_size: int = 256
-    """samples per discriminator gradient step (half agent, half expert)"""
-    disc_grad_penalty: float = 0.0
-    """PPO learner: weight of the gradient penalty (|grad D| - 1)^2 on points between agent and expert samples
-    (DAC's; the SAC learner has its own, `sac.grad_penalty`). With a few demonstrations D otherwise tells them
-    apart perfectly within a few iterations and its reward stops saying what to improve; 0 disables it"""
-    disc_obs: str = "all"
-    """what D sees of the observation: all of it, the env's relative view (relations between the things in the
-    scene, not where they are: for Fetch the object from the gripper and the goal from the object, no horizontal
-    positions), or `module:function`, a view of the user's (raw observations (n, D) -> features (n, F), torch in
-    and out). With a handful of demonstrations D otherwise tells them from the agent by the few object and goal
-    positions they show"""
     q_lr: float = 0.0
     """PPO learner: learning rate of the macro-policy q during training, on -log q(c_t | s_t, c_{t-1}) of the
     rollouts' own codes (the paper's ascent of its bound L_1 in q as well as pi); 0 keeps q as pre-training left it
@@ -396,8 +375,6 @@ class TrainConfig:
     shuffle_codes: bool = False
     """ablation: every code pi sees is a uniform random draw, each step (the BC term's expert codes once, the
     rollouts' afresh), so the codes carry nothing; the bonus is still log q of the drawn code"""
-    reward: Literal["positive", "negative", "logit"] = "positive"
-    """generator reward from D: positive = -log(1 - D), negative = log D, logit = log D - log(1 - D)"""
     value_warmup: int = 10
     """first iterations train only V and D, the policy held still: a random critic's noisy advantages would
     otherwise undo the VAE initialisation before GAIL has a useful signal"""
@@ -432,13 +409,12 @@ class TrainConfig:
     sac: SACConfig = field(default_factory=SACConfig)
     """soft actor-critic settings (`learner` sac)"""
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
-    """the imitation reward and the BC weight's schedule (`digail.imitation_config`)"""
+    """the imitation reward, the discriminator's settings and the BC weight's schedule (`digail.imitation_config`)"""
 
     def __post_init__(self) -> None:
         _check_numbers(self, "--train.", dict(iterations=1, checkpoint_every=1, eval_every=0, eval_episodes=1,
-                                              bc_batch_size=1, disc_updates=0, disc_minibatch_size=1,
-                                              value_warmup=0, env_workers=0),
-                       ("disc_lr", "bc_weight", "anchor_weight", "disc_grad_penalty", "q_lr"),
+                                              bc_batch_size=1, value_warmup=0, env_workers=0),
+                       ("bc_weight", "anchor_weight", "q_lr"),
                        ("replay_fraction",))
         _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
         _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
@@ -448,10 +424,17 @@ class TrainConfig:
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
         _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
-        _require(self.disc_obs in ("all", "relative") or re.fullmatch(r"[\w.]+:\w+", str(self.disc_obs)) is not None,
-                 "--train.disc-obs", "all, relative or module:function", self.disc_obs)
         _require(self.q_lr == 0 or self.learner == "ppo", "--train.q-lr", "0 with --train.learner sac (q is trained "
                  "on PPO's rollouts only)", self.q_lr)
+
+    @property
+    def effective_disc_grad_penalty(self) -> float:
+        """the weight of D's gradient penalty: `imitation.disc_grad_penalty`, or when that is None 0 with the PPO
+        learner and 10 with SAC's (DAC's setting)"""
+        weight = self.imitation.disc_grad_penalty
+        if weight is None:
+            return 10.0 if self.learner == "sac" else 0.0
+        return weight
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -459,8 +442,44 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+MOVED_TRAIN_KEYS: dict[str, str] = {
+    "disc_updates": "disc_updates", "disc_lr": "disc_lr", "disc_minibatch_size": "disc_minibatch_size",
+    "disc_obs": "disc_obs", "reward": "logits_to_reward",
+}
+"""`TrainConfig` keys of older config.json files that are now `imitation`'s: old key -> its name there"""
+
+
+def upgraded_train_dict(data: dict[str, Any]) -> dict[str, Any]:
+    """A `TrainConfig` dict as older versions wrote it, with D's settings moved into `imitation` (where the new key
+    is not set already): the top-level `disc_*` and `reward`, `sac.disc_every`, `imitation.kind` (now `reward`), and
+    the two gradient penalties (`disc_grad_penalty` of PPO runs, `sac.grad_penalty` of SAC runs) as one."""
+    data = dict(data)
+    imitation = dict(data.get("imitation") or {})
+    sac = dict(data.get("sac") or {}) if isinstance(data.get("sac"), dict) else data.get("sac")
+    for old, new in MOVED_TRAIN_KEYS.items():
+        if old in data:
+            imitation.setdefault(new, data.pop(old))
+    penalty_ppo = data.pop("disc_grad_penalty", None)
+    penalty_sac = sac.pop("grad_penalty", None) if isinstance(sac, dict) else None
+    penalty = penalty_sac if data.get("learner") == "sac" else penalty_ppo
+    if penalty is not None:
+        imitation.setdefault("disc_grad_penalty", penalty)
+    if isinstance(sac, dict) and "disc_every" in sac:
+        imitation.setdefault("disc_every", sac.pop("disc_every"))
+    if "kind" in imitation:
+        imitation.setdefault("reward", imitation.pop("kind"))
+    if imitation or "imitation" in data:
+        data["imitation"] = imitation
+    if sac is not None:
+        data["sac"] = sac
+    return data
+
+
 def from_dict(cls: type, data: dict[str, Any]) -> Any:
-    """Rebuild a (possibly nested) config dataclass from `to_dict` output, ignoring unknown keys."""
+    """Rebuild a (possibly nested) config dataclass from `to_dict` output, ignoring unknown keys; the settings of a
+    `TrainConfig` that older versions kept elsewhere are read where they are now (`upgraded_train_dict`)."""
+    if cls is TrainConfig:
+        data = upgraded_train_dict(data)
     kwargs: dict[str, Any] = {}
     hints = {f.name: f for f in dataclasses.fields(cls)}
     for key, value in data.items():

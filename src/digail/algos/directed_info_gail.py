@@ -16,9 +16,10 @@ import torch
 from torch import nn
 
 from digail.algos.fast.inference import log_softmax
-from digail.algos.gail import GAIL, RewardFn
+from digail.algos.gail import GAIL
 from digail.algos.inference import code_net
 from digail.algos.optim import adam
+from digail.algos.rewards.base import LogitsReward
 from digail.config import TrainConfig
 from digail.data.trajectory import Trajectory
 from digail.errors import UserError
@@ -124,7 +125,7 @@ class DirectedInfoGAIL(GAIL):
 # -------------------------------------------------------------------------------------------- the trainer
 def build_trainer(env_id: str, demos: list[Trajectory], cfg: TrainConfig, *, vae_model: HierarchicalPolicy | None,
                   seed: int, run_dir: Path | None, device: str | torch.device = "cpu",
-                  progress: bool = True, reward_fn: RewardFn | None = None) -> GAIL:
+                  progress: bool = True, reward_fn: LogitsReward | None = None) -> GAIL:
     """The trainer for `cfg.method` with its policy initialised as configured.
 
     digail needs the pre-trained VAE (its q and normaliser; its decoder initialises pi when `init_from_vae`).

@@ -18,7 +18,7 @@ from digail.errors import UserError
 RENAMED_FLAGS: dict[str, str] = {
     "--bc-weight": "--train.bc-weight",
     "--vae.codes": "--codes",
-    # the discriminator's settings, all in the reward's group now
+    # the discriminator's settings and the reward's names, gathered in `--train.imitation.*`
     "--train.disc-updates": "--train.imitation.disc-updates",
     "--train.disc-lr": "--train.imitation.disc-lr",
     "--train.disc-minibatch-size": "--train.imitation.disc-minibatch-size",

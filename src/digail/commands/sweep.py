@@ -144,7 +144,7 @@ def check_spec(spec: Any, jobs: list[Any]) -> None:
                     preset = ["--preset", grid.preset] if grid.preset and stage in ("pretrain", "train") else []
                     _dry_parse(stage, [*base, *preset, *flag_args(key, v)],
                                f"--set {key}={v}", f"`digail {stage}` takes no such value")
-            if key == "train.disc_obs":
+            if key == "train.imitation.disc_obs":
                 for v in values:
                     _check_view(v, f"--set {key}")
     seen: set[tuple[str, ...]] = set()
@@ -155,8 +155,8 @@ def check_spec(spec: Any, jobs: list[Any]) -> None:
                 _dry_parse(stage.name, list(stage.argv[1:]), f"trial {job.id}", "its command would fail")
                 argv = list(stage.argv)
                 for i, tok in enumerate(argv[:-1]):
-                    if tok == "--train.disc-obs":
-                        _check_view(argv[i + 1], f"trial {job.id}: --train.disc-obs")
+                    if tok == "--train.imitation.disc-obs":
+                        _check_view(argv[i + 1], f"trial {job.id}: --train.imitation.disc-obs")
 
 
 def _check_view(value: Any, flag: str) -> None:

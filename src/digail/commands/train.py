@@ -81,15 +81,15 @@ def train_command(args: TrainArgs) -> Path:
     until = args.until
     if args.resume is not None:
         run_dir = Path(args.resume)
-        named_view = args.train.disc_obs
+        named_view = args.train.imitation.disc_obs
         args = resume_args(run_dir)
-        check_recorded_view(run_dir, args.train.disc_obs, named_view)
+        check_recorded_view(run_dir, args.train.imitation.disc_obs, named_view)
         if until is not None:
             args = replace(args, train=replace(args.train, iterations=until))
-    if ":" in args.train.disc_obs:  # the user's view: imported and checked before the data is read
+    if ":" in args.train.imitation.disc_obs:  # the user's view: imported and checked before the data is read
         from digail.user_envs import import_function
 
-        import_function(args.train.disc_obs, "--train.disc-obs")
+        import_function(args.train.imitation.disc_obs, "--train.imitation.disc-obs")
     device = resolve_device(args.device)
     demos, env_id = load_demos(args.demos, args.env, episodes=args.demos_episodes, every=args.demos_subsample,
                                seed=args.seed)
@@ -167,7 +167,7 @@ def likely_cause(message: str, cfg: TrainConfig) -> str:
 
     from digail.imitation_config import ImitationConfig
 
-    ot = cfg.imitation.kind.startswith("ot")
+    ot = cfg.imitation.reward.startswith("ot")
     scaling = ("ot_epsilon", "ot_scale", "ot_cost", "ot_time_weight", "ot_code_penalty") if ot else \
         ("disc_weight_decay", "disc_noise", "relabel_goals", "pu_prior")
     default = ImitationConfig()
@@ -226,12 +226,13 @@ def check_recorded_view(run_dir: Path, recorded: str, named: str) -> None:
     """A run folder's D view of the user's own (`module:function` in config.json) is code the folder names: it is
     imported only when this command line names the same view, else refused before anything is imported. The views
     digail ships (`SHIPPED_VIEWS`) are its own code and pass."""
-    from digail.algos.gail.discriminator import SHIPPED_VIEWS
+    from digail.algos.rewards.views import SHIPPED_VIEWS
 
     if recorded in ("all", "relative") or recorded in SHIPPED_VIEWS or named == recorded:
         return
     raise UserError(f"{run_dir} was trained with D's view {recorded} (its config.json), code that digail runs only "
-                    f"when you name it; resume with `digail train --resume {run_dir} --train.disc-obs {recorded}`.")
+                    f"when you name it; resume with `digail train --resume {run_dir} "
+                    f"--train.imitation.disc-obs {recorded}`.")
 
 
 def periodic_evaluation(env_id: str, cfg: TrainConfig) -> Callable[[HierarchicalPolicy], dict[str, float]] | None:

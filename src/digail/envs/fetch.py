@@ -126,8 +126,8 @@ RELATIVE_DIM = 24
 
 
 def relative_view(obs: Any) -> Any:
-    """What a discriminator sees of flat observations (n, 28) under `--train.disc-obs relative`: the object from the
-    gripper, the goal from the object, the heights of gripper and object, and fingers, rotation and velocities
+    """What a discriminator sees of flat observations (n, 28) under `--train.imitation.disc-obs relative`: the object
+    from the gripper, the goal from the object, the heights of gripper and object, and fingers, rotation and velocities
     (n, 24) - no horizontal position of gripper, object or goal, so that D cannot tell a few demonstrations from
     the agent by where their objects and goals happened to lie. Takes and returns torch tensors."""
     import torch
@@ -138,7 +138,7 @@ def relative_view(obs: Any) -> Any:
 def placing_view(obs: Any) -> Any:
     """The relative view without rotation and velocities (n, 10): the object from the gripper, the goal from the
     object, the heights of gripper and object, and the fingers - where things are, so that a transport cost between
-    steps is not dominated by how fast they move. For `--train.disc-obs digail.envs.fetch:placing_view`."""
+    steps is not dominated by how fast they move. For `--train.imitation.disc-obs digail.envs.fetch:placing_view`."""
     import torch
 
     return torch.cat([*_relative_parts(obs)[:4], obs[:, 9:11]], -1)
@@ -159,7 +159,7 @@ def distances_view(obs: Any) -> Any:
     """How far things are, not in which direction (n, 8): the gripper-to-object distance, the object-to-goal
     distance horizontally and its height part, the heights of gripper and object, the fingers, and the gripper's
     speed. A layout turned about the vertical axis looks the same, so a few demonstrations cover every placement.
-    For `--train.disc-obs digail.envs.fetch:distances_view`."""
+    For `--train.imitation.disc-obs digail.envs.fetch:distances_view`."""
     import torch
 
     to_goal = obs[:, 25:28] - obs[:, 3:6]
@@ -169,7 +169,7 @@ def distances_view(obs: Any) -> Any:
 def log_distances_view(obs: Any) -> Any:
     """The distances view with the gripper-to-object and object-to-goal distances on a log scale (log of metres plus
     1 cm), so that 2 cm against 10 cm from the goal weighs as much as 10 cm against 50: what decides success (within
-    5 cm) is graded, not only the way there. For `--train.disc-obs digail.envs.fetch:log_distances_view`."""
+    5 cm) is graded, not only the way there. For `--train.imitation.disc-obs digail.envs.fetch:log_distances_view`."""
     import torch
 
     to_goal = obs[:, 25:28] - obs[:, 3:6]

@@ -94,8 +94,9 @@ def parse_order(order: str | Sequence[int]) -> tuple[int, ...]:
 
 
 def relative_view(obs: Any) -> Any:
-    """What a discriminator sees of observations (n, 14) under `--train.disc-obs relative`: each landmark seen from
-    the point (8) and the touch sensors (4), not where the point and the landmarks are. Torch tensors in and out."""
+    """What a discriminator sees of observations (n, 14) under `--train.imitation.disc-obs relative`: each landmark
+    seen from the point (8) and the touch sensors (4), not where the point and the landmarks are. Torch tensors in and
+    out."""
     import torch
 
     pos = obs[:, 0:2]

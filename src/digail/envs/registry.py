@@ -94,8 +94,9 @@ class EnvSpec:
     success: higher is better, episodes do not end early for doing badly), `task` a step penalty with a positive
     reward on success that ends the episode, `survival` a bonus for every step alive that outweighs the rest, with
     episodes ended by falling (the episode length then carries reward information: log it, and prefer a positive
-    GAIL reward, `--train.reward positive`), `shaped` a non-negative progress reward that grows towards success
-    (Meta-World's, 0-10 per step), the episode ending at success (prefer a step cost, `--train.reward negative`)"""
+    GAIL reward, `--train.imitation.logits-to-reward positive`), `shaped` a non-negative progress reward that grows
+    towards success (Meta-World's, 0-10 per step), the episode ending at success (prefer a step cost,
+    `--train.imitation.logits-to-reward negative`)"""
     render: Literal["image", "mujoco", "pygame", "none"] = "mujoco"
     """how `render_mode="rgb_array"` draws a frame: `image` the env's own array (no extra package), `mujoco`
     offscreen MuJoCo (`MUJOCO_GL` must be set before MuJoCo is imported: `digail.utils.ensure_offscreen_gl`),
@@ -107,8 +108,9 @@ class EnvSpec:
     """observation indices of the hip joint's angle and angular velocity whose phase labels a locomotion gait
     (`digail.eval.gait`; Gymnasium v5 layouts, default options); None: no gait phase"""
     relative_view: str | None = None
-    """`module:function` mapping raw observations (n, D) to what D sees under `--train.disc-obs relative`: relations
-    between the things in the scene instead of where they are (torch tensors in and out); None: the env has none"""
+    """`module:function` mapping raw observations (n, D) to what D sees under `--train.imitation.disc-obs relative`:
+    relations between the things in the scene instead of where they are (torch tensors in and out); None: the env has
+    none"""
     goal_columns: tuple[slice, slice] | None = None
     """(the desired goal's columns, the columns of what meets it) in the flat observation, for
     relabelling a demonstration's goal with where it took the object later (`--train.imitation.relabel-goals`);

@@ -1,4 +1,4 @@
-"""Value function V(s, c) and discriminator D(s, a)."""
+"""Value function V(s, c) (the discriminator D(s, a) is a reward's: `digail.algos.rewards.discriminator`)."""
 
 from __future__ import annotations
 
@@ -24,37 +24,3 @@ class ValueNet(nn.Module):
 
     def forward(self, obs_n: torch.Tensor, code_1h: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([obs_n, code_1h], -1)).squeeze(-1)
-
-
-class Discriminator(nn.Module):
-    """D_omega(s, a) returning `logits_expert_is_high`: sigmoid(logit) = D = P(expert | s, a).
-
-    Trained with binary cross-entropy, expert pairs labelled 1 and agent pairs 0. Actions enter as one-hots for
-    discrete spaces and as the executed (clipped / canonical) action for continuous ones.
-    """
-
-    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int] = (64, 64)) -> None:
-        super().__init__()
-        self.net = mlp(obs_dim + act_dim, 1, hidden)
-
-    def forward(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
-        return self.net(torch.cat([obs_n, act_in], -1)).squeeze(-1)
-
-
-def generator_reward(logits_expert_is_high: torch.Tensor, kind: str = "positive") -> torch.Tensor:
-    """Reward for the policy from D's logits l, with D = sigmoid(l) the probability of 'expert'.
-
-    - positive: -log(1 - D) = softplus(l) >= 0. A survival bonus: right for envs that terminate on failure
-      (Hopper, Walker), since each step alive earns reward.
-    - negative: log D = -softplus(-l) <= 0. A step cost: pushes towards ending episodes early.
-    - logit: log D - log(1 - D) = l, the AIRL-style reward, unbiased about episode length.
-    The paper writes the GAN objective with the policy minimising E[log D(s, a)] where D scores the *agent*;
-    with our expert-is-high D the policy maximises any of the above.
-    """
-    if kind == "positive":
-        return nn.functional.softplus(logits_expert_is_high)
-    if kind == "negative":
-        return -nn.functional.softplus(-logits_expert_is_high)
-    if kind == "logit":
-        return logits_expert_is_high
-    raise ValueError(f"unknown reward kind {kind!r}")

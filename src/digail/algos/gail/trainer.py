@@ -1,8 +1,8 @@
 """GAIL (Ho and Ermon, 2016) with a code-conditioned policy pi(a | s, c): the trainer Directed-Info GAIL extends.
 
-With one code and no bonus this is plain GAIL. The trainer owns the demonstrations, the discriminator and its
-updates, the codes and the reward; its learner (`digail.algos.learners`: PPO, the paper's, or SAC) steps the envs
-and trains pi, one `iterate` per iteration.
+With one code and no bonus this is plain GAIL. The trainer owns the demonstrations, the codes, the imitation reward
+(`digail.algos.rewards`: D and its updates by default) and the bonus; its learner (`digail.algos.learners`: PPO,
+the paper's, or SAC) steps the envs and trains pi, one `iterate` per iteration.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -21,27 +21,20 @@ import torch
 from torch import nn
 
 from digail.algos import fast
-from digail.algos.expert_data import disc_rows, expert_data, relabelled_goals
-from digail.algos.gail.discriminator import PenaltyStep, obs_view
+from digail.algos.expert_data import expert_data
 from digail.algos.learners import LEARNERS, Learner
+from digail.algos.rewards import Reward, build_reward
+from digail.algos.rewards.base import LogitsReward
 from digail.algos.rollout import CodeState, RolloutState
 from digail.checkpoint import load_training_state, rng_state, save_model, save_training_state, set_rng_state
 from digail.config import TrainConfig, to_dict
 from digail.data.trajectory import Trajectory
 from digail.envs.actions import env_action_fn
-from digail.envs.registry import env_spec
 from digail.envs.vector import make_vec_env
 from digail.errors import TrainingError, UserError
-from digail.nets.critic import Discriminator, generator_reward
 from digail.nets.vae import HierarchicalPolicy
 from digail.scalars import ScalarLogger
 from digail.utils import progress_bar, seed_everything
-
-if TYPE_CHECKING:
-    from digail.algos.rewards import Reward
-
-RewardFn = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
-"""(D's logits_expert_is_high (T, N), the rollout batch) -> the policy's reward (T, N) before the bonus"""
 
 CHECKPOINT_VERSION = 2
 """2: the PPO optimiser holds two parameter groups (policy, value), for `PPOConfig.policy_lr`"""
@@ -51,9 +44,9 @@ class GAIL:
     """GAIL on a code-conditioned policy (paper section 2.1; the paper's GAIL baseline uses K = 1), trained by the
     learner `cfg.learner` names (`digail.algos.learners.LEARNERS`).
 
-    It is the `Host` of its learner (`digail.algos.learners.base`): the public methods below are what a learner
-    uses (the envs' resets and actions, the codes, D's updates and the reward), and `learner` is the one object it
-    drives.
+    It is the `Host` of its learner (`digail.algos.learners.base`) and of its reward (`digail.algos.rewards.base`):
+    the public methods below are what they use (the envs' resets and actions, the codes, the bonus), and `learner`
+    and `reward` are the objects it drives.
 
     Args:
         env_id: Gymnasium id of the environment.
@@ -65,19 +58,20 @@ class GAIL:
         run_dir: where checkpoints and scalars go (None: nowhere, e.g. in tests).
         device: torch device of the networks.
         progress: show a progress bar while training.
-        reward_fn: the policy's reward before the bonus from D's `logits_expert_is_high` (T, N) and the rollout
-            batch (default: `generator_reward(logits, cfg.reward)`; e.g. `lambda logits, batch: batch["rews"]`
-            trains on the env's own reward).
+        reward_fn: a D-based reward's pay from D's `logits_expert_is_high` (T, N) and the rollout batch (default:
+            `generator_reward(logits, cfg.imitation.logits_to_reward)`; e.g. `lambda logits, batch: batch["rews"]`
+            trains on the env's own reward, as `--train.imitation.reward env` does).
     """
 
     method = "gail"
 
     def __init__(self, env_id: str, demos: list[Trajectory], model: HierarchicalPolicy, cfg: TrainConfig, *,
                  seed: int = 0, run_dir: Path | None = None, device: str | torch.device = "cpu",
-                 progress: bool = True, reward_fn: RewardFn | None = None) -> None:
+                 progress: bool = True, reward_fn: LogitsReward | None = None) -> None:
         self.env_id, self.cfg, self.seed = env_id, cfg, seed
-        self.reward_fn: RewardFn = reward_fn or (lambda logits, batch: generator_reward(logits, cfg.reward))
-        """the policy's reward before the bonus, from D's logits (T, N) and the rollout batch"""
+        self.demos = demos
+        self.reward_fn = reward_fn
+        """a D-based reward's pay from D's logits (T, N) and the rollout batch (None: the configured one)"""
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.device = torch.device(device)
         self.progress = progress
@@ -93,7 +87,6 @@ class GAIL:
             with torch.no_grad():
                 model.pi.log_std.clamp_(min=cfg.min_init_log_std)
         self.eye = torch.eye(self.K, device=self.device)
-        obs_dim = model.obs_dim
 
         entry = LEARNERS[cfg.learner]
         self.fast_path = fast.enabled()
@@ -107,9 +100,6 @@ class GAIL:
         # what the envs execute for a sampled action, which is also what D sees (identity for discrete actions)
         self.to_env_actions: Callable[[Any], Any] = env_action_fn(probe) or (lambda acts: acts)
         """sampled actions (NumPy or torch, differentiable) -> what the envs execute"""
-        act_in_dim = self.n_actions if self.discrete else int(np.prod(probe.action_space.shape or (1,)))
-        self._act_in_dim = act_in_dim if cfg.imitation.disc_actions else 0
-        """the width of the action part of D's input (0: D judges states alone)"""
         self.iteration = 0
         self.global_step = 0
         self.rollout_state: RolloutState | None = None  # where the next rollout continues (None: fresh episodes)
@@ -123,32 +113,15 @@ class GAIL:
         except BaseException:
             self.envs.close()
             raise
-        self._absorbing = entry.absorbing(cfg)
-        self.disc_view = obs_view(env_id, cfg.disc_obs, model.normalizer,
-                                  np.concatenate([np.asarray(t.obs[:-1], np.float32) for t in demos]))
-        """what D sees of a normalised observation (`--train.disc-obs`); None: all of it"""
-        if self.disc_view is not None:
-            self.disc_view.to(self.device)
-        self._disc_obs_dim = obs_dim if self.disc_view is None else self.disc_view.dim
-        from digail.algos.rewards import REWARDS  # here: the D-based rewards build on this package's D
-
+        self.absorbing = entry.absorbing(cfg)
+        """whether the learner uses absorbing states (DAC): the reward then pays the absorbing state too"""
+        self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
+        """the demonstrations as the rewards' and the BC term's tensors, and q's codes of them"""
         with fast.pinned(self.fast_path):
             # D (a D-based reward's) draws its initial weights here, after the learner's nets, as it always has
-            self.rewarder: Reward = REWARDS[cfg.imitation.kind].build(self)
-            """the imitation reward (`--train.imitation.kind`, `digail.algos.rewards`): D and its updates, or an
-            optimal-transport match against the demonstrations"""
-
-        self.expert = expert_data(self.model, demos, self.act_input, discrete=self.discrete, device=self.device)
-        """the demonstrations as D's and the BC term's tensors, and q's codes of them"""
-        expert_in = self.expert.disc_in
-        if self._absorbing or self.disc_view is not None or not self._act_in_dim:
-            expert_in = self.disc_input(expert_in[:, :obs_dim], expert_in[:, obs_dim:])
-        if cfg.imitation.relabel_goals:
-            expert_in = torch.cat([expert_in, self._relabelled_expert_in(demos, cfg.imitation.relabel_goals)])
-        if self._absorbing:
-            ends = sum(bool(d.terminated) for d in demos)  # one absorbing row per demonstration that terminated
-            expert_in = torch.cat([expert_in, self.absorbing_row().expand(ends, -1)])
-        self._expert_disc_in = expert_in
+            self.reward: Reward = build_reward(self)
+            """the imitation reward (`--train.imitation.reward`, `digail.algos.rewards`): D and its updates, an
+            optimal-transport match against the demonstrations, or a weighted sum of terms"""
         self.recent_returns: deque[float] = deque(maxlen=50)
         self.recent_lengths: deque[float] = deque(maxlen=50)
         self.recent_closed_returns: deque[float] = deque(maxlen=50)
@@ -157,20 +130,9 @@ class GAIL:
                                              "seed": seed, "train": to_dict(cfg)}
         """what `model.pt` records as its config (`digail train` sets the run's config.json content)"""
 
-    def _relabelled_expert_in(self, demos: list[Trajectory], copies: int) -> torch.Tensor:
-        """D's input rows of `copies` goal-relabelled copies of every demonstration step (`relabelled_goals`)."""
-        spec = env_spec(self.env_id)
-        if spec is None or spec.goal_columns is None:
-            raise UserError(f"--train.imitation.relabel-goals needs a goal-conditioned env whose registry entry names "
-                            f"its goal columns (digail/FetchPickAndPlace-v4); {self.env_id} has none: set it to 0.")
-        # its own generator, so relabelling leaves every other random draw of the run as it was
-        obs, acts = relabelled_goals(demos, *spec.goal_columns, copies, np.random.default_rng(self.seed))
-        obs_n, _, rows = disc_rows(self.model, obs, acts, self.act_input, discrete=self.discrete, device=self.device)
-        return self.disc_input(obs_n, rows[:, obs_n.shape[1]:])
-
     # ------------------------------------------------------------------------------------------ actions
     def act_input(self, acts: torch.Tensor) -> torch.Tensor:
-        """Actions as the discriminator sees them: one-hot (discrete) or executed (continuous)."""
+        """Actions as the rewards and the BC term see them: one-hot (discrete) or executed (continuous)."""
         if self.discrete:
             return nn.functional.one_hot(acts.long(), self.n_actions).float()
         return self.to_env_actions(acts)
@@ -248,107 +210,18 @@ class GAIL:
         """Train q on a rollout's codes where the method does (Directed-Info GAIL with `q_lr` > 0); one code: no-op."""
         return {}
 
-    # ------------------------------------------------------------------------------------- discriminator
-    @property
-    def disc(self) -> Discriminator | None:
-        """D of a D-based reward (None for a reward without one)"""
-        return self.rewarder.disc
-
-    @property
-    def disc_optimizer(self) -> torch.optim.Optimizer:
-        """D's Adam (a D-based reward's)"""
-        return self.rewarder.optimizer  # type: ignore[attr-defined]
-
-    @property
-    def penalty_step(self) -> PenaltyStep:
-        """D's plain off-policy step with the gradient penalty (a D-based reward's)"""
-        return self.rewarder.penalty_step  # type: ignore[attr-defined]
-
-    @property
-    def disc_in_dims(self) -> tuple[int, int]:
-        """(D's observation part with the absorbing flag, D's action part): with absorbing states D sees
-        [obs, absorbing flag, action]"""
-        return self._disc_obs_dim + int(self._absorbing), self._act_in_dim
-
-    def disc_features(self, obs_n: torch.Tensor) -> torch.Tensor:
-        """D's view of normalised observations (`--train.disc-obs`; all of them by default)."""
-        return obs_n if self.disc_view is None else self.disc_view(obs_n)
-
-    @property
-    def absorbing(self) -> bool:
-        """whether D also judges an absorbing state (DAC; the learner's choice): its input carries a flag"""
-        return self._absorbing
-
-    @property
-    def expert_disc_in(self) -> torch.Tensor:
-        """D's expert inputs: every demonstration step, and with absorbing states the absorbing state once per
-        demonstration that terminated"""
-        return self._expert_disc_in
-
-    def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
-        """D's input rows for (normalised obs, action as D sees it) pairs: [obs or its view, (absorbing flag 0,)
-        action], the action left out where D judges states alone."""
-        parts = [obs_n if self.disc_view is None else self.disc_view(obs_n)]
-        if self._absorbing:
-            parts.append(obs_n.new_zeros(len(obs_n), 1))
-        if self._act_in_dim:
-            parts.append(act_in)
-        return torch.cat(parts, -1) if len(parts) > 1 else parts[0]
-
-    def absorbing_row(self) -> torch.Tensor:
-        """D's input (1, obs_dim + 1 + A) for the absorbing state: zero observation and action, flag 1."""
-        obs_dim = self._disc_obs_dim
-        row = torch.zeros(1, obs_dim + 1 + self._act_in_dim, device=self.device)
-        row[0, obs_dim] = 1.0
-        return row
-
-    def disc_logits(self, x: torch.Tensor) -> torch.Tensor:
-        """D's logits (n,) for ready input rows x (n, .) (`disc_input`)."""
-        return self.rewarder.logits(x)
-
-    def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor, *,
-                             compile: bool = False) -> dict[str, float]:
-        """The reward's update on a rollout's (normalised obs, D-action) pairs against the expert's: D's passes of
-        `discriminator_update` by default (`compile`: D's loss through `torch.compile`), nothing for a reward
-        without D."""
-        return self.rewarder.update(obs_n, act_in, compile=compile)
-
-    def discriminator_step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
-                           grad_penalty: float) -> torch.Tensor:
-        """One step of D on ready agent and expert rows with the gradient penalty on `mix` (`PenaltyStep` by
-        default)."""
-        return self.rewarder.step(x_agent, x_expert, mix, grad_penalty)
-
     # -------------------------------------------------------------------------------------------- reward
-    def disc_reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        """The policy's reward from D alone (`reward_fn`) for D's `logits_expert_is_high` and their batch."""
-        return self.reward_fn(logits, batch)
-
-    def reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """The policy's reward r = D's reward of `logits` + the bonus (`with_bonus`), and D's part of it."""
-        return self.with_bonus(self.disc_reward(logits, batch), batch)
-
     def with_bonus(self, imitation: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """(r, the imitation reward): r = the imitation reward + lambda_1 * log q(c_t | s_t, c_{t-1})
         (`batch["bonus"]`, the transition's bonus, + lambda_1 log K with `bonus_code_entropy`).
 
-        The one place the reward is written: every learner's reward, from D or not, goes through it."""
+        The one place the bonus is added: every learner's reward goes through it."""
         disc_rew = imitation
         w = self.cfg.bonus_weight
         bonus = w * batch["bonus"]
         if self.cfg.bonus_code_entropy and self.K > 1:
             bonus = bonus + w * math.log(self.K)
         return disc_rew + bonus, disc_rew
-
-    def rollout_reward(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor, act_in: torch.Tensor
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
-        """On-policy: the reward (T, N) of a rollout's steps (the imitation reward's, plus the bonus) and the
-        imitation reward's part; `obs_n`, `act_in` are its flat (T * N) pairs."""
-        return self.with_bonus(self.rewarder.rollout_rewards(batch, obs_n, act_in), batch)
-
-    def replay_reward(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Off-policy: the reward (B,) of replayed transitions at buffer positions `idx`, and its imitation part."""
-        return self.with_bonus(self.rewarder.replay_rewards(b, idx), b)
 
     # ---------------------------------------------------------------------------------------- iteration
     def iterate(self) -> dict[str, float]:
@@ -418,7 +291,7 @@ class GAIL:
             "global_step": self.global_step,
             "learner": self.cfg.learner,
             "model": self.model.state_dict(),
-            **self.rewarder.state_dict(),  # D's "disc" and "disc_optimizer", where checkpoints have kept them
+            **self.reward.state_dict(),  # D's "disc" and "disc_optimizer", where checkpoints have kept them
             "rng": rng_state(self.gen, self.np_rng),
             "recent_returns": torch.tensor(list(self.recent_returns), dtype=torch.float64),
             "recent_lengths": torch.tensor(list(self.recent_lengths), dtype=torch.float64),
@@ -443,7 +316,7 @@ class GAIL:
         self.iteration = int(state["iteration"])
         self.global_step = int(state["global_step"])
         self.model.load_state_dict(state["model"])
-        self.rewarder.load_state_dict(state)
+        self.reward.load_state_dict(state)
         set_rng_state(state["rng"], self.gen, self.np_rng)
         empty = torch.zeros(0, dtype=torch.float64)  # checkpoints written before these were kept
         for name in ("recent_returns", "recent_lengths", "recent_closed_returns"):

@@ -2,8 +2,8 @@
 
 The trainer (`digail.algos.gail.GAIL`, extended by `DirectedInfoGAIL`) owns what every learner shares: the
 demonstrations, the imitation reward (`digail.algos.rewards`: D and its update by default), the macro-policy's
-codes (q frozen) and the reward r = the imitation reward + lambda_1 * log q. A learner (PPO, SAC) owns how the
-policy pi(a | s, c) is trained: it steps the envs through the trainer's hooks, keeps its own networks,
+codes (q frozen) and the bonus: r = the imitation reward + lambda_1 * log q (`with_bonus`). A learner (PPO, SAC)
+owns how the policy pi(a | s, c) is trained: it steps the envs through the trainer's hooks, keeps its own networks,
 optimisers and buffers, and updates pi. It sees the trainer only through `Host`, the typed list of what a learner
 may use, and the trainer sees a learner only through `Learner`.
 
@@ -14,7 +14,6 @@ Adding a learner is one module in `digail.algos.learners` with a class that sati
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
@@ -28,8 +27,6 @@ from digail.algos.rewards.base import Reward
 from digail.algos.rollout import RolloutState
 from digail.config import TrainConfig
 from digail.envs.vector import VectorEnv
-from digail.errors import TrainingError
-from digail.nets.critic import Discriminator
 from digail.nets.vae import HierarchicalPolicy
 
 
@@ -61,13 +58,9 @@ class Host(Protocol):
     """env steps so far; the learner adds the steps it takes"""
     rollout_state: RolloutState | None
     """where the envs stand (None: fresh episodes are due, `reset_envs`)"""
-    rewarder: Reward
-    """the imitation reward (`digail.algos.rewards`): its scalars, and the episodes an off-policy learner stores"""
-
-    @property
-    def disc(self) -> Discriminator | None:
-        """D of a D-based reward (the trainer updates it; a learner may evaluate it); None for a reward without D"""
-        ...
+    reward: Reward
+    """the imitation reward (`digail.algos.rewards`): the learner hands it the agent's steps (`Reward.update`), asks
+    what they earn (`Reward.rewards`) and logs its scalars"""
 
     def reset_envs(self) -> RolloutState: ...
     def env_actions(self, acts: np.ndarray) -> np.ndarray: ...
@@ -80,22 +73,8 @@ class Host(Protocol):
     def frozen_codes(self) -> AbstractContextManager[None]: ...
     def episode_scalars(self) -> dict[str, float]: ...
     def update_macro_policy(self, batch: dict[str, torch.Tensor]) -> dict[str, float]: ...
-    def reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]: ...
-    def rollout_reward(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor, act_in: torch.Tensor
-                       ) -> tuple[torch.Tensor, torch.Tensor]: ...
-    def replay_reward(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]: ...
-    def disc_reward(self, logits: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor: ...
-    def disc_logits(self, x: torch.Tensor) -> torch.Tensor: ...
-    def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor: ...
-    def update_discriminator(self, obs_n: torch.Tensor, act_in: torch.Tensor, *,
-                             compile: bool = False) -> dict[str, float]: ...
-    def discriminator_step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
-                           grad_penalty: float) -> torch.Tensor: ...
-    def absorbing_row(self) -> torch.Tensor: ...
-    @property
-    def expert_disc_in(self) -> torch.Tensor: ...
-    @property
-    def absorbing(self) -> bool: ...
+    def with_bonus(self, imitation: torch.Tensor, batch: dict[str, torch.Tensor]
+                   ) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
 class Learner(Protocol):
@@ -127,12 +106,4 @@ class LearnerEntry:
     num_envs: Callable[[TrainConfig], int]
     """how many envs the trainer makes for it"""
     absorbing: Callable[[TrainConfig], bool] = lambda cfg: False
-    """whether D also judges an absorbing state (DAC): its input then carries a flag beside the observation"""
-
-
-def check_finite(values: dict[str, float], iteration: int) -> None:
-    """Stop the run with one sentence when a loss is not finite (the last good checkpoint stays)."""
-    bad = [k for k, v in values.items() if not math.isfinite(v)]
-    if bad:
-        raise TrainingError(f"non-finite loss ({', '.join(bad)}) at iteration {iteration + 1}; the last good "
-                            "checkpoint is kept - lower the learning rate or check the demonstrations.")
+    """whether it uses absorbing states (DAC): a reward then also pays the absorbing state (D's rows carry a flag)"""

@@ -1,7 +1,7 @@
 """PPO (Schulman et al., 2017) as the trainer's on-policy learner: the paper's.
 
-Per iteration: roll out `steps_per_env` steps of every env (`collect_rollout`), have the trainer update D on the
-rollout's pairs and relabel its rewards, then GAE and the clipped update of pi and the value net V(s, c)
+Per iteration: roll out `steps_per_env` steps of every env (`collect_rollout`), hand the rollout to the reward to
+learn from and pay, then GAE and the clipped update of pi and the value net V(s, c)
 (`digail.algos.ppo`), optionally with the BC term and the anchor term.
 """
 
@@ -14,9 +14,10 @@ from typing import Any
 import torch
 
 from digail.algos.aux_losses import anchor_loss, bc_loss
-from digail.algos.learners.base import Host, check_finite
-from digail.algos.optim import adam
+from digail.algos.learners.base import Host
+from digail.algos.optim import adam, check_finite
 from digail.algos.ppo import PPOBatch, compute_gae, ppo_update
+from digail.algos.rewards.base import Rollout, Steps
 from digail.algos.rollout import collect_rollout
 from digail.errors import UserError
 from digail.nets.critic import ValueNet
@@ -26,7 +27,7 @@ class PPOLearner:
     """PPO on pi(a | s, c) with its value net V(s, c) and one Adam over both (two groups: policy, value).
 
     Args:
-        host: the trainer whose envs, codes, D and reward it uses.
+        host: the trainer whose envs, codes and reward it uses.
     """
 
     def __init__(self, host: Host) -> None:
@@ -68,7 +69,7 @@ class PPOLearner:
         return {k: torch.from_numpy(v).to(h.device) for k, v in batch.items()}
 
     def iterate(self) -> dict[str, float]:
-        """Roll out, update D (the trainer's), relabel the rewards, then the PPO update; returns the scalars."""
+        """Roll out, let the reward learn from the rollout and pay it, then the PPO update; returns the scalars."""
         h, cfg = self.host, self.host.cfg
         t0 = time.perf_counter()
         batch = self.collect()
@@ -76,11 +77,11 @@ class PPOLearner:
         T, N = batch["logp"].shape
         flat_obs = batch["obs"].reshape(T * N, -1)
         flat_acts = batch["acts"].reshape(T * N, *batch["acts"].shape[2:])
-        act_in = h.act_input(flat_acts)
-        stats = h.update_discriminator(flat_obs, act_in, compile=cfg.ppo.compile)
-        stats.update(h.update_macro_policy(batch))
+        steps = Steps(obs=flat_obs, acts=h.act_input(flat_acts), batch=batch)
+        h.reward.update(Rollout(steps, compile=cfg.ppo.compile))
+        stats = h.update_macro_policy(batch)
         with torch.no_grad():
-            rews, disc_rew = h.rollout_reward(batch, flat_obs, act_in)
+            rews, disc_rew = h.with_bonus(h.reward.rewards(steps), batch)
         adv, returns = compute_gae(rews, batch["values"], batch["terminated"], batch["truncated"],
                                    batch["final_values"], batch["last_values"], cfg.ppo.gamma, cfg.ppo.gae_lambda)
         if cfg.ppo.anneal_lr:
@@ -98,13 +99,14 @@ class PPOLearner:
                           if self.anchor_pi is not None else (lambda: torch.zeros(()), 0.0))}
         losses = ppo_update(pi, self.value, self.optimizer, ppo_batch, cfg.ppo, h.gen, aux_losses=aux,
                             train_policy=h.iteration >= cfg.value_warmup)
+        reward_stats = h.reward.scalars()
         check_finite({**losses, **stats}, h.iteration)
         elapsed = time.perf_counter() - t0
         out = {f"losses/{k}": v for k, v in losses.items()}
+        out.update(reward_stats)
         out.update(stats)
         out.update({"rollout/disc_reward": float(disc_rew.mean()), "rollout/reward": float(rews.mean()),
                     "rollout/bonus": float(batch["bonus"].mean())})
-        out.update(h.rewarder.scalars())
         if cfg.imitation.bc_schedule != "fixed":
             out["losses/bc_weight"] = self.bc_weight()
         out.update(h.episode_scalars())

@@ -1,14 +1,15 @@
-"""The interface between the adversarial trainer and an imitation reward.
+"""The interface between the adversarial trainer's learners and an imitation reward.
 
 A reward says how much each agent step looks like the demonstrations. A D-based reward (`disc`: GAIL's binary
-cross-entropy, the positive-unlabeled objective, D's regularisers) owns the discriminator D and its updates; an
-optimal-transport reward (`ot`) owns the demonstrations' view and matches whole episodes against them, with no D
-to train. The trainer adds the directed-info bonus to whatever the reward gives, and its learners (PPO, SAC) reach
-the reward only through the trainer (`digail.algos.learners.base.Host`).
+cross-entropy, the positive-unlabeled objective, D's regularisers) owns the discriminator D, its inputs and its
+updates; an optimal-transport reward (`ot`) matches whole episodes against the demonstrations, with no D to train;
+`WeightedSum` (`sum`) adds terms up. The trainer adds the directed-info bonus to whatever the reward gives; its
+learners (PPO, SAC) hand the reward the agent's steps (`update`) and ask what those steps earn (`rewards`), and know
+nothing else of it.
 
 Adding a reward is one module in `digail.algos.rewards` with a class that satisfies `Reward` (constructed from a
-`RewardHost`) and one `RewardEntry` in `digail.algos.rewards.REWARDS`, under the name `--train.imitation.kind`
-takes (`digail.imitation_config.REWARD_KINDS`).
+`RewardHost` and the shared `digail.algos.rewards.views.RewardInputs`) and one row in
+`digail.algos.rewards.REWARDS`, under a name of `digail.imitation_config.RewardKind`.
 """
 
 from __future__ import annotations
@@ -17,86 +18,74 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+import numpy as np
 import torch
 
 from digail.algos.expert_data import ExpertData
 from digail.config import TrainConfig
-from digail.nets.critic import Discriminator
+from digail.data.trajectory import Trajectory
+from digail.nets.vae import HierarchicalPolicy
 
 LogitsReward = Callable[[torch.Tensor, dict[str, torch.Tensor]], torch.Tensor]
-"""(D's logits_expert_is_high, the batch) -> the reward of those steps (the trainer's `reward_fn`)"""
+"""(D's logits_expert_is_high, the steps' batch) -> the reward of those steps, for a D-based reward (e.g.
+`lambda logits, batch: batch["rews"]` pays the env's own reward)"""
 
 
-class RewardHost(Protocol):
-    """What a reward may use of its trainer."""
+@dataclass(frozen=True)
+class Steps:
+    """Agent steps as a reward reads them: what it learns from (`Reward.update`) and what it pays (`Reward.rewards`)."""
 
-    cfg: TrainConfig
-    device: torch.device
-    K: int
-    gen: torch.Generator
-    """the trainer's torch generator (D's minibatches and noise): saved in checkpoints"""
-    reward_fn: LogitsReward
-    """D's logits -> the policy's reward (`--train.reward`); D-based rewards score with it"""
+    obs: torch.Tensor
+    """(n, obs_dim) normalised observations s_t, flat"""
+    acts: torch.Tensor
+    """(n, A) the actions as rewards see them: one-hot (discrete) or as the env executes them (continuous)"""
+    batch: dict[str, torch.Tensor]
+    """the columns the steps come from: a rollout's (T, N) with T * N = n (`codes`, `terminated`, `truncated`,
+    `ep_offset`, `rews`, ...) or replayed transitions' (n,) (`terminated`, `rews`, ...)"""
+    idx: torch.Tensor | None = None
+    """replayed transitions: their replay buffer positions; None for a rollout's steps"""
+    absorbing: bool = False
+    """the steps are DAC's absorbing state (their `obs` and `acts` are not read)"""
 
-    @property
-    def expert(self) -> ExpertData: ...
-    @property
-    def expert_disc_in(self) -> torch.Tensor: ...
-    @property
-    def absorbing(self) -> bool: ...
-    @property
-    def disc_in_dims(self) -> tuple[int, int]:
-        """(D's observation part, including the absorbing flag; D's action part)"""
-        ...
 
-    def disc_input(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor: ...
-    def disc_features(self, obs_n: torch.Tensor) -> torch.Tensor:
-        """D's view of normalised observations (`--train.disc-obs`): what an optimal-transport reward compares"""
-        ...
+@dataclass(frozen=True)
+class Rollout:
+    """On-policy: a whole rollout to learn from."""
+
+    steps: Steps
+    compile: bool = False
+    """run a D's loss through `torch.compile` (the PPO learner's `--train.ppo.compile`)"""
+
+
+@dataclass(frozen=True)
+class EnvStep:
+    """Off-policy: the transitions one batched env step just stored in the replay buffer, one per env."""
+
+    steps: Steps
+    """their normalised observations s_t, actions and (in `batch`) `codes`; `idx` their buffer positions"""
+    done: np.ndarray
+    """(N,) bool: whether each env's episode ended with its step (terminated or truncated)"""
+    first: np.ndarray
+    """(N,) bool: whether each step began an episode (the envs restart at checkpoints: what was under way ends)"""
+    sample: Callable[[int], Steps] | None
+    """n stored transitions drawn with the trainer's generator; None until the learner updates (`learning_starts`)"""
 
 
 class Reward(Protocol):
-    """An imitation reward: how it learns (if it does) and what it pays each agent step, on-policy and off."""
+    """An imitation reward: how it learns from the agent's steps (if it does) and what it pays for them."""
 
-    @property
-    def disc(self) -> Discriminator | None:
-        """D, for a reward that learns one; None for one that does not (optimal transport)"""
+    def update(self, agent: Rollout | EnvStep) -> None:
+        """Learn from the agent's newest steps against the demonstrations: a whole rollout (on-policy), or the steps
+        of one env step with the replay buffer behind them (off-policy)."""
         ...
 
-    def update(self, obs_n: torch.Tensor, act_in: torch.Tensor, *, compile: bool = False) -> dict[str, float]:
-        """On-policy: learn from a rollout's (normalised obs, D-action) pairs; returns `disc/*` scalars."""
-        ...
-
-    def step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
-             grad_penalty: float) -> torch.Tensor:
-        """Off-policy: one step of D on ready agent and expert rows (penalty points `mix`); returns the detached
-        [loss, agent accuracy, expert accuracy, penalty]."""
-        ...
-
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        """D's logits (n,) for ready input rows (a reward without D raises)."""
-        ...
-
-    def rollout_rewards(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor,
-                        act_in: torch.Tensor) -> torch.Tensor:
-        """On-policy: the reward (T, N) of a rollout's steps; `obs_n`, `act_in` are its (T * N) flat pairs."""
-        ...
-
-    def replay_rewards(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> torch.Tensor:
-        """Off-policy: the reward (B,) of replayed transitions `b` at buffer positions `idx`."""
-        ...
-
-    def observe(self, idx: Any, obs_n: torch.Tensor, codes: torch.Tensor, done: Any) -> None:
-        """Off-policy: the steps just stored at buffer positions `idx` (one per env: normalised s_t, c_t, and
-        whether the env's episode ended with it)."""
-        ...
-
-    def flush(self) -> None:
-        """Off-policy: the episodes under way end here (the envs restart); score what they hold."""
+    def rewards(self, steps: Steps) -> torch.Tensor:
+        """The reward of `steps`: (T, N) for a rollout's, (n,) for replayed transitions or the absorbing state."""
         ...
 
     def scalars(self) -> dict[str, float]:
-        """The reward's own scalars of the last iteration (`reward/*`)."""
+        """The reward's scalars since the last call (`disc/*`, `reward/*`); raises `TrainingError` where a loss of
+        its own is not finite."""
         ...
 
     def state_dict(self) -> dict[str, Any]:
@@ -108,9 +97,29 @@ class Reward(Protocol):
         ...
 
 
-@dataclass(frozen=True)
-class RewardEntry:
-    """One row of the reward registry."""
+class RewardHost(Protocol):
+    """What a reward may use of its trainer."""
 
-    build: Callable[[RewardHost], Reward]
-    """the reward of a trainer (raises `UserError` for settings it cannot run)"""
+    cfg: TrainConfig
+    device: torch.device
+    env_id: str
+    seed: int
+    K: int
+    """number of codes"""
+    gen: torch.Generator
+    """the trainer's torch generator (D's minibatches and noise): saved in checkpoints"""
+    iteration: int
+    """completed training iterations (for messages)"""
+    model: HierarchicalPolicy
+    """its normaliser (fixed) maps the demonstrations' observations"""
+    demos: list[Trajectory]
+    expert: ExpertData
+    """the demonstrations as tensors, and q's codes of them"""
+    discrete: bool
+    absorbing: bool
+    """whether the learner uses absorbing states (DAC): D then judges the absorbing state too"""
+    reward_fn: LogitsReward | None
+    """D's logits -> the policy's reward (None: `--train.imitation.logits-to-reward`)"""
+
+    def act_input(self, acts: torch.Tensor) -> torch.Tensor: ...
+

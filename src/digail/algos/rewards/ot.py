@@ -3,11 +3,11 @@ no discriminator to saturate.
 
 For each demonstration, an entropic transport plan (Sinkhorn, log domain) between the episode's steps and the
 demonstration's, uniform mass on each side, on the cosine distance (or, with `ot_cost`, the Euclidean) of D's view of
-the observations (`--train.disc-obs`). An agent step's reward is minus `ot_scale` times the cost its mass pays,
-averaged over the `ot_top_k` demonstrations the episode is cheapest to move onto. `ot-subtask` adds `ot_code_penalty`
-where the agent's code and the code q gave the demonstration step differ, so a step under sub-task c is matched to the
-demonstration's steps of sub-task c wherever the marginals allow. `ot_time_weight` adds a cost for matching steps far
-apart in episode time (the in-order variant).
+the observations (`--train.imitation.disc-obs`). An agent step's reward is minus `ot_scale` times the cost its mass
+pays, averaged over the `ot_top_k` demonstrations the episode is cheapest to move onto. `ot-subtask` adds
+`ot_code_penalty` where the agent's code and the code q gave the demonstration step differ, so a step under sub-task
+c is matched to the demonstration's steps of sub-task c wherever the marginals allow. `ot_time_weight` adds a cost
+for matching steps far apart in episode time (the in-order variant).
 
 Pieces of episodes (a PPO rollout cuts episodes at its ends; an off-policy run restarts its envs at checkpoints)
 are matched against the demonstrations' steps over the same stretch of episode time, which is exact for
@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from digail.algos.rewards.base import RewardHost
+from digail.algos.rewards.base import EnvStep, RewardHost, Rollout, Steps
+from digail.algos.rewards.views import RewardInputs
 from digail.errors import UserError
 
 _NEG = -1e9
@@ -127,24 +128,21 @@ class OTReward:
     """The optimal-transport reward (`ot`, and `ot-subtask` with the codes); no discriminator.
 
     Args:
-        host: the trainer (D's view, the demonstrations and q's codes of them, the settings).
+        host: the trainer (the demonstrations and q's codes of them, the settings).
+        inputs: D's view of the observations, which the transport compares.
+        kind: `ot`, or `ot-subtask` (codes matched too).
     """
 
-    @property
-    def disc(self) -> None:
-        """no discriminator: the demonstrations are matched as they are"""
-        return None
-
-    def __init__(self, host: RewardHost) -> None:
-        self.host, self.cfg = host, host.cfg.imitation
-        self.subtask = self.cfg.kind == "ot-subtask"
+    def __init__(self, host: RewardHost, inputs: RewardInputs, kind: str = "ot") -> None:
+        self.host, self.inputs, self.cfg, self.kind = host, inputs, host.cfg.imitation, kind
+        self.subtask = kind == "ot-subtask"
         if self.subtask and host.K < 2:
-            raise UserError("--train.imitation.kind ot-subtask matches the agent's sub-task codes with the "
-                            "demonstrations' and this policy has one code; use --train.imitation.kind ot, or "
+            raise UserError("--train.imitation.reward ot-subtask matches the agent's sub-task codes with the "
+                            "demonstrations' and this policy has one code; use --train.imitation.reward ot, or "
                             "--method digail with a VAE of several codes.")
         if host.absorbing:
-            raise UserError(f"--train.imitation.kind {self.cfg.kind} has no discriminator to score absorbing states; "
-                            "drop --train.sac.absorbing or use --train.imitation.kind bce.")
+            raise UserError(f"--train.imitation.reward {kind} has no discriminator to score absorbing states; "
+                            "drop --train.sac.absorbing or use --train.imitation.reward bce.")
         self._demos: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         self._pending: dict[int, list[tuple[int, np.ndarray, int, int]]] = {}
         """off-policy: per env, the (buffer position, features, code, episode time) of its episode so far"""
@@ -160,7 +158,7 @@ class OTReward:
         if self._demos is None:
             expert = self.host.expert
             lengths = torch.as_tensor((expert.replay_codes >= 0).sum(1), dtype=torch.long)
-            feats = self.host.disc_features(expert.obs_n).detach()
+            feats = self.inputs.features(expert.obs_n).detach()
             longest = int(lengths.max())
             padded = feats.new_zeros(len(lengths), longest, feats.shape[1])
             codes = torch.full((len(lengths), longest), -1, dtype=torch.long)
@@ -203,10 +201,15 @@ class OTReward:
         return out
 
     # ------------------------------------------------------------------------------------------ on-policy
-    def rollout_rewards(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor,
-                        act_in: torch.Tensor) -> torch.Tensor:
+    def rewards(self, steps: Steps) -> torch.Tensor:
+        if steps.idx is None:
+            return self._rollout_rewards(steps.batch, steps.obs)
+        return self._replay_rewards(steps.idx, steps.obs.device)
+
+    def _rollout_rewards(self, batch: dict[str, torch.Tensor], obs_n: torch.Tensor) -> torch.Tensor:
+        """The reward (T, N) of a rollout's steps, episode piece by piece; `obs_n` are its (T * N) flat steps."""
         T, N = batch["logp"].shape
-        feats = self.host.disc_features(obs_n).reshape(T, N, -1)
+        feats = self.inputs.features(obs_n).reshape(T, N, -1)
         done = (batch["terminated"] | batch["truncated"]).cpu().numpy()
         offset = batch.get("ep_offset")
         offsets = offset.cpu().numpy() if offset is not None else np.zeros(N, np.int64)
@@ -227,14 +230,24 @@ class OTReward:
             rews[a:b, n] = r
         return rews
 
-    def update(self, obs_n: torch.Tensor, act_in: torch.Tensor, *, compile: bool = False) -> dict[str, float]:
-        return {}
-
     # ----------------------------------------------------------------------------------------- off-policy
-    def observe(self, idx: Any, obs_n: torch.Tensor, codes: torch.Tensor, done: Any) -> None:
+    def update(self, agent: Rollout | EnvStep) -> None:
+        """Nothing to learn; off-policy, the steps just stored are kept until their episode ends and then scored
+        (an episode under way when its env restarts is scored as the piece it is)."""
+        if isinstance(agent, Rollout):
+            return
+        restarted = [n for n in self._pending if agent.first[n]]
+        if restarted:
+            self._score_pending(restarted, whole=False)
+        assert agent.steps.idx is not None
+        self._observe(agent.steps.idx, agent.steps.obs, agent.steps.batch["codes"], agent.done)
+
+    def _observe(self, idx: Any, obs_n: torch.Tensor, codes: torch.Tensor, done: Any) -> None:
+        """The steps just stored at buffer positions `idx` (one per env: normalised s_t, c_t, and whether the env's
+        episode ended with it)."""
         if self._replay is None:
             self._replay = np.zeros(0, np.float32)
-        feats = self.host.disc_features(obs_n).detach().cpu().numpy()
+        feats = self.inputs.features(obs_n).detach().cpu().numpy()
         idx_np, codes_np = np.asarray(idx).reshape(-1), codes.cpu().numpy().reshape(-1)
         need = int(idx_np.max()) + 1
         if need > len(self._replay):  # grows with the buffer (a ring: positions are reused once it is full)
@@ -249,10 +262,6 @@ class OTReward:
                 finished.append(n)
         if finished:
             self._score_pending(finished, whole=True)
-
-    def flush(self) -> None:
-        self._score_pending(list(self._pending), whole=False)
-        self._episode_t.clear()
 
     def _score_pending(self, envs: list[int], whole: bool) -> None:
         pieces, positions = [], []
@@ -270,19 +279,12 @@ class OTReward:
             assert self._replay is not None
             self._replay[pos] = r.cpu().numpy()
 
-    def replay_rewards(self, b: dict[str, torch.Tensor], idx: torch.Tensor) -> torch.Tensor:
+    def _replay_rewards(self, idx: torch.Tensor, device: torch.device) -> torch.Tensor:
+        """The scores of the buffer positions `idx`."""
         if self._replay is None:
-            return torch.zeros(len(idx), device=b["obs"].device)
+            return torch.zeros(len(idx), device=device)
         # the steps of an episode still under way read 0 until it ends (at most one episode per env)
-        return torch.from_numpy(self._replay[idx.cpu().numpy()]).to(b["obs"].device)
-
-    # ------------------------------------------------------------------------------------------------ D
-    def step(self, x_agent: torch.Tensor, x_expert: torch.Tensor, mix: torch.Tensor,
-             grad_penalty: float) -> torch.Tensor:
-        raise UserError(f"--train.imitation.kind {self.cfg.kind} trains no discriminator.")
-
-    def logits(self, x: torch.Tensor) -> torch.Tensor:
-        raise UserError(f"--train.imitation.kind {self.cfg.kind} has no discriminator.")
+        return torch.from_numpy(self._replay[idx.cpu().numpy()]).to(device)
 
     def scalars(self) -> dict[str, float]:
         """`reward/ot_episode`: the mean reward per step of the pieces scored since the last call."""

@@ -1,4 +1,5 @@
-"""The discriminator's updates: binary cross-entropy of D(s, a) with the expert labelled 1 (`logits_expert_is_high`).
+"""The discriminator D(s, a) (`logits_expert_is_high`), the policy's reward from its logits, and its updates: binary
+cross-entropy with the expert labelled 1.
 
 `discriminator_update` runs passes of minibatches over an on-policy rollout (PPO's iteration); `PenaltyStep` is one
 step on replayed pairs with DAC's gradient penalty (SAC's, interleaved with the env steps).
@@ -6,10 +7,8 @@ step on replayed pairs with DAC's gradient penalty (SAC's, interleaved with the 
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable
+from collections.abc import Sequence
 
-import numpy as np
 import torch
 from torch import nn
 
@@ -17,9 +16,41 @@ from digail.algos import fast
 from digail.algos.fast.mlp import plain_layers
 from digail.algos.fast.step import FusedAdamState
 from digail.algos.ppo import maybe_compiled
-from digail.errors import UserError
-from digail.nets.critic import Discriminator
-from digail.nets.normalizer import ObsNormalizer
+from digail.nets.mlp import mlp
+
+
+class Discriminator(nn.Module):
+    """D_omega(s, a) returning `logits_expert_is_high`: sigmoid(logit) = D = P(expert | s, a).
+
+    Trained with binary cross-entropy, expert pairs labelled 1 and agent pairs 0. Actions enter as one-hots for
+    discrete spaces and as the executed (clipped / canonical) action for continuous ones.
+    """
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: Sequence[int] = (64, 64)) -> None:
+        super().__init__()
+        self.net = mlp(obs_dim + act_dim, 1, hidden)
+
+    def forward(self, obs_n: torch.Tensor, act_in: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([obs_n, act_in], -1)).squeeze(-1)
+
+
+def generator_reward(logits_expert_is_high: torch.Tensor, kind: str = "positive") -> torch.Tensor:
+    """Reward for the policy from D's logits l, with D = sigmoid(l) the probability of 'expert'.
+
+    - positive: -log(1 - D) = softplus(l) >= 0. A survival bonus: right for envs that terminate on failure
+      (Hopper, Walker), since each step alive earns reward.
+    - negative: log D = -softplus(-l) <= 0. A step cost: pushes towards ending episodes early.
+    - logit: log D - log(1 - D) = l, the AIRL-style reward, unbiased about episode length.
+    The paper writes the GAN objective with the policy minimising E[log D(s, a)] where D scores the *agent*;
+    with our expert-is-high D the policy maximises any of the above.
+    """
+    if kind == "positive":
+        return nn.functional.softplus(logits_expert_is_high)
+    if kind == "negative":
+        return -nn.functional.softplus(-logits_expert_is_high)
+    if kind == "logit":
+        return logits_expert_is_high
+    raise ValueError(f"unknown reward kind {kind!r}")
 
 
 def disc_loss(disc: Discriminator, x_agent: torch.Tensor, x_expert: torch.Tensor
@@ -73,95 +104,6 @@ def discriminator_update(disc: Discriminator, optimizer: torch.optim.Optimizer, 
     loss_mean, acc_agent, acc_expert = torch.stack(stats).mean(0).tolist() if stats else [0.0] * 3
     return {"disc/loss": loss_mean, "disc/acc_agent": acc_agent, "disc/acc_expert": acc_expert,
             "disc/accuracy": 0.5 * (acc_agent + acc_expert)}
-
-
-class ObsView(nn.Module):
-    """The part of a normalised observation D sees: `fn` of the raw observation (the normaliser undone), normalised
-    again on the demonstrations' values of it.
-
-    Args:
-        fn: raw observations (n, D) -> D's features (n, F), torch in and out (an env's `relative_view`).
-        normalizer: the policy's fixed observation normaliser, whose statistics it undoes.
-        demo_obs: (M, D) raw demonstration observations, which set the features' statistics.
-    """
-
-    mean: torch.Tensor
-    std: torch.Tensor
-
-    def __init__(self, fn: Callable[[torch.Tensor], torch.Tensor], normalizer: ObsNormalizer,
-                 demo_obs: np.ndarray) -> None:
-        super().__init__()
-        self.fn = fn
-        self.register_buffer("mean", normalizer.mean.detach().clone().cpu())
-        self.register_buffer("std", normalizer.std.detach().clone().cpu())
-        with torch.no_grad():
-            feats = _checked_features(fn, torch.as_tensor(np.asarray(demo_obs, np.float32)))
-        self.out = ObsNormalizer(feats.shape[1]).fit(feats.numpy())
-        self.dim = int(feats.shape[1])
-        """F, the features D sees in place of the observation"""
-
-    def forward(self, obs_n: torch.Tensor) -> torch.Tensor:
-        name = getattr(self.fn, "__qualname__", repr(self.fn))
-        try:
-            feats = self.fn(obs_n * self.std + self.mean)
-        except (Exception, SystemExit) as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
-            raise UserError(f"D's view {name} fails on observations met during training ({type(exc).__name__}: "
-                            f"{str(exc).strip()[:120]}); it must map every observation the env gives.") from None
-        # the agent's observations are not the ones checked at the start: a view that changes width would be
-        # broadcast against the demonstrations' statistics, and NaN would reach D's loss as a "non-finite loss"
-        if not (isinstance(feats, torch.Tensor) and feats.shape == (obs_n.shape[0], self.dim)):
-            got = tuple(feats.shape) if isinstance(feats, torch.Tensor) else type(feats).__name__
-            raise UserError(f"D's view {name} returned {got} for {tuple(obs_n.shape)} observations during training "
-                            f"after {self.dim} features per step on the demonstrations at the start; it must give the "
-                            "same number of features for every observation.")
-        if not torch.isfinite(feats).all():
-            raise UserError(f"D's view {name} gives NaN or infinite features on observations met during training "
-                            "(the demonstrations' were finite at the start); make it finite for every observation the "
-                            "env can give.")
-        return self.out(feats.float())
-
-
-def _checked_features(fn: Callable[[torch.Tensor], torch.Tensor], obs: torch.Tensor) -> torch.Tensor:
-    """`fn(obs)`, refused in one sentence unless it is a finite float tensor with a row per observation."""
-    name = getattr(fn, "__qualname__", repr(fn))
-    try:
-        feats = fn(obs)
-    except (Exception, SystemExit) as exc:  # noqa: BLE001  (the user's function: whatever it raises, one answer)
-        raise UserError(f"D's view {name} fails on the demonstrations' observations ({type(exc).__name__}: "
-                        f"{str(exc).strip()[:120]}); it must map a float tensor (n, D) to features (n, F).") from None
-    if not (isinstance(feats, torch.Tensor) and feats.dim() == 2 and feats.shape[0] == obs.shape[0]
-            and feats.shape[1] >= 1 and feats.is_floating_point()):
-        got = tuple(feats.shape) if isinstance(feats, torch.Tensor) else type(feats).__name__
-        raise UserError(f"D's view {name} returned {got} for {tuple(obs.shape)} observations; it must return a "
-                        "float tensor with one row of features per observation, (n, F).")
-    if not torch.isfinite(feats).all():
-        raise UserError(f"D's view {name} gives NaN or infinite features on the demonstrations; make it finite.")
-    return feats.float()
-
-
-SHIPPED_VIEWS = frozenset({"digail.envs.fetch:placing_view", "digail.envs.fetch:distances_view",
-                           "digail.envs.fetch:log_distances_view"})
-"""`module:function` views that digail itself ships beside the envs' relative views: a run folder that records one
-names no code of the user's, so resuming it needs no `--train.disc-obs`"""
-
-
-def obs_view(env_id: str, kind: str, normalizer: ObsNormalizer, demo_obs: np.ndarray) -> ObsView | None:
-    """D's view of the observation for `--train.disc-obs kind`: None for `all`, the env's relative view for
-    `relative`, or the user's function for `module:function`."""
-    if kind == "all":
-        return None
-    if kind == "relative":
-        from digail.envs.registry import env_spec
-
-        spec = env_spec(env_id)
-        if spec is None or spec.relative_view is None:
-            raise UserError(f"{env_id} has no relative view of its observation for D; use --train.disc-obs all, or "
-                            "write one and pass it as --train.disc-obs module:function.")
-        module, _, name = spec.relative_view.partition(":")
-        return ObsView(getattr(importlib.import_module(module), name), normalizer, demo_obs)
-    from digail.user_envs import import_function
-
-    return ObsView(import_function(kind, "--train.disc-obs"), normalizer, demo_obs)
 
 
 class PenaltyStep:
