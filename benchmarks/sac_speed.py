@@ -82,12 +82,14 @@ def ours_runner(env_id: str, spec: str, *, gail: bool, hand: bool = True, seed: 
     from digail.commands.train import load_demos
     from digail.config import SACConfig, TrainConfig
     from digail.data.demos import default_dataset_id
+    from digail.imitation_config import ImitationConfig
 
     pi, q = _sizes(spec)
     demos, _ = load_demos(default_dataset_id(env_id), env_id, episodes=4)
     sac = SACConfig(steps_per_iteration=WARMUP, learning_starts=WARMUP, batch_size=BATCH, hidden=(q, q),
-                    policy_warmup=0, buffer_size=100_000, disc_every=1 if gail else 0)
-    cfg = TrainConfig(method="gail", learner="sac", hidden=(pi, pi), backend="sync", sac=sac)
+                    policy_warmup=0, buffer_size=100_000)
+    cfg = TrainConfig(method="gail", learner="sac", hidden=(pi, pi), backend="sync", sac=sac,
+                      imitation=ImitationConfig(disc_every=1 if gail else 0))
     reward_fn = None if gail else (lambda logits, batch: batch["rews"])
     trainer = build_trainer(env_id, demos, cfg, vae_model=None, seed=seed, run_dir=None, progress=False,
                             reward_fn=reward_fn)

@@ -8,10 +8,10 @@ import torch
 
 from digail.algos.rewards.views import ObsView, obs_view
 from digail.config import PPOConfig, TrainConfig
-from digail.imitation_config import ImitationConfig
 from digail.data.trajectory import Trajectory
 from digail.envs.fetch import relative_view
 from digail.errors import UserError
+from digail.imitation_config import ImitationConfig
 from digail.nets.normalizer import ObsNormalizer
 
 

@@ -134,8 +134,8 @@ def _resume_view(tmp: Path) -> None:
     cli(tmp, "train", "--resume", "run")
 
 
-@probe("data-resume-other-disc-obs", "`digail train --resume run --train.imitation.disc-obs view5c:view` where config.json "
-       "records `view5b:view`", "--train.imitation.disc-obs view5b:view")
+@probe("data-resume-other-disc-obs", "`digail train --resume run --train.imitation.disc-obs view5c:view` where "
+       "config.json records `view5b:view`", "--train.imitation.disc-obs view5b:view")
 def _resume_other_view(tmp: Path) -> None:
     plant(tmp, "view5b", "def view(x):\n    return x\n")
     plant(tmp, "view5c", "def view(x):\n    return x\n")
@@ -200,8 +200,8 @@ def _sweep_env_module(tmp: Path) -> None:
     _in(tmp, lambda: sweep_check(spec=spec, tmp=tmp))
 
 
-@probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.imitation.disc_obs=view5d:THRESHOLD` (a number in the "
-       "user's module)", "is not a function of yours")
+@probe("sweep-disc-obs-not-a-function", "`digail sweep --set train.imitation.disc_obs=view5d:THRESHOLD` (a number "
+       "in the user's module)", "is not a function of yours")
 def _sweep_number(tmp: Path) -> None:
     plant(tmp, "view5d", "THRESHOLD = 3\n")
     _in(tmp, lambda: sweep_check(("train.imitation.disc_obs=view5d:THRESHOLD",)))
@@ -256,8 +256,8 @@ def _view_nan_later(tmp: Path) -> None:
     cli(tmp, "train", *SMOKE, "--train.imitation.disc-obs", "view_nan5:view", "--out", "run-new")
 
 
-@probe("view-width-changes", "`digail train --train.imitation.disc-obs m:view` with a view that gives 2 features on the "
-       "demonstrations and 1 after", "must give the same number of features for every observation")
+@probe("view-width-changes", "`digail train --train.imitation.disc-obs m:view` with a view that gives 2 features on "
+       "the demonstrations and 1 after", "must give the same number of features for every observation")
 def _view_width_later(tmp: Path) -> None:
     plant(tmp, "view_width5", "calls = [0]\ndef view(x):\n    calls[0] += 1\n"
                               "    return x if calls[0] == 1 else x[:, :1]\n")
@@ -313,8 +313,10 @@ for _pid, _value, _expect in [
 
 
 for _pid, _text, _expect in [
-    ("again-spec-disc-obs-os", f'envs = ["{CW}"]\n[set]\n"train.imitation.disc_obs" = "os:system"\n', "standard library"),
-    ("again-spec-grid-disc-obs", f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.imitation.disc_obs" = ["all", "sys:exit"] }}\n',
+    ("again-spec-disc-obs-os", f'envs = ["{CW}"]\n[set]\n"train.imitation.disc_obs" = "os:system"\n',
+     "standard library"),
+    ("again-spec-grid-disc-obs",
+     f'[[grid]]\nenvs = ["{CW}"]\nset = {{ "train.imitation.disc_obs" = ["all", "sys:exit"] }}\n',
      "standard library"),
 ]:
     probe(_pid, f"`digail sweep --spec spec.toml` whose spec sets {_text.split(chr(10))[-2]}", _expect)(

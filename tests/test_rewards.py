@@ -338,7 +338,8 @@ def test_anneal_decays_the_bc_weight_to_zero(circle_demos):
         trainer.close()
 
 
-@pytest.mark.parametrize("imitation", [ImitationConfig(reward="pu", disc_noise=0.1, spectral_norm=True, disc_dropout=0.1),
+@pytest.mark.parametrize("imitation", [ImitationConfig(reward="pu", disc_noise=0.1, spectral_norm=True,
+                                                       disc_dropout=0.1),
                                        ImitationConfig(reward="ot", ot_time_weight=0.5),
                                        ImitationConfig(reward="ot", ot_cost="euclidean")])
 def test_sac_runs_each_reward_with_plain_gail(imitation):

@@ -371,8 +371,8 @@ def test_search_space_and_sample_runs_named_after_their_values():
     domains = tune_space(space)
     assert isinstance(domains["train.bonus_weight"], tune.search.sample.Float)
     assert isinstance(domains["train.ppo.epochs"], tune.search.sample.Integer)
-    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2, "train.imitation.logits_to_reward": "negative"},
-                       tuple(sorted(space)))
+    jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2,
+                              "train.imitation.logits_to_reward": "negative"}, tuple(sorted(space)))
     runs = sorted(j.run for j in jobs if j.kind == "trial")
     assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123__train.ppo.epochs=2"
                        "__train.imitation.logits_to_reward=negative")

@@ -23,12 +23,12 @@ from typing import Any
 import torch
 
 from digail.algos.directed_info_gail import build_trainer
+from digail.algos.rewards.discriminator import generator_reward
 from digail.checkpoint import load_model
 from digail.config import TrainConfig
 from digail.data.minari_io import load_dataset
 from digail.envs.circle_world import STEPS_PER_CIRCLE
 from digail.eval.returns import run_episodes, task_metrics
-from digail.nets.critic import generator_reward
 from digail.preset import get_preset
 
 ENV, DEMOS = "digail/CircleWorld-v0", "digail/circleworld/expert-v0"
@@ -73,7 +73,8 @@ def discriminator_direction_sensitivity(vae: Path, cfg: TrainConfig) -> None:
         for deg in (-10, -2, 0, 2, 10):
             c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
             rot = torch.stack([c * acts[:, 0] - s * acts[:, 1], s * acts[:, 0] + c * acts[:, 1]], -1)
-            reward = generator_reward(trainer.disc(obs, trainer.act_input(rot)), cfg.reward)
+            logits = trainer.reward.disc(obs, trainer.act_input(rot))
+            reward = generator_reward(logits, cfg.imitation.logits_to_reward)
             print(f"   {deg:+4d} deg: {float(reward.mean()):.4f}")
 
 

@@ -292,7 +292,7 @@ def pieces_study(rounds: int) -> dict[str, Any]:
         if piece == "-sac hand":
             tr.learner.sac.hand = False
         if piece == "-d hand":
-            tr.penalty_step.hand = False
+            tr.reward.penalty_step.hand = False
         return _nothing()
 
     out: dict[str, Any] = {}

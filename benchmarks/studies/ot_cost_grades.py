@@ -8,7 +8,7 @@
 
 The agent's evaluation episodes (deterministic, closed-loop q, seeds 10000 on, as `digail evaluate`) and the
 dataset's held-out expert episodes 5-12 are scored whole against the first 4 demonstrations of
-digail/fetchpickandplace/expert-v0, as `--train.imitation.kind ot` scores them, for each view of the state
+digail/fetchpickandplace/expert-v0, as `--train.imitation.reward ot` scores them, for each view of the state
 (features standardised on the demonstrations, as D's view is) and each cost. A cost that grades placing gives the
 agent's failed episodes a lower reward than its successes and than held-out experts, and ranks the agent's episodes
 by how close the block ends to the goal (Spearman's rho of the reward against minus the final distance).

@@ -3,7 +3,7 @@
     python benchmarks/studies/ot_reward_grades.py --vae runs/fetchfew/d4/bc_k4_s0 \
         --out benchmarks/studies/results/ot_reward_grades.json
 
-The reward of `--train.imitation.kind ot` and `ot-subtask` against the first 4 demonstrations of
+The reward of `--train.imitation.reward ot` and `ot-subtask` against the first 4 demonstrations of
 digail/fetchpickandplace/expert-v0, on Fetch's relative view through the VAE's normaliser (what the screen's
 runs use), for the dataset's episodes 5-12 (expert episodes the reward never saw) and 8 episodes of uniform random
 actions (env seeds 100-107, NumPy seed 0). Each episode is scored whole; its codes are q's causal segmentation
@@ -29,7 +29,7 @@ def piece(trainer: Any, traj: Any, segment_many: Any) -> tuple[torch.Tensor, tor
     """A whole episode as the transport reward scores it: D's view of its states, q's codes, time 0, whole."""
     obs_n = trainer.model.normalizer(torch.as_tensor(np.asarray(traj.obs[:-1], np.float32)))
     codes = torch.as_tensor(segment_many(trainer.model, [traj])[0])
-    return trainer.disc_features(obs_n).detach(), codes, 0, True
+    return trainer.reward.inputs.features(obs_n).detach(), codes, 0, True
 
 
 def main() -> None:
@@ -68,12 +68,12 @@ def main() -> None:
                               "held_out_episodes": "5-12", "random_episodes": 8}
     for kind in ("ot", "ot-subtask"):
         model, _ = load_model(args.vae / "model.pt")
-        cfg = replace(base, disc_obs="relative", replay_fraction=0.0, closed_loop_codes="argmax", backend="sync",
-                      imitation=ImitationConfig(kind=kind),
+        cfg = replace(base, replay_fraction=0.0, closed_loop_codes="argmax", backend="sync",
+                      imitation=ImitationConfig(reward=kind, disc_obs="relative"),
                       ppo=replace(base.ppo, num_envs=1, batch_size=64, minibatch_size=64))
         trainer = build_trainer(env_id, demos, cfg, vae_model=model, seed=0, run_dir=None, progress=False)
         try:
-            reward = trainer.rewarder
+            reward = trainer.reward
             for name, eps in (("held_out_expert", held_out), ("random_actions", random_eps)):
                 pieces = [piece(trainer, t, segment_many) for t in eps]
                 per_episode = [round(float(r.mean()), 4) for r in reward.score(pieces)]  # type: ignore[attr-defined]

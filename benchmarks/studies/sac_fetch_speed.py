@@ -12,8 +12,8 @@ CPU time (steps per CPU second) and by the wall clock. Variants:
 - every4_b1024: one update every 4 env steps on a batch 4x as large (`--train.sac.utd 0.25
   --train.sac.batch-size 1024`), D as today: the same transitions seen per env step, fewer, larger products;
 - every2_b256, every4_b256: one update of batch 256 every 2 (4) env steps (`--train.sac.utd 0.5`, `0.25`);
-- every4_b256_d4: that, with D stepped every 4 env steps on a minibatch 4x as large (`--train.sac.disc-every 4
-  --train.disc-minibatch-size 1024`: the same D samples per env step);
+- every4_b256_d4: that, with D stepped every 4 env steps on a minibatch 4x as large (`--train.imitation.disc-every 4
+  --train.imitation.disc-minibatch-size 1024`: the same D samples per env step);
 - today_nobc, every4_b256_nobc: without the BC term (the hand-written gradients then run: what BC costs).
 
 `cpu_minutes_1m_*` projects the CPU minutes of 1M env steps from the CPU rate. The result goes to `--out`.
