@@ -20,7 +20,7 @@ from digail.checks import check_at_least as check_at_least
 from digail.checks import check_codes as check_codes
 from digail.checks import check_seed as check_seed
 from digail.errors import UserError
-from digail.imitation_config import ImitationConfig
+from digail.imitation_config import ImitationConfig, upgraded_train_dict
 
 CONTROLLER_RIDGE = 1e-4
 """the start's ridge for continuous actions under `init_actions auto` (`VAEConfig.start_ridge`): small enough that a
@@ -89,6 +89,12 @@ class VAEConfig:
     such as arcs take one code each, but on many state features extra codes keep paying), or `vae`, that of a whole
     VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes where the
     state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
+    k_ridge: float | None = 1.0
+    """ridge of the `linear` and `rff` criteria's sub-task policies (None: the start's, `start_ridge`)"""
+    k_min_share: float = 0.0
+    """`--codes auto` with the `linear` or `rff` criterion only weighs a K whose every code appears in at least this
+    share of the fitted demonstrations (0: every K): a sub-task is a step most demonstrations take, and a code that
+    only a few take marks how those few differ (a regrasp, a slip) rather than a phase of the task"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -142,6 +148,10 @@ class VAEConfig:
     segmentation (pi keeps the segmentation as it is): the macro-policy then switches when the agent passes
     near the end of a sub-task, not only exactly where the expert switched"""
 
+    def curve_ridge(self, discrete: bool) -> float:
+        """The ridge of the K curve's sub-task policies (`k_ridge`, or the start's)."""
+        return self.start_ridge(discrete) if self.k_ridge is None else self.k_ridge
+
     def start_ridge(self, discrete: bool) -> float:
         """The ridge of the start's sub-task policies (`init_ridge`, or its default for these actions)."""
         if self.init_ridge is not None:
@@ -153,7 +163,7 @@ class VAEConfig:
         _check_numbers(self, "--vae.", dict(steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
                                             q_anticipate=0, restarts=1, init_steps=0),
                        ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr", "init_ridge",
-                        "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction"))
+                        "k_ridge", "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction", "k_min_share"))
         if self.epochs is not None:
             _require(isinstance(self.epochs, int) and self.epochs >= 0, "--vae.epochs", "at least 0", self.epochs)
         _require(self.init in ("em", "none"), "--vae.init", "em or none", self.init)
@@ -440,39 +450,6 @@ class TrainConfig:
 def to_dict(cfg: Any) -> dict[str, Any]:
     """A config dataclass as plain JSON-able data (tuples become lists)."""
     return dataclasses.asdict(cfg)
-
-
-MOVED_TRAIN_KEYS: dict[str, str] = {
-    "disc_updates": "disc_updates", "disc_lr": "disc_lr", "disc_minibatch_size": "disc_minibatch_size",
-    "disc_obs": "disc_obs", "reward": "logits_to_reward",
-}
-"""`TrainConfig` keys of older config.json files that are now `imitation`'s: old key -> its name there"""
-
-
-def upgraded_train_dict(data: dict[str, Any]) -> dict[str, Any]:
-    """A `TrainConfig` dict as older versions wrote it, with D's settings moved into `imitation` (where the new key
-    is not set already): the top-level `disc_*` and `reward`, `sac.disc_every`, `imitation.kind` (now `reward`), and
-    the two gradient penalties (`disc_grad_penalty` of PPO runs, `sac.grad_penalty` of SAC runs) as one."""
-    data = dict(data)
-    imitation = dict(data.get("imitation") or {})
-    sac = dict(data.get("sac") or {}) if isinstance(data.get("sac"), dict) else data.get("sac")
-    for old, new in MOVED_TRAIN_KEYS.items():
-        if old in data:
-            imitation.setdefault(new, data.pop(old))
-    penalty_ppo = data.pop("disc_grad_penalty", None)
-    penalty_sac = sac.pop("grad_penalty", None) if isinstance(sac, dict) else None
-    penalty = penalty_sac if data.get("learner") == "sac" else penalty_ppo
-    if penalty is not None:
-        imitation.setdefault("disc_grad_penalty", penalty)
-    if isinstance(sac, dict) and "disc_every" in sac:
-        imitation.setdefault("disc_every", sac.pop("disc_every"))
-    if "kind" in imitation:
-        imitation.setdefault("reward", imitation.pop("kind"))
-    if imitation or "imitation" in data:
-        data["imitation"] = imitation
-    if sac is not None:
-        data["sac"] = sac
-    return data
 
 
 def from_dict(cls: type, data: dict[str, Any]) -> Any:

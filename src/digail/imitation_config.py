@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 from digail.errors import UserError
 
@@ -195,3 +195,36 @@ class ImitationConfig:
         """whether D's updates differ from plain GAIL's by a regulariser (then they run on autograd, as the PU loss
         always does)"""
         return self.disc_noise > 0 or self.spectral_norm or self.disc_dropout > 0 or self.disc_weight_decay > 0
+
+
+MOVED_TRAIN_KEYS: dict[str, str] = {
+    "disc_updates": "disc_updates", "disc_lr": "disc_lr", "disc_minibatch_size": "disc_minibatch_size",
+    "disc_obs": "disc_obs", "reward": "logits_to_reward",
+}
+"""`TrainConfig` keys of older config.json files that are now `imitation`'s: old key -> its name there"""
+
+
+def upgraded_train_dict(data: dict[str, Any]) -> dict[str, Any]:
+    """A `TrainConfig` dict as older versions wrote it, with D's settings moved into `imitation` (where the new key
+    is not set already): the top-level `disc_*` and `reward`, `sac.disc_every`, `imitation.kind` (now `reward`), and
+    the two gradient penalties (`disc_grad_penalty` of PPO runs, `sac.grad_penalty` of SAC runs) as one."""
+    data = dict(data)
+    imitation = dict(data.get("imitation") or {})
+    sac = dict(data.get("sac") or {}) if isinstance(data.get("sac"), dict) else data.get("sac")
+    for old, new in MOVED_TRAIN_KEYS.items():
+        if old in data:
+            imitation.setdefault(new, data.pop(old))
+    penalty_ppo = data.pop("disc_grad_penalty", None)
+    penalty_sac = sac.pop("grad_penalty", None) if isinstance(sac, dict) else None
+    penalty = penalty_sac if data.get("learner") == "sac" else penalty_ppo
+    if penalty is not None:
+        imitation.setdefault("disc_grad_penalty", penalty)
+    if isinstance(sac, dict) and "disc_every" in sac:
+        imitation.setdefault("disc_every", sac.pop("disc_every"))
+    if "kind" in imitation:
+        imitation.setdefault("reward", imitation.pop("kind"))
+    if imitation or "imitation" in data:
+        data["imitation"] = imitation
+    if sac is not None:
+        data["sac"] = sac
+    return data
