@@ -180,6 +180,14 @@ def test_one_standard_error_rule_keeps_the_smallest_k_the_data_cannot_tell_from_
         c["dl_per_step"] = float(np.mean(c["episode_dl"]))
     assert smallest_within_one_se(curve[:3]) == 1  # K = 3 is within noise of K = 4, the lowest
     assert smallest_within_one_se(curve) == 3  # K = 5 is lower by far more than its standard error
+    # K = 5 leaves a code that few fitted demonstrations take: with a minimum share it is not weighed, and K = 3
+    # is within noise of the lowest of those left, K = 4
+    for c, share in zip(curve, (1.0, 0.9, 0.6, 0.1), strict=True):
+        c["least_used_share"] = share
+    assert smallest_within_one_se(curve, 0.5) == 1
+    assert smallest_within_one_se(curve, 0.0) == 3
+    assert smallest_within_one_se(curve, 0.95) == 0  # only K = 2 is left
+    assert smallest_within_one_se(curve, 1.1) == 3  # none is left: all are weighed
 
 
 def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minari_root: Path) -> None:

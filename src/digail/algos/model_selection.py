@@ -88,7 +88,7 @@ def best_index(scores: Sequence[dict[str, Any]], key: str = "dl_per_step") -> in
     return int(np.argmin([s[key] for s in scores]))
 
 
-def smallest_within_one_se(curve: Sequence[dict[str, Any]]) -> int:
+def smallest_within_one_se(curve: Sequence[dict[str, Any]], min_share: float = 0.0) -> int:
     """Index of the smallest K whose held-out description length is within one standard error of the lowest.
 
     The curve's entries are in increasing K and carry `episode_dl` (nats per held-out episode, the same episodes
@@ -96,10 +96,14 @@ def smallest_within_one_se(curve: Sequence[dict[str, Any]]) -> int:
     differ far more from one another than the models do). Why not the lowest outright: past the true K the curve
     is flat to within noise (extra codes split a sub-task where it costs nothing), and its lowest point there is
     chance; the one-standard-error rule keeps the simplest model the data cannot tell from the best.
+
+    `min_share`: only the entries whose `least_used_share` (the share of the fitted demonstrations the least used
+    code appears in) reaches it are weighed; when none does, all are.
     """
-    best = best_index(curve)
+    weighed = [i for i, e in enumerate(curve) if e.get("least_used_share", 1.0) >= min_share] or list(range(len(curve)))
+    best = weighed[best_index([curve[i] for i in weighed])]
     ref = np.asarray(curve[best]["episode_dl"], np.float64)
-    for i, entry in enumerate(curve):
+    for i, entry in ((i, curve[i]) for i in weighed):
         diff = np.asarray(entry["episode_dl"], np.float64) - ref
         se = diff.std(ddof=1) / math.sqrt(len(diff)) if len(diff) > 1 else 0.0
         if diff.mean() <= se:

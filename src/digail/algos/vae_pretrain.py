@@ -364,8 +364,9 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
     # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
     curve: list[dict[str, Any]] = heldout_codes_curve(fit_on, held, candidates, discrete, seed=seed,
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
-                                                      model=cfg.k_criterion, actions=cfg.init_actions)
-    pick = smallest_within_one_se(curve)
+                                                      model=cfg.k_criterion, actions=cfg.init_actions,
+                                                      ridge=cfg.curve_ridge(discrete))
+    pick = smallest_within_one_se(curve, cfg.k_min_share)
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
         entry["chosen"] = i == pick
