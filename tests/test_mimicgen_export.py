@@ -121,3 +121,17 @@ def test_export_writes_the_plan_and_says_it(tmp_path):
         for key in im.episode_keys:
             signal = f[f"data/{key}/{SIGNALS_PATH}/reach"][()]
             assert mimicgen_ends({"reach": signal}, ["reach", None], len(signal))[0] == 6
+
+
+def test_names_follow_the_demonstrated_order_whatever_the_code_numbers():
+    """`--names reach carry place` names the sub-task the demonstrations take first "reach", whichever code number
+    the training gave it; a rarer code comes after the common ones and a code never taken last."""
+    from digail.data.annotations import demonstrated_order, names_by_code
+
+    # code 2 first, then code 0, then code 3; code 1 in one demonstration of three only
+    codes = [np.repeat([2, 0, 3], [5, 5, 5]), np.repeat([2, 0, 1, 3], [4, 6, 2, 5]), np.repeat([2, 0, 3], [6, 3, 6])]
+    assert demonstrated_order(codes, 5) == [2, 0, 3, 1, 4]
+    names = names_by_code(["reach", "carry", "place", "regrasp", "never"], codes)
+    assert names == ["carry", "regrasp", "reach", "place", "never"]
+    plan = plan_subtasks(codes, 5)
+    assert plan_line(plan, names).startswith("MimicGen sub-tasks in the demonstrated order: reach, carry, place ")

@@ -31,7 +31,8 @@ class SegmentArgs:
     out: Path | None = None
     """the file or folder --export writes (never the input)"""
     names: tuple[str, ...] | None = None
-    """one name per code for the exported annotations (default: code_0, code_1, ...)"""
+    """one name per code for the exported annotations, in the order the demonstrations take the sub-tasks (the
+    first name goes to the code that comes first, whatever its number; default: code_0, code_1, ...)"""
     obs_keys: tuple[str, ...] | None = None
     """robomimic / LeRobot --demos only: the observation keys to read, as given to `digail import --obs-keys`
     (default: the keys the run's dataset was imported with, in that order)"""
@@ -54,7 +55,7 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     from digail.algos.decode import read_codes
     from digail.checkpoint import load_model, read_config
     from digail.commands.common import check_output_folder
-    from digail.data.annotations import check_export, code_names, export_segmentation
+    from digail.data.annotations import check_export, code_names, export_segmentation, names_by_code
     from digail.data.importers import is_import_source, prepare_import
     from digail.data.minari_io import load_dataset
     from digail.eval.segmentation import summary_line, write_segmentation
@@ -106,6 +107,8 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
                 raise UserError(f"--label-map gives {len(args.label_map)} labels but {demos} has labels "
                                 f"{min(labels)} to {max(labels)}; give one number per oracle label.")
         codes = read_codes(model, trajs, args.reading)
+        if args.names:  # given in the demonstrated order
+            names = names_by_code(names, codes)
         if args.export is not None and args.out is not None:
             # written before the run folder: a refusal the export finds only in the source (a clash of names, a
             # column already there, a frame gap) leaves the run's segmentation as it was
@@ -114,7 +117,7 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
                                        force=args.force, notes=notes, reading=args.reading)
             for note in notes:
                 print(f"note: {note}.")
-            print(f"wrote the segmentation as {args.export} annotations ({', '.join(names)}) to {path}")
+            print(f"wrote the segmentation as {args.export} annotations ({', '.join(args.names or names)}) to {path}")
         metrics = write_segmentation(run, model, trajs, demos=str(demos), label_map=args.label_map, codes=codes,
                                      reading=args.reading)
         print(summary_line(metrics))

@@ -330,13 +330,13 @@ def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str]
     Raises:
         UserError: a demonstration too short to hold every sub-task.
     """
+    from digail.data.annotations import demonstrated_order
+
     codes = [np.asarray(c).reshape(-1) for c in codes]
     n = len(codes)
     present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
-    used = [k for k in range(n_codes) if 2 * present[k] >= n and present[k] > 0] or [int(np.argmax(present))]
-    where = {k: float(np.median([np.flatnonzero(c == k)[0] / len(c) for c in codes if (c == k).any()]))
-             for k in used}
-    order = tuple(sorted(used, key=lambda k: (where[k], k)))
+    used = {k for k in range(n_codes) if 2 * present[k] >= n and present[k] > 0} or {int(np.argmax(present))}
+    order = tuple(k for k in demonstrated_order(codes, n_codes) if k in used)
     need = len(order) + 1 if len(order) > 1 else 1  # one sub-task: nothing to cut
     boundaries, refitted = [], 0
     for i, c in enumerate(codes):
