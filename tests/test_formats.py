@@ -20,7 +20,7 @@ from conftest import repo_module
 from digail.cli import main
 from digail.data.annotations import export_segmentation, segments
 from digail.data.importers import is_import_source, read_demonstrations
-from digail.data.robomimic import term_signals
+from digail.data.subtask_plan import term_signals
 from digail.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,8 @@ import pytest
 
 from digail.data.annotations import export_segmentation
 from digail.data.importers import read_demonstrations
-from digail.data.robomimic import SIGNALS_PATH, plan_line, plan_signals, plan_subtasks, term_signals
+from digail.data.robomimic import SIGNALS_PATH
+from digail.data.subtask_plan import plan_line, plan_signals, plan_subtasks, term_signals
 from digail.errors import UserError
 
 FIXTURES = Path(__file__).resolve().parent / "data" / "formats"
@@ -126,7 +127,7 @@ def test_export_writes_the_plan_and_says_it(tmp_path):
 def test_names_follow_the_demonstrated_order_whatever_the_code_numbers():
     """`--names reach carry place` names the sub-task the demonstrations take first "reach", whichever code number
     the training gave it; a rarer code comes after the common ones and a code never taken last."""
-    from digail.data.annotations import demonstrated_order, names_by_code
+    from digail.data.subtask_plan import demonstrated_order, names_by_code
 
     # code 2 first, then code 0, then code 3; code 1 in one demonstration of three only
     codes = [np.repeat([2, 0, 3], [5, 5, 5]), np.repeat([2, 0, 1, 3], [4, 6, 2, 5]), np.repeat([2, 0, 3], [6, 3, 6])]
@@ -135,3 +136,22 @@ def test_names_follow_the_demonstrated_order_whatever_the_code_numbers():
     assert names == ["carry", "regrasp", "reach", "place", "never"]
     plan = plan_subtasks(codes, 5)
     assert plan_line(plan, names).startswith("MimicGen sub-tasks in the demonstrated order: reach, carry, place ")
+
+
+def test_a_boundary_at_the_command_to_close_moves_to_where_the_fingers_stop():
+    """robosuite's Stack demonstration 0: the gripper is commanded closed at step 33 (where the codes switch) and
+    its fingers move until step 39, where MimicGen's grasp signal turns 1; the boundary moves there. Where the
+    fingers do not move, or moving would reach the next boundary, it stays."""
+    from digail.data.subtask_plan import settle_grasps
+
+    speed = np.full(60, 0.0004)
+    speed[34:39] = [0.019, 0.0406, 0.053, 0.0597, 0.0639]
+    speed[39] = 0.0091
+    codes = [np.repeat([0, 1, 2], [33, 12, 15])] * 3
+    plan = plan_subtasks(codes, 3)
+    assert plan.boundaries[0] == (33, 45)
+    settled = settle_grasps(plan, [speed, np.full(60, 0.0004), None])
+    assert settled.boundaries == ((39, 45), (33, 45), (33, 45)) and settled.settled == 1
+    assert "1 boundaries moved from the command to close" in plan_line(settled, ["a", "b", "c"])
+    crowded = plan_subtasks([np.repeat([0, 1, 2], [33, 4, 23])], 3)  # the next sub-task starts at 37
+    assert settle_grasps(crowded, [speed]).boundaries == ((33, 37),)

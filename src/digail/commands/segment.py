@@ -55,9 +55,10 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     from digail.algos.decode import read_codes
     from digail.checkpoint import load_model, read_config
     from digail.commands.common import check_output_folder
-    from digail.data.annotations import check_export, code_names, export_segmentation, names_by_code
+    from digail.data.annotations import check_export, code_names, export_segmentation
     from digail.data.importers import is_import_source, prepare_import
     from digail.data.minari_io import load_dataset
+    from digail.data.subtask_plan import names_by_code
     from digail.eval.segmentation import summary_line, write_segmentation
     from digail.fsio import run_dir_lock
 

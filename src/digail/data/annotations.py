@@ -51,32 +51,6 @@ def code_names(n_codes: int, names: Sequence[str] | None = None) -> list[str]:
     return names
 
 
-def demonstrated_order(codes: Sequence[np.ndarray], n_codes: int) -> list[int]:
-    """Every code, in the order the demonstrations take them: first the codes that occur in at least half of the
-    demonstrations (at least the most common one), by the median over demonstrations of where each first occurs
-    (as a fraction of the demonstration; ties by code number), then the rarer codes the same way, then the codes
-    that never occur, by number. MimicGen's export takes its sub-tasks in this order (`robomimic.plan_subtasks`)."""
-    codes = [np.asarray(c).reshape(-1) for c in codes]
-    present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
-    common = [k for k in range(n_codes) if 2 * present[k] >= len(codes) and present[k] > 0]
-    common = common or [int(np.argmax(present))]
-    where = {k: float(np.median([np.flatnonzero(c == k)[0] / len(c) for c in codes if (c == k).any()]))
-             for k in range(n_codes) if present[k]}
-    rare = [k for k in where if k not in common]
-    return [*sorted(common, key=lambda k: (where[k], k)), *sorted(rare, key=lambda k: (where[k], k)),
-            *[k for k in range(n_codes) if not present[k]]]
-
-
-def names_by_code(names: Sequence[str], codes: Sequence[np.ndarray]) -> list[str]:
-    """The user's `--names`, given in the demonstrated order, as one name per code number: the first name goes to
-    the code the demonstrations take first (`demonstrated_order`), whatever its number, so the names never depend
-    on which code a training happened to give which sub-task."""
-    out = [""] * len(names)
-    for name, code in zip(names, demonstrated_order(codes, len(names)), strict=True):
-        out[code] = name
-    return out
-
-
 def segments(codes: np.ndarray) -> list[tuple[int, int, int]]:
     """The runs of equal codes of one episode as (start, end, code), `end` exclusive."""
     codes = np.asarray(codes).reshape(-1)

@@ -31,13 +31,13 @@ import re
 import shutil
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from digail.data.input_files import as_float32, check_h5_links, h5_array, regular_file
+from digail.data.subtask_plan import plan_line, plan_signals, plan_subtasks, settle_grasps
 from digail.errors import UserError
 from digail.fsio import check_writable, signals_deferred, umask
 from digail.utils import one_line
@@ -288,128 +288,14 @@ def _oracle_signals(group: Any) -> list[str]:
     return sorted(k for k in group if k not in ours)
 
 
-@dataclass(frozen=True)
-class SubtaskPlan:
-    """The sub-tasks an export names for MimicGen and each demonstration's boundaries between them.
-
-    MimicGen's parser takes the signals of a task spec in order and ends sub-task i at the first 0 -> 1 step of
-    its signal after sub-task i - 1 ended; every demonstration needs one such step per named sub-task, in the same
-    order. Codes that recur, or segments that differ in number between demonstrations, do not give that by
-    themselves, so the export decides the order once for the dataset and one boundary per sub-task per
-    demonstration (`plan_subtasks`).
-    """
-
-    order: tuple[int, ...]
-    """the codes taken as sub-tasks, in the demonstrated order (the last one ends with the demonstration)"""
-    boundaries: tuple[tuple[int, ...], ...]
-    """per demonstration, the first step of each sub-task after the first (len(order) - 1 strictly increasing
-    steps): the step where the signal of the sub-task before it turns 1"""
-    unused: tuple[int, ...]
-    """codes occurring in fewer than half of the demonstrations, written as all-zero signals"""
-    refitted: int
-    """demonstrations whose codes are not one run of each sub-task in `order` (a code recurs, is missing, comes
-    out of order or is an unused one), whose boundaries were fitted"""
-
-
-def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str] | None = None) -> SubtaskPlan:
-    """MimicGen sub-tasks and one boundary per sub-task for every demonstration, whatever the segmentation.
-
-    The sub-tasks are the codes that occur in at least half of the demonstrations (at least the most common code),
-    ordered by the median over demonstrations of where each first occurs (as a fraction of the demonstration; ties
-    by code number). Each demonstration's boundaries are the labelling into those sub-tasks, in that order, each
-    sub-task one contiguous run, that agrees with the most of its steps' codes (exact, by dynamic programming; ties
-    go to the earlier boundary). Every sub-task gets at least one step and the last at least two, since MimicGen's
-    parser puts the first step a signal is 1 into the sub-task that ended. A demonstration coded as one run of
-    each sub-task in order (the last run at least two steps) keeps its runs' ends, as `term_signals` gives them.
-
-    Args:
-        codes: one (T,) array of codes per demonstration.
-        n_codes: K, the number of codes (and of signals written).
-        keys: each demonstration's name, for the error (default: its position).
-
-    Raises:
-        UserError: a demonstration too short to hold every sub-task.
-    """
-    from digail.data.annotations import demonstrated_order
-
-    codes = [np.asarray(c).reshape(-1) for c in codes]
-    n = len(codes)
-    present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
-    used = {k for k in range(n_codes) if 2 * present[k] >= n and present[k] > 0} or {int(np.argmax(present))}
-    order = tuple(k for k in demonstrated_order(codes, n_codes) if k in used)
-    need = len(order) + 1 if len(order) > 1 else 1  # one sub-task: nothing to cut
-    boundaries, refitted = [], 0
-    for i, c in enumerate(codes):
-        if len(c) < need:
-            name = keys[i] if keys is not None else f"demonstration {i}"
-            raise UserError(f"{name} has {len(c)} steps, too few for the {len(order)} sub-tasks the "
-                            f"segmentation names (MimicGen needs at least {need}); drop it or segment with fewer "
-                            "codes.")
-        cuts = _best_monotone_cuts(c, order)
-        runs = [int(c[0]), *[int(c[j]) for j in np.flatnonzero(np.diff(c)) + 1]]
-        refitted += runs != list(order)
-        boundaries.append(cuts)
-    unused = tuple(k for k in range(n_codes) if k not in order)
-    return SubtaskPlan(order=order, boundaries=tuple(boundaries), unused=unused, refitted=refitted)
-
-
-def _best_monotone_cuts(codes: np.ndarray, order: Sequence[int]) -> tuple[int, ...]:
-    """The start steps of sub-tasks 1 .. S-1 maximising the steps whose code is their sub-task's (see
-    `plan_subtasks`): f[i][b] is the best agreement of steps before b with sub-task i starting at b."""
-    t_len, s = len(codes), len(order)
-    agree = np.stack([np.concatenate([[0], np.cumsum(codes == k)]) for k in order])  # agree[i][t]: steps < t
-    minimum = [1] * (s - 1) + [2]
-    best = np.full((s, t_len + 1), -np.inf)
-    back = np.zeros((s, t_len + 1), dtype=np.int64)
-    best[0, 0] = 0.0
-    steps = np.arange(t_len + 1)
-    for i in range(1, s):  # sub-task i starts at b, sub-task i - 1 started at the best a <= b - minimum[i - 1]
-        vals = best[i - 1] - agree[i - 1]
-        run_max = np.maximum.accumulate(vals)
-        new_max = vals > np.concatenate([[-np.inf], run_max[:-1]])  # strict: ties keep the earlier start
-        run_arg = np.maximum.accumulate(np.where(new_max, steps, 0))
-        a = steps[minimum[i - 1]:] - minimum[i - 1]
-        best[i, minimum[i - 1]:] = agree[i - 1, minimum[i - 1]:] + run_max[a]
-        back[i, minimum[i - 1]:] = run_arg[a]
-    total = np.where(steps <= t_len - minimum[-1], best[s - 1] + agree[s - 1, t_len] - agree[s - 1], -np.inf)
-    b = int(np.argmax(total))  # argmax: the first of equal totals
-    cuts = []
-    for i in range(s - 1, 0, -1):
-        cuts.append(b)
-        b = int(back[i, b])
-    return tuple(reversed(cuts))
-
-
-def plan_signals(plan: SubtaskPlan, demo: int, n_steps: int, n_codes: int) -> np.ndarray:
-    """(n_codes, n_steps) int64 termination signals of one demonstration under `plan`, MimicGen's convention:
-    sub-task i's signal is 0 before the boundary that ends it and 1 from there on; the last sub-task's and the
-    unused codes' stay 0."""
-    out = np.zeros((n_codes, n_steps), dtype=np.int64)
-    for code, start in zip(plan.order[:-1], plan.boundaries[demo], strict=True):
-        out[code, start:] = 1
-    return out
-
-
-def term_signals(codes: np.ndarray, n_steps: int, n_codes: int) -> np.ndarray:
-    """(n_codes, n_steps) int64 termination signals of one demonstration's codes on its own (`plan_subtasks` of
-    that one demonstration): for codes that run once each, code k's signal is 0 until its segment ends and 1 from
-    the next step on; a code that never occurs, or the last sub-task, stays 0."""
-    codes = np.asarray(codes).reshape(-1)
-    return plan_signals(plan_subtasks([codes[:n_steps]], n_codes), 0, n_steps, n_codes)
-
-
-def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
-    """The one line an export prints about `plan`: the order to give MimicGen's task spec and what was fitted."""
-    ordered = [names[k] for k in plan.order]
-    line = (f"MimicGen sub-tasks in the demonstrated order: {', '.join(ordered)} (task spec signals: "
-            f"{', '.join([*ordered[:-1], 'None'])})")
-    if plan.refitted:
-        line += (f"; {plan.refitted} of {len(plan.boundaries)} demonstrations have codes that recur, are missing or "
-                 "come out of that order, and got the one boundary per sub-task that agrees with most of their steps")
-    if plan.unused:
-        line += (f"; {', '.join(names[k] for k in plan.unused)} (in fewer than half of the demonstrations) "
-                 "written as all-zero")
-    return line
+def _finger_speed(demo: Any) -> np.ndarray | None:
+    """Per step, the largest speed of the gripper's finger joints (robosuite's `obs/robot0_gripper_qvel`, any
+    `*gripper_qvel` key), or None without one."""
+    obs = demo.get("obs")
+    keys = sorted(k for k in obs if k.endswith("gripper_qvel")) if obs is not None else []
+    if not keys:
+        return None
+    return np.abs(np.asarray(obs[keys[0]][()], np.float64).reshape(len(demo["actions"]), -1)).max(1)
 
 
 def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Sequence[str],
@@ -462,6 +348,7 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
                                     f"{len(demo_codes)}; segment the demonstrations read from this file.")
                 fitted.append(demo_codes)
             plan = plan_subtasks(fitted, len(names), [f"data/{k} of {source}" for k in episode_keys])
+            plan = settle_grasps(plan, [_finger_speed(data[key]) for key in episode_keys])
             for i, (key, demo_codes) in enumerate(zip(episode_keys, fitted, strict=True)):
                 group = data[key].require_group(SIGNALS_PATH)
                 clash = sorted(set(names) & set(group))
