@@ -30,6 +30,7 @@ SURFACES: dict[str, tuple[str, list[tuple[str, str]]]] = {
         ("utf8-", "Paths that are not UTF-8"), ("lock-", "Lock files"),
         *[(p, "Report pages (`digail report --out`)") for p in ("report-out", "report-compare", "report-own",
                                                                "report-again", "report-device")],
+        ("out-", "Run and dataset folders (`--out` of `pretrain`, `train`, `run`, `demos`, `generate`)"),
         ("compose-cli", "Analysis commands on a run folder"), ("evaluate-", "Analysis commands on a run folder"),
         ("segment-", "Analysis commands on a run folder"), ("report-", "Analysis commands on a run folder"),
         ("compose-", "Composition schedules"), ("resume-", "Resume paths"),
@@ -46,6 +47,7 @@ SURFACES: dict[str, tuple[str, list[tuple[str, str]]]] = {
         ("export-names-clash", "Refusals the source gives, before the run folder is touched"),
         ("export-lerobot-has-column", "Refusals the source gives, before the run folder is touched"),
         ("export-robomimic-reexport", "Refusals the source gives, before the run folder is touched"),
+        ("export-lerobot-frame-gap", "Refusals the source gives, before the run folder is touched"),
         ("export-", "Where an export may go (`digail segment --export`)"),
         ("rs-export-", "Exports of robosuite-made robomimic files")]),
     "sweeps": ("Probes: sweeps", [

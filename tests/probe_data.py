@@ -44,9 +44,11 @@ def robomimic(path: Path, n_demos: int = 3, steps: int = 12, keys: tuple[str, ..
     return path
 
 
-def lerobot(folder: Path, episodes: int = 3, frames: int = 10, state: object = None, rows: int | None = None) -> Path:
+def lerobot(folder: Path, episodes: int = 3, frames: int = 10, state: object = None, rows: int | None = None,
+            frame_index: np.ndarray | None = None, frame_gap: bool = False) -> Path:
     """A small LeRobot v3.0 dataset: `episodes` episodes of `frames` frames, a 3-wide observation.state; `state`
-    replaces that column (a pyarrow array), `rows` keeps only the first rows."""
+    replaces that column (a pyarrow array), `rows` keeps only the first rows, `frame_index` replaces the first
+    episode's frame numbers and `frame_gap` numbers it 0..4, 6..10 (a frame missing)."""
     rng = np.random.default_rng(1)
     n = episodes * frames
     columns = {
@@ -58,6 +60,12 @@ def lerobot(folder: Path, episodes: int = 3, frames: int = 10, state: object = N
     }
     if state is not None:
         columns["observation.state"] = state
+    if frame_gap:
+        frame_index = np.concatenate([np.arange(frames // 2), np.arange(frames // 2 + 1, frames + 1)])
+    if frame_index is not None:
+        numbers = np.tile(np.arange(frames), episodes)
+        numbers[:frames] = frame_index
+        columns["frame_index"] = pa.array(numbers)
     table = pa.table(columns)
     if rows is not None:
         table = table.slice(0, rows)

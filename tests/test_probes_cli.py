@@ -15,6 +15,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -542,6 +543,57 @@ def _report_device(tmp: Path) -> None:
     check_page_path(Path("/dev/null"), [], force=True)
 
 
+# ------------------------------------------------------------------------------------------------ folder outputs
+_INPUTS: list[Path] = []
+"""the folder `_inputs` fills once per test process: a copy of the shipped Circle-World dataset and a VAE on it"""
+
+
+def _inputs(tmp: Path) -> None:
+    """cwd/ (a copy of the shipped Circle-World dataset), vae/ (a SMOKE VAE pre-trained on it), ex/ (a folder digail
+    made holding an expert file) and a FIFO, in `tmp`: what a folder output could be aimed at."""
+    if not _INPUTS:
+        import tempfile
+
+        made = Path(tempfile.mkdtemp(prefix="digail-probe-inputs-"))
+        shutil.copytree(ROOT / "src" / "digail" / "datasets" / "digail" / "circleworld" / "expert-v0", made / "cwd")
+        cli(made, "pretrain", "--demos", "cwd", "--codes", "2", "--preset", "smoke", "--out", "vae")
+        _INPUTS.append(made)
+    for name in ("cwd", "vae"):
+        shutil.copytree(_INPUTS[0] / name, tmp / name, symlinks=True)
+    (tmp / "vae" / "config.json").write_text((tmp / "vae" / "config.json").read_text().replace(
+        str(_INPUTS[0]), str(tmp)))
+    (tmp / "ex").mkdir()
+    (tmp / "ex" / MARKER).write_text("\n")
+    (tmp / "ex" / "expert.zip").write_bytes(b"an expert\n")
+    os.mkfifo(tmp / "fifo")
+
+
+_TRAIN = ["--preset", "smoke", "--train.iterations", "1"]
+for _pid, _argv, _expect in [
+    ("out-pretrain-input", ["pretrain", "--demos", "cwd", "--codes", "2", "--out", "cwd", "--force"],
+     "is the input demonstrations"),
+    ("out-pretrain-inside-input", ["pretrain", "--demos", "cwd", "--codes", "2", "--out", "cwd/data/vae"],
+     "is inside the input demonstrations"),
+    ("out-pretrain-holds-input", ["pretrain", "--demos", "cwd", "--codes", "2", "--out", ".", "--force"],
+     "holds the input demonstrations"),
+    ("out-pretrain-fifo", ["pretrain", "--demos", "cwd", "--codes", "2", "--out", "fifo", "--force"], "is a FIFO"),
+    ("out-train-vae", ["train", "--method", "digail", "--demos", "cwd", "--vae", "vae", *_TRAIN, "--out", "vae",
+                       "--force"], "is the VAE run"),
+    ("out-train-inside-vae", ["train", "--method", "digail", "--demos", "cwd", "--vae", "vae", *_TRAIN, "--out",
+                              "vae/gail"], "is inside the VAE run"),
+    ("out-train-input", ["train", "--method", "gail", "--demos", "cwd", *_TRAIN, "--out", "cwd", "--force"],
+     "is the input demonstrations"),
+    ("out-run-input", ["run", CW, "--demos", "cwd", "--preset", "smoke", "--out", "cwd", "--force"],
+     "is the input demonstrations"),
+    ("out-demos-expert", ["demos", CW, "--episodes", "2", "--expert", "ex/expert.zip", "--out", "ex", "--force"],
+     "holds the expert"),
+    ("out-demos-fifo", ["demos", CW, "--episodes", "2", "--out", "fifo"], "is a FIFO"),
+    ("out-generate-inside-input", ["generate", "--demos", "cwd", "--out", "cwd/data/more"],
+     "is inside the input demonstrations"),
+]:
+    probe(_pid, f"`digail {' '.join(_argv)}`", _expect, setup=_inputs)(lambda tmp, a=tuple(_argv): cli(tmp, *a))
+
+
 # ------------------------------------------------------------------------------------------------ sizes and ranges
 for _pid, _argv, _expect in [
     ("size-codes-huge", ["pretrain", "--demos", CW_DEMOS, "--codes", "100000", "--out", "vae"],
@@ -561,8 +613,33 @@ for _pid, _argv, _expect in [
     ("size-sac-batch-huge", ["train", "--method", "gail", "--demos", CW_DEMOS, "--train.learner", "sac",
                              "--train.sac.batch-size", "10000000000", "--out", "run-new"],
      "--train.sac.batch-size must be at most"),
+    ("size-episodes-evaluate", ["evaluate", str(RUN), "--episodes", "10000000"],
+     "--episodes must be at most 1,000,000"),
+    ("size-episodes-compose", ["compose", str(RUN), "--schedule", "0:10", "--episodes", "4294967296"],
+     "--episodes must be at most 1,000,000"),
+    ("size-episodes-demos", ["demos", CW, "--episodes", "10000000", "--out", "out"],
+     "--episodes must be at most 1,000,000"),
+    ("size-episodes-run", ["run", CW, "--episodes", "10000000", "--out", "run-new"],
+     "--episodes must be at most 1,000,000"),
+    ("size-episodes-video", ["video", str(RUN), "--episodes", "101"], "--episodes must be at most 100,"),
+    ("size-video-search", ["video", str(RUN), "--outcome", "success", "--search", "10000000"],
+     "--search must be at most 1,000,000"),
 ]:
-    probe(_pid, f"`digail {' '.join(_argv)}`", _expect)(lambda tmp, a=tuple(_argv): cli(tmp, *a))
+    probe(_pid, f"`digail {' '.join(_argv)}`".replace(str(RUN), "RUN"), _expect)(
+        lambda tmp, a=tuple(_argv): cli(tmp, *a))
+
+
+@probe("size-demos-memory", "`digail demos digail/CircleWorld-v0 --episodes 1000` with 1 MiB of memory available",
+       "of memory (episodes of up to")
+def _demos_memory(tmp: Path) -> None:
+    import digail.utils
+
+    real = digail.utils.available_memory
+    digail.utils.available_memory = lambda: 2**20
+    try:
+        cli(tmp, "demos", CW, "--episodes", "1000", "--out", "out")
+    finally:
+        digail.utils.available_memory = real
 
 for _pid, _flags, _expect in [
     ("range-relabel-huge", ["--train.imitation.relabel-goals", "1000000000"], "from 0 to 1000"),
@@ -735,7 +812,7 @@ def test_a_path_that_is_not_utf8_is_refused_up_front(argv, tmp_path, capsys, mon
 def test_a_non_finite_loss_names_the_setting_set_away_from_its_default(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A NaN loss that happens within the checked ranges names the reward setting most likely responsible (one set
-    away from its default), not the learning rate; with every reward setting at its default the advice stays."""
+    away from its default), not the learning rate."""
     from digail.algos.gail.trainer import GAIL
     from digail.errors import TrainingError
 
@@ -746,21 +823,33 @@ def test_a_non_finite_loss_names_the_setting_set_away_from_its_default(
     monkeypatch.setattr(GAIL, "train", nan_loss)
     argv = ["train", "--method", "gail", "--demos", CW_DEMOS, "--preset", "smoke", "--train.iterations", "1"]
     code = main([*argv, "--train.imitation.disc-weight-decay", "0.5", "--out", str(tmp_path / "a")])
-    from digail.commands.train import GENERIC_CAUSE, likely_cause
-    from digail.config import TrainConfig
-    from digail.imitation_config import ImitationConfig
-
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("digail train: error:")]
     assert code == 1 and not (tmp_path / "a").exists()
     assert len(err) == 1 and "the likely cause is --train.imitation.disc-weight-decay 0.5" in err[0], err
+
+
+@pytest.mark.parametrize(("settings", "named"), [
+    ({"reward": "ot", "ot_epsilon": 1e-4}, "--train.imitation.ot-epsilon 0.0001"),
+    ({"reward": "ot", "ot_cost": "euclidean", "ot_scale": 1000.0},
+     "--train.imitation.ot-cost euclidean and --train.imitation.ot-scale 1000.0"),
+    ({"disc_weight_decay": 0.5, "ot_scale": 3.0}, "--train.imitation.disc-weight-decay 0.5,"),  # ot: not D's reward
+    ({"disc_lr": 1.0}, "--train.imitation.disc-lr 1.0"),
+    ({"logits_to_reward": "logit"}, "--train.imitation.logits-to-reward logit"),
+    ({"reward": "pu", "pu_prior": 0.9}, "--train.imitation.pu-prior 0.9"),
+])
+def test_the_likely_cause_of_a_non_finite_loss_is_the_setting_moved(settings: dict[str, Any], named: str) -> None:
+    """Each reward setting whose extreme values make a loss non-finite is named when it was moved, only those of
+    the reward in use; at the defaults, or under other advice, the sentence stays as it was."""
+    from digail.checks import GENERIC_CAUSE, likely_cause
+    from digail.imitation_config import ImitationConfig
+
     message = "non-finite loss (policy) at iteration 1; nothing saved - " + GENERIC_CAUSE + "."
-    ot = TrainConfig(imitation=ImitationConfig(kind="ot", ot_epsilon=1e-4))
-    assert "--train.imitation.ot-epsilon 0.0001" in likely_cause(message, ot)
-    decay = TrainConfig(imitation=ImitationConfig(disc_weight_decay=0.5, ot_scale=3.0))  # ot-scale: not D's reward
-    assert likely_cause(message, decay).endswith("the likely cause is --train.imitation.disc-weight-decay 0.5, set "
-                                                 "away from the default: try a value nearer it (or lower the "
-                                                 "learning rate).")
-    assert likely_cause(message, TrainConfig()) == message
+    moved = ImitationConfig(**settings)
+    named_it = likely_cause(message, moved)
+    assert f"the likely cause is {named}" in named_it and GENERIC_CAUSE not in named_it, named_it
+    assert named_it.endswith("set away from the default: try a value nearer it (or lower the learning rate).")
+    assert likely_cause(message, ImitationConfig()) == message
+    assert likely_cause("non-finite loss; check the view.", moved) == "non-finite loss; check the view."
 
 
 # ------------------------------------------------------------------------------------------------ the probes

@@ -456,6 +456,10 @@ READ_PROBES += [
      lambda p: _lr_extra(p, lambda f: f.symlink_to(p.parent.parent / "notes.txt")), "outside the dataset folder"),
     ("lr-dangling-link", "a LeRobot frame file that is a link to nothing",
      lambda p: _lr_extra(p, lambda f: f.symlink_to(p / "nowhere.parquet")), "a link to nothing"),
+    ("lr-frame-gap", "a LeRobot episode whose `frame_index` skips a frame (0..4, 6..10)",
+     lambda p: lerobot(p, frame_gap=True), "skips frame_index 5"),
+    ("lr-frame-twice", "a LeRobot episode whose `frame_index` holds a frame twice",
+     lambda p: lerobot(p, frame_index=np.array([0, 1, 2, 2, 4, 5, 6, 7, 8, 9])), "has frame_index 2 twice"),
     ("lr-good", "a good LeRobot dataset", lerobot, None),
 ]
 

@@ -252,6 +252,11 @@ def _lerobot_with_column(tmp: Path) -> None:
     (tmp / "lr2" / "meta" / "info.json").write_text(json.dumps(info))
 
 
+def _frame_gap(tmp: Path) -> None:
+    """gap/: the LeRobot source with a frame missing from its first episode."""
+    lerobot(tmp / "gap", frame_gap=True)
+
+
 def _digail_export(tmp: Path) -> None:
     """annotated.hdf5: digail's own robomimic export of the source (its signals code_0, code_1)."""
     cli(tmp, "segment", "vae", "--demos", "src.hdf5", "--export", "robomimic", "--out", "annotated.hdf5")
@@ -266,6 +271,8 @@ for _pid, _argv, _what, _setup, _expect in [
      "already has a 'subtask_index' feature"),
     ("export-robomimic-reexport", ["--demos", "annotated.hdf5", "--export", "robomimic", "--out", "again.hdf5"],
      "a robomimic export of digail's own robomimic export", _digail_export, "already has"),
+    ("export-lerobot-frame-gap", ["--demos", "gap", "--export", "lerobot", "--out", "annotated2"],
+     "a LeRobot export of a dataset whose episode skips a frame", _frame_gap, "skips frame_index 5"),
 ]:
     probe_on_base(_pid, f"`digail segment`: {_what} (the run folder as it was)", _expect, setup=_setup)(
         segment(*_argv))

@@ -31,6 +31,22 @@ def check_seed(seed: int, flag: str = "--seed", count: int = 1, count_flag: str 
                                                                   if count > 1 else ""), seed)
 
 
+EPISODES_MAX = 10**6
+"""most episodes of one `digail demos`, `evaluate`, `compose` or `run` (as `--train.eval-episodes`): played one after
+the other and each one's record kept, so a bound far above the largest default evaluation (300 episodes) keeps a
+slip of the keyboard from a run that never ends"""
+
+VIDEO_EPISODES_MAX = 100
+"""most episodes of one `digail video`: every frame of every episode is held in memory until the video is written"""
+
+
+def check_episodes(count: int | None, flag: str = "--episodes", high: int = EPISODES_MAX) -> None:
+    """A number of episodes: 1 to `high` (None: the default applies)."""
+    if count is not None:
+        _require(isinstance(count, int) and not isinstance(count, bool) and count >= 1, flag, "at least 1", count)
+        _require(count <= high, flag, f"at most {high:,}", count)
+
+
 def check_at_least(value: int | None, flag: str, low: int = 1) -> None:
     """A count such as --episodes: at least `low` (None: the default applies)."""
     if value is not None:
@@ -93,3 +109,33 @@ def _check_numbers(cfg: Any, prefix: str, at_least: dict[str, int], non_negative
     for name in unit:
         v = getattr(cfg, name)
         _require(_finite(float(v)) and 0 <= v <= 1, flag(name), "between 0 and 1", v)
+
+
+GENERIC_CAUSE = "lower the learning rate or check the demonstrations"
+"""the advice of a non-finite-loss sentence when no setting stands out (`likely_cause`)"""
+
+NONFINITE_SUSPECTS = {
+    "ot": ("ot_epsilon", "ot_scale", "ot_cost", "ot_time_weight", "ot_code_penalty"),
+    "disc": ("disc_lr", "disc_grad_penalty", "logits_to_reward", "disc_weight_decay", "disc_noise", "relabel_goals",
+             "pu_prior"),
+}
+"""the reward settings (`--train.imitation.*`) that scale an optimal-transport reward, or D's loss and the reward
+read from its logits: those a non-finite loss is blamed on when they were set away from their defaults"""
+
+
+def likely_cause(message: str, imitation: Any) -> str:
+    """The non-finite-loss sentence `message` with its generic advice (`GENERIC_CAUSE`) replaced by the reward
+    settings most likely responsible: those of `NONFINITE_SUSPECTS` for the reward kind of `imitation` (an
+    `ImitationConfig`) set away from their defaults. Unchanged when none was, or when the sentence gives other
+    advice."""
+    from dataclasses import fields
+
+    suspects = NONFINITE_SUSPECTS["ot" if str(imitation.reward).startswith("ot") else "disc"]
+    default = type(imitation)()  # the config's own defaults (its class sits above this module)
+    moved = [f"--train.imitation.{f.name.replace('_', '-')} {getattr(imitation, f.name)}"
+             for f in fields(imitation) if f.name in suspects
+             and getattr(imitation, f.name) != getattr(default, f.name)]
+    if not moved or GENERIC_CAUSE not in message:
+        return message
+    return message.replace(GENERIC_CAUSE, f"the likely cause is {' and '.join(moved)}, set away from the default: "
+                           "try a value nearer it (or lower the learning rate)")

@@ -62,12 +62,20 @@ def file_size_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
-def check_new_dir(path: Path, force: bool, hint: str = "") -> None:
+def check_new_dir(path: Path, force: bool, hint: str = "",
+                  protected: Sequence[tuple[str | os.PathLike[str], str]] = ()) -> None:
     """Refuse to overwrite an existing output folder unless `force`, and an output that cannot be written.
 
-    `hint` is appended to the refusal (e.g. how to continue an unfinished run instead). With `force` the existing
-    output must be one `--force` may replace (`check_replaceable`)."""
+    `hint` is appended to the refusal (e.g. how to continue an unfinished run instead). Refused whatever `force`:
+    a path that is, lies inside or holds one of the `protected` (path, what it is) pairs (what the command reads;
+    `check_clear_of`), a FIFO, a device or a socket. With `force` the existing output must be one `--force` may
+    replace (`check_replaceable`)."""
     path = Path(path)
+    check_clear_of(path, protected)
+    with contextlib.suppress(OSError):
+        special = file_kind(os.stat(path).st_mode)  # a link is judged by what it points to
+        if special is not None:
+            raise UserError(f"--out {path} is {special}, not a file or folder digail wrote; choose another --out.")
     exists = path.exists() or path.is_symlink()
     if exists and not force:
         what = "folder" if path.is_dir() else "file"

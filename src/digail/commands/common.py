@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -14,16 +15,37 @@ from digail.utils import default_run_dir, one_line
 
 
 def new_run_dir(out: Path | None, env_id: str, method: str, seed: int, force: bool,
-                resume_command: str | None = None) -> Path:
+                resume_command: str | None = None, reads: Sequence[tuple[Path, str]] = ()) -> Path:
     """The run folder `out`, or `runs/<env>__<method>__s<seed>__<time>`; refuses an existing one without `force`
-    (naming `digail <resume_command> --resume` when it is an unfinished run of that command) and an output that
-    cannot be written. Creates nothing."""
+    (naming `digail <resume_command> --resume` when it is an unfinished run of that command), one that is, holds
+    or lies inside what the command `reads` (`inputs`), and an output that cannot be written. Creates nothing."""
     run_dir = Path(out) if out is not None else default_run_dir(env_id, method, seed)
     hint = ""
     if resume_command is not None and run_dir.is_dir() and (run_dir / "config.json").is_file():
         hint = f", or continue it with `digail {resume_command} --resume {run_dir}`"
-    check_new_dir(run_dir, force, hint)
+    check_new_dir(run_dir, force, hint, protected=reads)
     return run_dir
+
+
+def inputs(demos: str | os.PathLike[str] | None = None,
+           *more: tuple[str | os.PathLike[str] | None, str]) -> list[tuple[Path, str]]:
+    """What a command reads, as the (path, what it is) pairs its output must stay clear of
+    (`digail.fsio.check_new_dir`): the demonstrations (a file or folder, or the folder a Minari id names) and the
+    `more` pairs (e.g. a VAE run folder); those not given or not found are left out."""
+    from digail.data.minari_io import resolve_dataset
+
+    found: list[tuple[Path, str]] = []
+    if demos is not None and str(demos) != "":
+        path: Path | None = Path(demos)
+        if not Path(demos).exists() and not Path(demos).is_symlink():
+            try:
+                path = resolve_dataset(demos)
+            except UserError:  # not a dataset either: nothing on disk to protect
+                path = None
+        if path is not None:
+            found.append((path, "the input demonstrations"))
+    found += [(Path(p), what) for p, what in more if p is not None and str(p) != ""]
+    return found
 
 
 def resolve_ref(run: Path, ref: str | Path | None) -> str | None:

@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from digail.checks import check_episodes
 from digail.config import check_at_least, check_seed
 from digail.errors import UserError
 
@@ -46,7 +47,7 @@ class ComposeArgs:
     """seed of the first episode"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.episodes, "--episodes")
+        check_episodes(self.episodes)
         check_at_least(self.hold, "--hold")
         check_seed(self.seed, count=self.episodes)
         if self.order is not None and self.schedule is not None:

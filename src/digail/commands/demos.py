@@ -8,7 +8,8 @@ from typing import Annotated
 
 import tyro
 
-from digail.config import check_at_least, check_seed
+from digail.checks import check_episodes
+from digail.config import check_seed
 
 
 @dataclass(frozen=True)
@@ -29,7 +30,7 @@ class DemosArgs:
     """overwrite an existing output folder"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.episodes, "--episodes")
+        check_episodes(self.episodes)
         check_seed(self.seed, count=self.episodes or 1)
 
 

@@ -8,7 +8,8 @@ from typing import Annotated, Any
 
 import tyro
 
-from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
+from digail.checks import check_episodes
+from digail.config import FINAL_EVAL_SEED, check_seed
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,7 @@ class EvaluateArgs:
     """also record a video of the first episodes into RUN/videos"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.episodes, "--episodes")
+        check_episodes(self.episodes)
         check_seed(self.seed, count=self.episodes if self.episodes is not None else 300)  # the largest default
 
 

@@ -189,6 +189,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
         plan_segments,
         runs_to_segments,
     )
+    from digail.commands.common import inputs
     from digail.data.minari_io import load_dataset
     from digail.data.minari_write import write_dataset
     from digail.envs.registry import make_env
@@ -196,7 +197,8 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
 
     if args.out.exists() or args.out.is_symlink():
         raise UserError(f"output {args.out} already exists and generate never replaces one; choose another --out.")
-    check_new_dir(args.out, force=False)
+    check_new_dir(args.out, force=False, protected=inputs(args.demos, (args.vae, "the VAE run"),
+                                                          (args.codes, "the codes file")))
     ds = load_dataset(args.demos)
     env_id = args.env or ds.env_id
     if env_id is None:

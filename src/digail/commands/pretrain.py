@@ -72,7 +72,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
     from digail.algos.model_selection import check_selectable
     from digail.algos.vae_pretrain import auto_epochs, pretrain, select_codes
     from digail.checkpoint import run_config, save_model, write_run_config
-    from digail.commands.common import new_run_dir
+    from digail.commands.common import inputs, new_run_dir
     from digail.data.minari_io import load_dataset
     from digail.data.validation import check_dataset_env
     from digail.envs.registry import env_preset, init_pieces_fn
@@ -100,7 +100,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
         preset_name(args.preset, env_preset(dataset.env_id))  # reports an unknown preset name
     if isinstance(args.codes, int):
         cfg = dataclasses.replace(cfg, codes=args.codes)
-    run = new_run_dir(args.out, env_id, "vae", args.seed, args.force)
+    run = new_run_dir(args.out, env_id, "vae", args.seed, args.force, reads=inputs(args.demos))
     action_spec = ActionSpec.from_space(dataset.action_space) if dataset.action_space is not None else None
     config = run_config(kind="vae", env_id=dataset.env_id, demos=args.demos, seed=args.seed, preset=args.preset,
                         device=args.device, vae=cfg, args=args, dataset_id=dataset.dataset_id)

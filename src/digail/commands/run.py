@@ -18,6 +18,7 @@ from typing import Annotated, Any
 
 import tyro
 
+from digail.checks import check_episodes
 from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
 from digail.fsio import check_writable, fresh_dir, remove_path, run_dir_lock, write_json
@@ -60,7 +61,7 @@ class RunArgs:
     it)"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.episodes, "--episodes")
+        check_episodes(self.episodes)
         check_at_least(self.demos_episodes, "--demos-episodes")
         check_at_least(self.demos_subsample, "--demos-subsample")
         check_seed(self.seed)
@@ -140,7 +141,7 @@ def _demonstrations(env_id: str, run_dir: Path, seed: int, demos: str | None = N
 
 def run_command(args: RunArgs) -> Path:
     """Run every stage into one folder; returns it."""
-    from digail.commands.common import new_run_dir
+    from digail.commands.common import inputs, new_run_dir
     from digail.envs import make_env
     from digail.envs.registry import preset_for
 
@@ -160,7 +161,8 @@ def run_command(args: RunArgs) -> Path:
         held = run_dir_lock(run_dir)
         print(f"resuming {run_dir}")
     else:
-        run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run")
+        run_dir = new_run_dir(args.out, args.env, "digail", args.seed, args.force, resume_command="run",
+                              reads=inputs(args.demos))
         held = fresh_dir(run_dir, args.force)  # --force: the old folder's files go first
     try:
         with held:  # the folder is this command's until the end: a second writer is refused, --force included

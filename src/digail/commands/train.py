@@ -10,6 +10,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from digail.checks import likely_cause
 from digail.config import FINAL_EVAL_SEED, TrainConfig, check_at_least, check_seed
 from digail.data.trajectory import Trajectory
 from digail.errors import TrainingError, UserError
@@ -72,7 +73,7 @@ def train_command(args: TrainArgs) -> Path:
     """Validate everything, then train (or resume) in a run folder; returns it."""
     from digail.algos.directed_info_gail import build_trainer
     from digail.checkpoint import path_ref, run_config, write_run_config
-    from digail.commands.common import new_run_dir
+    from digail.commands.common import inputs, new_run_dir
     from digail.fsio import check_writable, fresh_dir, run_dir_lock
     from digail.utils import resolve_device, set_torch_threads
 
@@ -107,7 +108,8 @@ def train_command(args: TrainArgs) -> Path:
             raise UserError(f"the VAE in {args.vae} expects {vae_model.obs_dim}-d observations but the "
                             "demonstrations have another size; pre-train it on these demonstrations.")
     if run_dir is None:
-        run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force, resume_command="train")
+        run_dir = new_run_dir(args.out, env_id, cfg.method, args.seed, args.force, resume_command="train",
+                              reads=inputs(args.demos, (args.vae, "the VAE run")))
     else:
         check_writable(run_dir, "run folder")
     config = run_config(kind=cfg.method, env_id=env_id, demos=args.demos, seed=args.seed, preset=args.preset,
@@ -139,7 +141,7 @@ def train_command(args: TrainArgs) -> Path:
     except (UserError, TrainingError) as exc:
         # bad input found only once training ran (a view of the user's failing on the agent's observations) or a
         # NaN loss: a folder this command made that holds no checkpoint yet is nothing to resume, so it goes
-        message = likely_cause(str(exc), cfg) if isinstance(exc, TrainingError) else str(exc)
+        message = likely_cause(str(exc), cfg.imitation) if isinstance(exc, TrainingError) else str(exc)
         if made and not ckpt.exists():
             from digail.fsio import remove_path
 
@@ -153,31 +155,6 @@ def train_command(args: TrainArgs) -> Path:
         trainer.close()
     print(f"run folder: {run_dir}")
     return run_dir
-
-
-GENERIC_CAUSE = "lower the learning rate or check the demonstrations"
-"""the advice of a non-finite loss when no setting stands out (`likely_cause`)"""
-
-
-def likely_cause(message: str, cfg: TrainConfig) -> str:
-    """A non-finite-loss sentence whose advice names the reward settings most likely responsible: those that scale
-    the reward or D's loss (`--train.imitation.*`) and were set away from their defaults; the generic advice
-    when none was."""
-    from dataclasses import fields
-
-    from digail.imitation_config import ImitationConfig
-
-    ot = cfg.imitation.reward.startswith("ot")
-    scaling = ("ot_epsilon", "ot_scale", "ot_cost", "ot_time_weight", "ot_code_penalty") if ot else \
-        ("disc_weight_decay", "disc_noise", "relabel_goals", "pu_prior")
-    default = ImitationConfig()
-    moved = [f"--train.imitation.{f.name.replace('_', '-')} {getattr(cfg.imitation, f.name)}"
-             for f in fields(ImitationConfig) if f.name in scaling
-             and getattr(cfg.imitation, f.name) != getattr(default, f.name)]
-    if not moved or GENERIC_CAUSE not in message:
-        return message
-    return message.replace(GENERIC_CAUSE, f"the likely cause is {' and '.join(moved)}, set away from the "
-                           "default: try a value nearer it (or lower the learning rate)")
 
 
 def extend_run(run_dir: Path, config: dict[str, Any], done: int, until: int) -> None:

@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 
 import tyro
 
+from digail.checks import VIDEO_EPISODES_MAX, check_episodes
 from digail.config import FINAL_EVAL_SEED, check_at_least, check_seed
 from digail.errors import UserError
 from digail.fsio import check_writable, run_dir_lock
@@ -36,9 +37,9 @@ class VideoArgs:
     """with --outcome: episodes to try (played without frames) before giving up"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.episodes, "--episodes")
+        check_episodes(self.episodes, high=VIDEO_EPISODES_MAX)
         check_at_least(self.max_steps, "--max-steps")
-        check_at_least(self.search, "--search")
+        check_episodes(self.search, "--search")
         check_seed(self.seed, count=max(self.episodes, self.search if self.outcome != "any" else 1))
         if self.name is not None and (self.name in ("", ".", "..") or Path(self.name).name != self.name
                                       or "\\" in self.name):

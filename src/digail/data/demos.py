@@ -80,6 +80,24 @@ def rollout_episodes(env: gym.Env, policy: Policy, episodes: int, seed: int = 0,
     return trajs
 
 
+def check_demos_memory(env: gym.Env, episodes: int) -> None:
+    """Refuse, in one sentence and before the first episode, more episodes than the memory available holds: every
+    episode is kept until the dataset is written, each step as its float32 observation, action, reward and label,
+    and writing copies them once (an episode counted at the env's step limit; no limit, no check)."""
+    from digail.utils import available_memory, human_bytes
+
+    steps = None if env.spec is None else env.spec.max_episode_steps
+    free = available_memory()
+    if env.spec is None or not steps or free is None:
+        return
+    width = gym.spaces.flatdim(env.observation_space) + gym.spaces.flatdim(env.action_space) + 3
+    need = 2 * episodes * (steps + 1) * width * 4
+    if need > free:
+        raise UserError(f"--episodes {episodes} of {env.spec.id} can take {human_bytes(need)} of memory (episodes of "
+                        f"up to {steps} steps, all kept until the dataset is written) but {human_bytes(free)} is "
+                        "available; record fewer episodes.")
+
+
 def summarize_demos(trajs: list[Trajectory]) -> dict[str, Any]:
     """Return statistics and label counts (over all stored labels, T + 1 per episode) of some episodes."""
     returns = np.array([float(t.rews.sum()) if t.rews is not None else np.nan for t in trajs])
@@ -127,9 +145,11 @@ def record_demos(env_id: str, episodes: int | None = None, out: str | os.PathLik
         raise UserError(f"--seed must be non-negative, got {seed}.")
     dataset_id = default_dataset_id(env_id)
     path = Path(out) if out is not None else minari_root() / dataset_id
-    check_new_dir(path, force)  # fail before the (possibly long) rollouts
+    # fail before the (possibly long) rollouts; never onto or around the expert it reads
+    check_new_dir(path, force, protected=[] if expert is None else [(expert, "the expert")])
     env = make_env(env_id)
     try:
+        check_demos_memory(env, episodes)
         policy, kind = expert_for(env_id, None if expert is None else Path(expert))
         obs_space = env.observation_space
         flat_space = gym.spaces.flatten_space(obs_space) if isinstance(obs_space, gym.spaces.Dict) else None

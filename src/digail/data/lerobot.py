@@ -183,6 +183,7 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     episode = episode[order]
     starts = np.flatnonzero(np.diff(np.concatenate([[-1], episode])) != 0)
     ends = [*starts[1:].tolist(), len(episode)]
+    _check_frames(frame[order], episode, starts, where)
     eps, keys, short = [], [], 0
     for a, b in zip(starts.tolist(), ends, strict=True):
         if b - a < 2:
@@ -210,6 +211,23 @@ def read_lerobot(path: str | Path, obs_keys: Sequence[str] | None = None) -> dic
     metadata = {"obs_keys": chosen, "lerobot": {k: info[k] for k in ("codebase_version", "fps", "robot_type")
                                                 if k in info}}
     return {"episodes": eps, "notes": notes, "found": found, "episode_keys": keys, "metadata": metadata}
+
+
+def _check_frames(frame: np.ndarray, episode: np.ndarray, starts: np.ndarray, where: str) -> None:
+    """Refuse, in one sentence, an episode whose `frame_index` does not run 0, 1, 2, ... (rows sorted by episode
+    and frame, `starts` the first row of each episode): a missing frame would join the states on either side as
+    one step, and a repeated one would be read twice."""
+    due = np.arange(len(frame)) - np.repeat(starts, np.diff(np.append(starts, len(frame))))
+    bad = np.flatnonzero(frame != due)
+    if not bad.size:
+        return
+    i = int(bad[0])
+    ep, got, want = int(episode[i]), int(frame[i]), int(due[i])
+    what = (f"starts at frame_index {got}, not 0" if want == 0 else
+            f"skips frame_index {want} (it goes from {want - 1} to {got})" if got > want else
+            f"has frame_index {got} twice")
+    raise UserError(f"episode {ep} of {where} {what}; digail reads whole episodes whose frames are numbered 0, 1, "
+                    "2, ... in turn, so give it the episode's every frame.")
 
 
 def write_subtask_index(source: str | Path, out: str | Path, episode_keys: Sequence[str],
