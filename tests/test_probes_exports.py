@@ -312,12 +312,13 @@ def test_an_export_of_a_read_only_source_is_writable_and_leaves_nothing_behind(b
 def test_a_replaced_export_that_cannot_be_removed_is_reported_as_it_is(base: Path, tmp_path: Path,
                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """`--force` over an earlier export whose files cannot be removed (an immutable `meta/`, `chattr +i`): the new
-    export is in place, and the sentence says so and where the old one's remains are, instead of an error that
-    reads as if the export failed."""
+    export is in place and so is the run's segmentation of it, and the sentence says so and where the old one's
+    remains are, instead of an error that reads as if the export failed."""
     import digail.fsio
 
     copy_base(base, tmp_path)
     cli(tmp_path, "segment", "vae", "--demos", "lr", "--export", "lerobot", "--out", "annotated")
+    (tmp_path / "vae" / "segmentation.json").write_text("{}\n")  # what the run held before the second export
     real = digail.fsio.remove_path
 
     def immutable(path: Path) -> None:
@@ -329,8 +330,10 @@ def test_a_replaced_export_that_cannot_be_removed_is_reported_as_it_is(base: Pat
     with pytest.raises(UserError) as refused:
         cli(tmp_path, "segment", "vae", "--demos", "lr", "--export", "lerobot", "--out", "annotated", "--force")
     sentence = str(refused.value)
-    assert sentence.startswith("the new annotated is in place") and "operation not permitted" in sentence, sentence
+    assert sentence.startswith("the new annotated and the run's segmentation are in place"), sentence
+    assert "operation not permitted" in sentence, sentence
     assert (tmp_path / "annotated" / "meta" / "subtasks.parquet").is_file()
+    assert json.loads((tmp_path / "vae" / "segmentation.json").read_text()).get("reading") == "offline"
     assert not list(tmp_path.glob(".annotated.tmp-*"))
     left = list(tmp_path.glob(".annotated.old-*"))
     assert len(left) == 1 and left[0].name in sentence

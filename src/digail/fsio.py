@@ -19,6 +19,21 @@ import numpy as np
 
 from digail.errors import UserError
 
+
+class OldOutputLeft(UserError):
+    """`--force` replaced an output, but what is left of the old one could not be removed: the new output is in
+    place (the command's work is done) and the sentence names the leftover folder to remove by hand."""
+
+    def __init__(self, final: Path, old: Path, reason: str) -> None:
+        self.final, self.old, self.reason = Path(final), Path(old), reason
+        super().__init__(self.sentence(f"the new {final} is in place"))
+
+    def sentence(self, done: str) -> str:
+        """The refusal after `done` (what is in place), e.g. "the new OUT is in place"."""
+        return (f"{done}, but the old {self.final} could not be removed ({self.reason}); what is left of it is in "
+                f"{self.old}, remove it by hand.")
+
+
 MIN_FREE_BYTES = 16 * 2**20
 """an output location with less free space than this is refused before the work starts"""
 
@@ -429,9 +444,7 @@ def atomic_dir(final: Path, force: bool = False) -> Iterator[Path]:
                     remove_path(old)
                 except OSError as exc:  # e.g. an immutable file (chattr +i) in the replaced folder
                     reason = (exc.strerror or type(exc).__name__).lower()
-                    raise UserError(f"the new {final} is in place, but the folder it replaced could not be removed "
-                                    f"({reason}: {exc.filename}); what is left of it is in {old}, remove it by "
-                                    "hand.") from None
+                    raise OldOutputLeft(final, old, f"{reason}: {exc.filename}") from None
 
 
 def _discard(tmp: Path) -> None:

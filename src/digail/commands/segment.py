@@ -60,11 +60,12 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     from digail.data.minari_io import load_dataset
     from digail.data.subtask_plan import names_by_code
     from digail.eval.segmentation import summary_line, write_segmentation
-    from digail.fsio import run_dir_lock
+    from digail.fsio import OldOutputLeft, run_dir_lock
 
     if args.export is None and (args.out is not None or args.names is not None):
         raise UserError("--out and --names go with --export; add --export robomimic, lerobot, csv or json.")
     run, demos = check_output_folder(args.run), args.demos
+    left: OldOutputLeft | None = None
     with run_dir_lock(run):  # one writer per run folder
         model, meta = load_model(run)
         config = read_config(run) or meta["config"]
@@ -114,8 +115,11 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
             # written before the run folder: a refusal the export finds only in the source (a clash of names, a
             # column already there, a frame gap) leaves the run's segmentation as it was
             notes: list[str] = []
-            path = export_segmentation(args.export, args.out, episode_keys, codes, names, source=source,
-                                       force=args.force, notes=notes, reading=args.reading)
+            try:
+                path = export_segmentation(args.export, args.out, episode_keys, codes, names, source=source,
+                                           force=args.force, notes=notes, reading=args.reading)
+            except OldOutputLeft as exc:  # the export is in place: the run's segmentation is written as well
+                left, path = exc, Path(args.out)
             for note in notes:
                 print(f"note: {note}.")
             print(f"wrote the segmentation as {args.export} annotations ({', '.join(args.names or names)}) to {path}")
@@ -123,6 +127,8 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
                                      reading=args.reading)
         print(summary_line(metrics))
         print(f"wrote {run / 'segmentation.json'}, {run / 'codes.npz'} and {run / 'figures' / 'segmentation.png'}")
+    if left is not None:
+        raise UserError(left.sentence(f"the new {left.final} and the run's segmentation are in place"))
     return metrics
 
 
