@@ -183,11 +183,16 @@ def test_one_standard_error_rule_keeps_the_smallest_k_the_data_cannot_tell_from_
     # K = 5 leaves a code that few fitted demonstrations take: with a minimum share it is not weighed, and K = 3
     # is within noise of the lowest of those left, K = 4
     for c, share in zip(curve, (1.0, 0.9, 0.6, 0.1), strict=True):
-        c["least_used_share"] = share
+        c["least_used"] = share
     assert smallest_within_one_se(curve, 0.5) == 1
     assert smallest_within_one_se(curve, 0.0) == 3
     assert smallest_within_one_se(curve, 0.95) == 0  # only K = 2 is left
     assert smallest_within_one_se(curve, 1.1) == 3  # none is left: all are weighed
+    # what the curve records: code 2 appears in one demonstration of three, codes 0 and 1 in all three
+    from digail.algos.segment_init import _least_used
+
+    seg = [np.array([0, 0, 1]), np.array([0, 1, 1, 2]), np.array([1, 0])]
+    assert _least_used(seg, 3) == pytest.approx(1 / 3) and _least_used(seg, 2) == 1.0
 
 
 def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minari_root: Path) -> None:

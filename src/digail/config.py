@@ -89,12 +89,12 @@ class VAEConfig:
     such as arcs take one code each, but on many state features extra codes keep paying), or `vae`, that of a whole
     VAE trained per K (lowest wins; the VAE's network policies explain the actions with too few codes where the
     state reveals the sub-task). `segment_init.heldout_codes_curve`, docs/howto/choosing-k.md"""
-    k_ridge: float | None = 1.0
+    k_ridge: float | None = None
     """ridge of the `linear` and `rff` criteria's sub-task policies (None: the start's, `start_ridge`)"""
-    k_min_share: float = 0.0
-    """`--codes auto` with the `linear` or `rff` criterion only weighs a K whose every code appears in at least this
-    share of the fitted demonstrations (0: every K): a sub-task is a step most demonstrations take, and a code that
-    only a few take marks how those few differ (a regrasp, a slip) rather than a phase of the task"""
+    k_min_use: float = 0.5
+    """`--codes auto` with the `linear` or `rff` criterion only weighs a K whose least used code appears in at least
+    this fraction as many fitted demonstrations as its most used one (0: every K): a code that far fewer
+    demonstrations take than the others marks how those few differ (a regrasp, a slip), not a sub-task"""
 
     init: Literal["em", "none"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -163,7 +163,7 @@ class VAEConfig:
         _check_numbers(self, "--vae.", dict(steps=0, batch_size=1, warmup_epochs=0, polish_steps=0,
                                             q_anticipate=0, restarts=1, init_steps=0),
                        ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr", "init_ridge",
-                        "k_ridge", "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction", "k_min_share"))
+                        "k_ridge", "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction", "k_min_use"))
         if self.epochs is not None:
             _require(isinstance(self.epochs, int) and self.epochs >= 0, "--vae.epochs", "at least 0", self.epochs)
         _require(self.init in ("em", "none"), "--vae.init", "em or none", self.init)

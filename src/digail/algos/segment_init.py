@@ -288,8 +288,8 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     Why linear policies score K where the VAE's network cannot: a network sub-task policy sees enough of the state
     to explain the actions with fewer codes than there are sub-tasks (the square: 2 instead of 4), so extra codes
     buy it nothing; a linear policy per code needs one code per distinct behaviour. Each dict holds `codes`,
-    `dl_per_step`, `least_used_share` (the share of the `fit_on` demonstrations the least used code of the fitted
-    segmentation appears in) and `episode_dl` (the held-out episodes' own description lengths in nats, for
+    `dl_per_step`, `least_used` (how many `fit_on` demonstrations the least used code of the
+    fitted segmentation appears in, as a fraction of the most used code's count) and `episode_dl` (the held-out episodes' own description lengths in nats, for
     `model_selection.smallest_within_one_se`).
     """
     x_fit, a_fit, n_act, mean, std = _design(fit_on, discrete)
@@ -326,9 +326,15 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
         episode = episode + per_episode
         curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
                       "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
-                      "least_used_share": float(min(np.mean([np.any(c == j) for c in seg]) for j in range(k))),
+                      "least_used": _least_used(seg, k),
                       "episode_dl": episode.tolist()})
     return curve
+
+
+def _least_used(seg: Sequence[np.ndarray], k: int) -> float:
+    """How many demonstrations the least used of k codes appears in, as a fraction of the most used one's count."""
+    counts = np.array([sum(bool(np.any(c == j)) for c in seg) for j in range(k)], np.float64)
+    return float(counts.min() / counts.max()) if counts.max() > 0 else 0.0
 
 
 def hard_em_from(trajs: Sequence[Trajectory], start: Sequence[np.ndarray], codes: int, discrete: bool, *,

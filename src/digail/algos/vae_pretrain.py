@@ -366,7 +366,7 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
                                                       model=cfg.k_criterion, actions=cfg.init_actions,
                                                       ridge=cfg.curve_ridge(discrete))
-    pick = smallest_within_one_se(curve, cfg.k_min_share)
+    pick = smallest_within_one_se(curve, cfg.k_min_use)
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
         entry["chosen"] = i == pick
@@ -383,9 +383,10 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     chosen K is trained (and polished) on all demonstrations.
 
     `cfg.k_criterion` says which model is scored: `linear` or `rff`, hard EM's switching sub-task policies on
-    random Fourier features of the state or on the state alone (ridge 1.0 whatever the start's; the smallest K
-    within one standard error of the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K (the lowest;
-    the chosen VAE is kept and only polished on all demonstrations).
+    random Fourier features of the state or on the state alone (the start's ridge unless `cfg.k_ridge` says
+    otherwise; among the K whose codes are used alike, `cfg.k_min_use`, the smallest within one standard error of
+    the lowest, `smallest_within_one_se`), or `vae`, a whole VAE per K (the lowest; the chosen VAE is kept and only
+    polished on all demonstrations).
 
     The curve's linear policies cut at any step; `pieces` (`pretrain`'s) serves the VAEs' own start.
 
