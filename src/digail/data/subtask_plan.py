@@ -3,8 +3,8 @@
 MimicGen's parser (`parse_source_dataset`) takes the signals of a task spec in order and ends sub-task i at the
 first 0 -> 1 step of its signal after sub-task i - 1 ended, so every demonstration needs one such step per named
 sub-task, in one order. `plan_subtasks` decides that order once for a file and fits each demonstration's
-boundaries; `settle_grasps` moves a boundary where the gripper starts closing or opening to where its fingers stop,
-since MimicGen's signals mark the grasp made, the codes the command to make it.
+boundaries; `settle_grasps` moves a boundary near a finger motion to where the fingers stopped, since MimicGen's signals
+mark the grasp made, the codes the command to make it or the arm's next move.
 """
 
 from __future__ import annotations
@@ -171,42 +171,48 @@ def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
 
 
 SETTLED = 0.2
-"""fingers count as stopped below this share of their peak speed in the motion"""
-GRASP_LAG = 3
-"""a boundary is a grasp's start when the fingers start moving at most this many steps after it"""
+"""the fingers move while their speed is at least this share of the demonstration's fastest finger motion"""
+IDLE = 10.0
+"""a demonstration's fingers move at all only if their top speed is this many times their median speed"""
 GRASP_STEPS = 25
-"""the longest finger motion a boundary is moved over (steps)"""
+"""a boundary goes to the end of a finger motion that starts at most this many steps before it or `GRASP_LAG`
+after it"""
+GRASP_LAG = 3
+
+
+def finger_motions(speed: np.ndarray) -> list[tuple[int, int]]:
+    """The finger motions of one demonstration as (first moving step, first step stopped again), from its fingers'
+    speed per step (`SETTLED`, `IDLE`)."""
+    top = float(speed.max()) if len(speed) else 0.0
+    if top <= 0 or top < IDLE * float(np.median(speed)):
+        return []
+    moving = np.concatenate([[False], speed >= SETTLED * top, [False]])
+    edges = np.flatnonzero(np.diff(moving.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b < len(speed)]
 
 
 def settle_grasps(plan: SubtaskPlan, finger_speed: Sequence[np.ndarray | None]) -> SubtaskPlan:
-    """`plan` with each boundary where the gripper's fingers start to move (still before it, moving within
-    `GRASP_LAG` steps) moved to the first step their speed falls below `SETTLED` of its peak in that motion:
-    MimicGen's grasp signal turns 1 when the object is held, which on robosuite's Stack and PickPlaceCan comes 5-7
-    steps after the command to close that the codes switch at. A boundary stays where it was when the fingers do
-    not start moving there, when the motion lasts longer than `GRASP_STEPS`, or when moving it would reach the next
-    boundary (each sub-task keeps a step, the last two). `finger_speed`: per demonstration, the fingers' speed at
-    every step, or None (no gripper velocities in the observations: nothing moves)."""
+    """`plan` with each boundary near a finger motion moved to the step the fingers stopped: MimicGen's grasp
+    signal turns 1 when the object is held, and on robosuite's Stack and PickPlaceCan that comes 5-7 steps after
+    the command to close, while the codes switch at the command or where the arm next moves (the lift, after the
+    fingers have closed). The motion taken is the one starting at most `GRASP_STEPS` steps before the boundary or
+    `GRASP_LAG` after it whose end is nearest; the boundary stays where it was without one, or when moving it would
+    reach a neighbouring boundary (each sub-task keeps a step, the last two). `finger_speed`: per demonstration,
+    the fingers' speed at every step, or None (no gripper velocities in the observations: nothing moves)."""
     moved = 0
     boundaries = []
     for cuts, speed in zip(plan.boundaries, finger_speed, strict=True):
         new = list(cuts)
-        if speed is not None:
-            n = len(speed)
-            for j, b in enumerate(cuts):
-                limit = (new[j + 1] - 1) if j + 1 < len(new) else n - 2
-                window = speed[b:min(b + GRASP_STEPS, n)]
-                if len(window) < 2 or window.max() <= 0:
-                    continue
-                peak = window.max()
-                moving = np.flatnonzero(window >= SETTLED * peak)
-                if moving[0] > GRASP_LAG or (b > 0 and speed[b - 1] >= SETTLED * peak):  # not a motion's start
-                    continue
-                stopped = np.flatnonzero(window[moving[0]:] < SETTLED * peak)
-                if not len(stopped):
-                    continue
-                to = int(b + moving[0] + stopped[0])
-                if b < to <= limit:
-                    new[j] = to
-                    moved += 1
+        motions = finger_motions(speed) if speed is not None else []
+        for j, b in enumerate(cuts):
+            near = [end for start, end in motions if b - GRASP_STEPS <= start <= b + GRASP_LAG]
+            if not near:
+                continue
+            to = min(near, key=lambda end: (abs(end - b), end))
+            low = new[j - 1] + 1 if j > 0 else 1
+            high = (cuts[j + 1] - 1) if j + 1 < len(cuts) else len(speed) - 2  # type: ignore[arg-type]
+            if to != b and low <= to <= high:
+                new[j] = to
+                moved += 1
         boundaries.append(tuple(new))
     return replace(plan, boundaries=tuple(boundaries), settled=plan.settled + moved)
