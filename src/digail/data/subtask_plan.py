@@ -65,7 +65,7 @@ class SubtaskPlan:
     """demonstrations whose codes are not one run of each sub-task in `order` (a code recurs, is missing, comes
     out of order or is an unused one), whose boundaries were fitted"""
     settled: int = 0
-    """boundaries moved from the start of a finger motion to its end (`settle_grasps`)"""
+    """boundaries moved to where a nearby finger motion ended (`settle_grasps`)"""
 
 
 def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str] | None = None) -> SubtaskPlan:
@@ -162,8 +162,7 @@ def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
         line += (f"; {plan.refitted} of {len(plan.boundaries)} demonstrations have codes that recur, are missing or "
                  "come out of that order, and got the one boundary per sub-task that agrees with most of their steps")
     if plan.settled:
-        line += (f"; {plan.settled} boundaries moved from the command to close or open the gripper to where its "
-                 "fingers stopped")
+        line += f"; {plan.settled} boundaries moved to where the gripper's fingers stopped (the grasp or release)"
     if plan.unused:
         line += (f"; {', '.join(names[k] for k in plan.unused)} (in fewer than half of the demonstrations) "
                  "written as all-zero")
