@@ -76,10 +76,10 @@ for _pid, _text, _expect in [
 
 
 for _pid, _item, _expect in [
-    ("reward-set-name", "train.imitation.reward=magic", "takes no such value"),
+    ("reward-set-kind", "train.imitation.reward=magic", "takes no such value"),
     ("reward-set-prior", "train.imitation.pu_prior=2", "pu-prior"),
     ("reward-set-whole-section", "train.imitation=ot", "is not a setting a sweep may change"),
-    ("reward-set-ok-name", "train.imitation.reward=pu,ot", None),
+    ("reward-set-ok-kind", "train.imitation.reward=pu,ot", None),
     ("reward-set-range-top-k", "train.imitation.ot_top_k=0..3", "ranges are searched"),
 ]:
     probe(_pid, f"`digail sweep --set {_item}`", _expect)(lambda tmp, i=_item: sweep_check((i,)))

@@ -374,8 +374,8 @@ def test_search_space_and_sample_runs_named_after_their_values():
     jobs = sample_jobs(spec, {"train.bonus_weight": 0.0123, "train.ppo.epochs": 2,
                               "train.imitation.logits_to_reward": "negative"}, tuple(sorted(space)))
     runs = sorted(j.run for j in jobs if j.kind == "trial")
-    assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123__train.ppo.epochs=2"
-                       "__train.imitation.logits_to_reward=negative")
+    assert runs[0] == ("digail-FourRooms-v0/digail_s0__train.bonus_weight=0.0123"
+                       "__train.imitation.logits_to_reward=negative__train.ppo.epochs=2")
     assert sorted(j.run for j in jobs if j.kind == "vae") == ["digail-FourRooms-v0/vae_s0",
                                                               "digail-FourRooms-v0/vae_s1"]
     assert check_metric("seg/nmi") == ("segmentation.json", "nmi")
