@@ -49,7 +49,7 @@ class SACLearner:
             raise UserError("--train.learner sac needs continuous actions; use --train.learner ppo for this env.")
         if h.cfg.anchor_weight > 0:
             raise UserError("--train.anchor-weight is a PPO term; set it to 0 with --train.learner sac (the BC term, "
-                            "--bc-weight, works with both).")
+                            "--train.bc-weight, works with both).")
         obs_dim, act_dim = h.model.obs_dim, h.model.action.dim
         self.obs_dim, self.act_dim = obs_dim, act_dim
         pi = h.model.pi
