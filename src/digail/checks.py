@@ -81,6 +81,21 @@ keyboard (`--train.ppo.batch-size 10000000000`) is one sentence rather than an a
 never ends. The replay buffer (`--train.sac.buffer-size`) is checked against the memory available instead."""
 
 
+EPOCHS_MAX = 10**6
+"""most VAE epochs (`--vae.epochs`), as the other counts of `AT_MOST`"""
+
+HIDDEN_MAX = 2**14
+"""widest hidden layer (`--vae.hidden`, `--train.hidden`, `--train.sac.hidden`): a 16,384 x 16,384 layer is 1 GiB
+of float32 weights (three times that with Adam's moments), far above any network digail trains"""
+
+
+def check_hidden(sizes: tuple[int, ...], flag: str) -> None:
+    """Hidden layer sizes: each 1 to `HIDDEN_MAX` units, so a slip is one sentence rather than an allocation
+    failure."""
+    _require(all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= HIDDEN_MAX for h in sizes), flag,
+             f"sizes of 1 to {HIDDEN_MAX:,}", sizes)
+
+
 FINAL_EVAL_SEED = 10_000
 """seed of the first episode of every final evaluation (episode i uses seed + i); training never uses it"""
 

@@ -12,10 +12,11 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from digail.checks import EPOCHS_MAX, _check_numbers, _finite, _require, check_hidden
+
 # The shared value checks live in digail.checks; config offers them too, where callers have always found them.
 from digail.checks import FINAL_EVAL_SEED as FINAL_EVAL_SEED
 from digail.checks import SEED_MAX as SEED_MAX
-from digail.checks import _check_numbers, _finite, _require
 from digail.checks import check_at_least as check_at_least
 from digail.checks import check_codes as check_codes
 from digail.checks import check_seed as check_seed
@@ -165,7 +166,8 @@ class VAEConfig:
                        ("lr", "kl_weight", "smoothing_weight", "tau_decay", "entropy_weight", "polish_lr", "init_ridge",
                         "k_ridge", "q_noise", "max_grad_norm"), ("warmup_fraction", "heldout_fraction", "k_min_use"))
         if self.epochs is not None:
-            _require(isinstance(self.epochs, int) and self.epochs >= 0, "--vae.epochs", "at least 0", self.epochs)
+            _require(isinstance(self.epochs, int) and 0 <= self.epochs <= EPOCHS_MAX, "--vae.epochs",
+                     f"between 0 and {EPOCHS_MAX:,}", self.epochs)
         _require(self.init in ("em", "none"), "--vae.init", "em or none", self.init)
         _require(self.init_variance in ("shared", "per-code"), "--vae.init-variance", "shared or per-code",
                  self.init_variance)
@@ -176,8 +178,7 @@ class VAEConfig:
                             "1000) or --vae.epochs N.")
         _require(_finite(self.tau0) and self.tau0 > 0, "--vae.tau0", "positive", self.tau0)
         _require(_finite(self.tau_min) and self.tau_min > 0, "--vae.tau-min", "positive", self.tau_min)
-        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--vae.hidden", "sizes of at least 1",
-                 self.hidden)
+        check_hidden(self.hidden, "--vae.hidden")
         _require(self.init_ridge is None or (_finite(self.init_ridge) and self.init_ridge > 0), "--vae.init-ridge",
                  "positive", self.init_ridge)
         _require(_finite(self.init_outlier_share) and 0 <= self.init_outlier_share < 1, "--vae.init-outlier-share",
@@ -332,8 +333,7 @@ class SACConfig:
             _require(_finite(self.target_entropy), "--train.sac.target-entropy", "a finite number",
                      self.target_entropy)
         _require(self.gamma < 1, "--train.sac.gamma", "below 1", self.gamma)
-        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--train.sac.hidden",
-                 "sizes of at least 1", self.hidden)
+        check_hidden(self.hidden, "--train.sac.hidden")
         if self.steps_per_iteration < self.num_envs:
             raise UserError(f"--train.sac.steps-per-iteration ({self.steps_per_iteration}) must be at least "
                             f"--train.sac.num-envs ({self.num_envs}): one step per environment.")
@@ -429,8 +429,7 @@ class TrainConfig:
         _require(_finite(self.bonus_weight), "--train.bonus-weight", "a finite number", self.bonus_weight)
         _require(_finite(self.min_init_log_std), "--train.min-init-log-std", "a finite number",
                  self.min_init_log_std)
-        _require(all(isinstance(h, int) and h >= 1 for h in self.hidden), "--train.hidden", "sizes of at least 1",
-                 self.hidden)
+        check_hidden(self.hidden, "--train.hidden")
         _require(self.backend in ("auto", "sync", "subproc", "envpool"), "--train.backend",
                  "one of auto, sync, subproc, envpool", self.backend)
         _require(self.learner in ("ppo", "sac"), "--train.learner", "ppo or sac", self.learner)
