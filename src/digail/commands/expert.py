@@ -9,7 +9,11 @@ from typing import Annotated
 import tyro
 
 from digail.config import check_at_least, check_seed
+from digail.errors import UserError
 
+EXPERT_STEPS_MAX = 10**9
+"""most environment steps of one expert training (`--steps`): over 300 times the largest budget of a recipe (3M),
+so a slip of the keyboard is one sentence rather than a training that never ends"""
 
 @dataclass(frozen=True)
 class ExpertArgs:
@@ -30,6 +34,8 @@ class ExpertArgs:
 
     def __post_init__(self) -> None:
         check_at_least(self.steps, "--steps")
+        if self.steps is not None and self.steps > EXPERT_STEPS_MAX:
+            raise UserError(f"--steps must be at most {EXPERT_STEPS_MAX:,}, got {self.steps}.")
         check_seed(self.seed)
 
 

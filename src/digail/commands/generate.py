@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from digail.checks import check_episodes
 from digail.config import check_at_least, check_seed
 from digail.errors import UserError
 
@@ -80,8 +81,8 @@ class GenerateArgs:
     """show a progress bar"""
 
     def __post_init__(self) -> None:
-        check_at_least(self.attempts, "--attempts")
-        check_at_least(self.successes, "--successes")
+        check_episodes(self.attempts, "--attempts")  # each attempt an episode, each kept one held until written
+        check_episodes(self.successes, "--successes")
         check_at_least(self.chunk, "--chunk")
         check_at_least(self.min_segment, "--min-segment")
         check_at_least(self.blend, "--blend")
