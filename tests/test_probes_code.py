@@ -266,7 +266,7 @@ def _view_width_later(tmp: Path) -> None:
 
 # ------------------------------------------------------------------------------------------------ messages
 @probe("msg-compose-episodes-huge", "`digail compose RUN --episodes 1000000000000`",
-       "--episodes must be at most 4294967296")
+       "--episodes must be at most 1,000,000")
 def _compose_huge(tmp: Path) -> None:
     import shutil
 
