@@ -367,8 +367,10 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
                                                       model=cfg.k_criterion, actions=cfg.init_actions,
                                                       ridge=cfg.curve_ridge(discrete))
     pick = smallest_within_one_se(curve, cfg.k_min_use)
+    any_weighed = any(e["least_used"] >= cfg.k_min_use for e in curve)
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+        entry["weighed"] = bool(entry["least_used"] >= cfg.k_min_use or not any_weighed)
         entry["chosen"] = i == pick
     return curve, pick
 

@@ -467,8 +467,9 @@ def learning_curves_multi(runs: Mapping[str, Sequence[Path | Mapping[str, np.nda
 def codes_curve(curves: Mapping[str, Sequence[Mapping[str, Any]]], path: Path, truth: Mapping[str, int] | None = None,
                 cols: int = 4) -> Path:
     """One panel per entry of `curves` (a title and the `k_selection` list `--codes auto` writes to config.json:
-    dicts with `codes`, `dl_per_step` and `chosen`): the held-out description length in nats per step against K,
-    the chosen K as a filled marker and, where `truth` gives it, the true K as a dashed line."""
+    dicts with `codes`, `dl_per_step`, `chosen` and `weighed`): the held-out description length in nats per step
+    against K, the chosen K as a filled marker, the K left out of the choice hollow, and, where `truth` gives it,
+    the true K as a dashed line."""
     n = max(1, len(curves))
     cols = min(cols, n)
     rows = -(-n // cols)
@@ -477,6 +478,9 @@ def codes_curve(curves: Mapping[str, Sequence[Mapping[str, Any]]], path: Path, t
         ks = [int(c["codes"]) for c in curve]
         dl = [float(c["dl_per_step"]) for c in curve]
         ax.plot(ks, dl, "o-", color="0.4", ms=4)
+        unweighed = [(k, d) for k, d, c in zip(ks, dl, curve, strict=True) if not c.get("weighed", True)]
+        if unweighed:  # K whose codes are used too unevenly to be chosen (`VAEConfig.k_min_use`)
+            ax.plot(*zip(*unweighed, strict=True), "o", mfc="white", mec="0.4", ms=6, label="codes used unevenly")
         for k, d, c in zip(ks, dl, curve, strict=True):
             if c.get("chosen"):
                 ax.plot([k], [d], "o", color=code_colour(3), ms=9, label=f"chosen K = {k}")
