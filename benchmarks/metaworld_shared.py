@@ -97,6 +97,7 @@ def many_to_one(codes: np.ndarray, labels: np.ndarray, k: int, n: int) -> dict[i
 
 
 def majority_kinds(mapping: dict[int, int], codes: np.ndarray) -> np.ndarray:
+    """Each step's kind under `mapping` (-1 for a code it leaves out: one-to-one with more codes than kinds)."""
     return np.array([mapping.get(int(c), -1) for c in codes])
 
 
@@ -113,7 +114,7 @@ def measure(run: Path, demos: Path, tasks: list[str], k: int) -> dict[str, Any]:
     shared = one_to_one(every_c, every_l, k, len(KIND_NAMES))
     majority = many_to_one(every_c, every_l, k, len(KIND_NAMES))
     out: dict[str, Any] = {"mapping": {str(c): KIND_NAMES[v] for c, v in shared.items()},
-                           "accuracy": float(np.mean(np.vectorize(shared.get)(every_c) == every_l)),
+                           "accuracy": float(np.mean(majority_kinds(shared, every_c) == every_l)),
                            "mapping_many_to_one": {str(c): KIND_NAMES[v] for c, v in majority.items()},
                            "accuracy_many_to_one": float(np.mean(majority_kinds(majority, every_c) == every_l)),
                            "tasks": {}}
@@ -123,9 +124,9 @@ def measure(run: Path, demos: Path, tasks: list[str], k: int) -> dict[str, Any]:
         own = one_to_one(c, lab, k, len(KIND_NAMES))
         counts = np.zeros((k, len(KIND_NAMES)), dtype=int)
         np.add.at(counts, (c, lab), 1)
-        out["tasks"][task] = {"shared": float(np.mean(np.vectorize(shared.get)(c) == lab)),
+        out["tasks"][task] = {"shared": float(np.mean(majority_kinds(shared, c) == lab)),
                               "shared_many_to_one": float(np.mean(majority_kinds(majority, c) == lab)),
-                              "own": float(np.mean(np.vectorize(own.get)(c) == lab)),
+                              "own": float(np.mean(majority_kinds(own, c) == lab)),
                               "nmi": float(normalized_mutual_info_score(lab, c)), "steps": int(len(c)),
                               "counts": counts.tolist()}
     return out
