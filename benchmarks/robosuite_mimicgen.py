@@ -82,8 +82,18 @@ def read_export(path: Path) -> tuple[list[str], dict[str, dict[str, np.ndarray]]
     return keys, out, spec
 
 
+def offsets_check(ends: list[int], n_steps: int, offsets: tuple[int, int]) -> bool:
+    """MimicGen's sanity check of a demonstration's sub-task ends under the term offsets `offsets` for every
+    signalled sub-task and (0, 0) for the last: end of sub-task i + its largest offset < end of sub-task i + 1 + its
+    smallest offset (NVlabs/mimicgen's parse_source_dataset, rewritten)."""
+    full = [*ends, n_steps]
+    ranges = [offsets] * len(ends) + [(0, 0)]
+    return all(full[i - 1] + ranges[i - 1][1] < full[i] + ranges[i][0] for i in range(1, len(full)))
+
+
 def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, figure: Path | None,
-          json_out: Path | None, commands: list[str], gripper_dim: int | None = 6) -> dict:
+          json_out: Path | None, commands: list[str], gripper_dim: int | None = 6,
+          offsets: tuple[int, int] = (10, 20)) -> dict:
     keys, signals, spec = read_export(exported)
     ours, truth, lengths, closes = [], [], [], []
     with h5py.File(oracle, "r") as g, h5py.File(exported, "r") as f:
@@ -119,6 +129,10 @@ def score(exported: Path, oracle: Path, oracle_signal: str, run: Path | None, fi
         "max_abs_error": float(np.max(abs_err)),
         "target_met": bool(np.median(abs_err) <= 5 and np.mean(abs_err <= 10) >= 0.9),
         "mimicgen_parser_rule_accepts_export": True,
+        "offsets": list(offsets),
+        "offsets_check_passed": int(sum(offsets_check(o, n, offsets) for o, n in zip(ours, lengths, strict=True))),
+        "offsets_check_passed_first_20": int(sum(offsets_check(o, n, offsets)
+                                                  for o, n in list(zip(ours, lengths, strict=True))[:20])),
         "trace": None if not closes else {
             "what": "steps from the first step the gripper is commanded closed (actions[:, 6] > 0) to the first step "
                     "the oracle signal is 1, and to the first step digail's chosen exported signal is 1",
@@ -191,10 +205,12 @@ def main() -> None:
     s.add_argument("--figure", type=Path)
     s.add_argument("--json", type=Path)
     s.add_argument("--command", action="append", default=[], help="a command that made the export (recorded)")
+    s.add_argument("--offsets", type=int, nargs=2, default=[10, 20], metavar=("LO", "HI"),
+                   help="MimicGen term offsets of every signalled sub-task for its sanity check (Stack's: 10 20)")
     args = parser.parse_args()
     own = [a for i, a in enumerate(sys.argv) if a != "--command" and (i == 0 or sys.argv[i - 1] != "--command")]
     score(args.exported, args.oracle, args.oracle_signal, args.run, args.figure, args.json,
-          [*args.command, " ".join(["python", *own])])
+          [*args.command, " ".join(["python", *own])], offsets=tuple(args.offsets))
 
 
 if __name__ == "__main__":

@@ -159,3 +159,40 @@ def test_a_boundary_near_a_grasp_moves_to_where_the_fingers_stop():
     # the next sub-task starts at 37: 33 cannot pass it, and 37, as near the motion, goes to 39 instead
     crowded = plan_subtasks([np.repeat([0, 1, 2], [33, 4, 53])], 3)
     assert settle_grasps(crowded, [speed]).boundaries == ((33, 39),)
+
+
+def test_sub_tasks_too_short_for_mimicgens_offsets_merge_into_the_next():
+    """Stack's default export cut the reach into pieces of about 9 and 10 steps before the grasp; MimicGen's offsets
+    (up to 20 steps) cannot take them, so they merge into the sub-task after them and their codes' signals stay
+    zero. A demonstration whose merged sub-tasks are still short is listed; the last sub-task merges backwards."""
+    from digail.data.subtask_plan import merge_short
+
+    codes = [np.repeat([0, 1, 2, 3], [9, 10, 30, 60]), np.repeat([0, 1, 2, 3], [8, 12, 25, 55]),
+             np.repeat([0, 1, 2, 3], [10, 9, 5, 70])]
+    plan = merge_short(plan_subtasks(codes, 4), [len(c) for c in codes], min_steps=20)
+    assert plan.order == (2, 3) and plan.merged == (0, 1) and set(plan.unused) == {0, 1}
+    assert plan.boundaries == ((49,), (45,), (24,))
+    assert plan.short == ()  # demonstration 2's first sub-task, 24 steps, is long enough
+    assert plan_signals(plan, 0, len(codes[0]), 4)[0].sum() == 0
+    line = plan_line(plan, [f"code_{k}" for k in range(4)])
+    assert "code_0, code_1 (sub-tasks of a median under 20 steps) merged" in line
+    tail = merge_short(plan_subtasks([np.repeat([0, 1], [50, 5])] * 2, 2), [55, 55], min_steps=20)
+    assert tail.order == (1,) and tail.boundaries == ((), ())  # the short last sub-task merged into the first
+    long = merge_short(plan_subtasks(codes, 4), [len(c) for c in codes], min_steps=5)
+    assert long.order == (0, 1, 2, 3) and long.merged == ()
+    listed = merge_short(plan_subtasks([np.repeat([0, 1], [50, 60]), np.repeat([0, 1], [8, 60]),
+                                        np.repeat([0, 1], [40, 60])], 2), [110, 68, 100])
+    assert listed.order == (0, 1) and listed.short == ((1, 0, 8),) and listed.min_steps == 10  # a tenth of 100
+    tiny = [np.repeat([0, 1, 2], [3, 3, 4])] * 2  # 10-step demonstrations keep their 3-step sub-tasks
+    assert merge_short(plan_subtasks(tiny, 3), [10, 10]).order == (0, 1, 2)
+
+
+def test_the_benchmarks_offsets_check_is_mimicgens():
+    """MimicGen's sanity check: end of sub-task i + its largest offset < end of sub-task i + 1 + its smallest; the
+    last sub-task ends with the demonstration and takes no offset."""
+    from conftest import repo_module
+
+    check = repo_module("benchmarks/robosuite_mimicgen.py").offsets_check
+    assert check([40], 110, (10, 20)) and not check([40], 60, (10, 20))  # 40 + 20 < 60 fails
+    assert not check([9, 16, 40], 110, (10, 20))  # 9 + 20 < 16 + 10 fails
+    assert check([16, 40], 110, (10, 20)) and not check([16, 26], 110, (10, 20))

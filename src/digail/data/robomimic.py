@@ -37,7 +37,14 @@ from typing import Any
 import numpy as np
 
 from digail.data.input_files import as_float32, check_h5_links, h5_array, regular_file
-from digail.data.subtask_plan import plan_line, plan_signals, plan_subtasks, settle_grasps
+from digail.data.subtask_plan import (
+    MIN_SUBTASK_STEPS,
+    merge_short,
+    plan_line,
+    plan_signals,
+    plan_subtasks,
+    settle_grasps,
+)
 from digail.errors import UserError
 from digail.fsio import check_writable, signals_deferred, umask
 from digail.utils import one_line
@@ -312,7 +319,8 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
             of a next state has one code fewer; its last step takes the code before it).
         names: one signal name per code (`datagen_info/subtask_term_signals/<name>`).
         force: replace an existing `out`.
-        notes: where to append the one line saying which sub-tasks, in which order, were written (`plan_line`).
+        notes: where to append the line saying which sub-tasks, in which order, were written (`plan_line`), and one
+            naming the demonstrations with a sub-task too short for MimicGen's offsets.
         reading: which reading of the segmentation the codes are (`digail.algos.decode.READINGS`), kept in each
             demonstration's signals group as the attribute `digail_reading`.
 
@@ -349,6 +357,7 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
                 fitted.append(demo_codes)
             plan = plan_subtasks(fitted, len(names), [f"data/{k} of {source}" for k in episode_keys])
             plan = settle_grasps(plan, [_finger_speed(data[key]) for key in episode_keys])
+            plan = merge_short(plan, [len(c) for c in fitted])
             for i, (key, demo_codes) in enumerate(zip(episode_keys, fitted, strict=True)):
                 group = data[key].require_group(SIGNALS_PATH)
                 clash = sorted(set(names) & set(group))
@@ -363,6 +372,12 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
         os.replace(tmp, out)
         if notes is not None:
             notes.append(plan_line(plan, names))
+            if plan.short:
+                named = sorted({episode_keys[d] for d, _, _ in plan.short}, key=str)
+                notes.append(f"{len(named)} of {len(fitted)} demonstrations ({', '.join(named[:5])}"
+                             f"{', ...' if len(named) > 5 else ''}) have a sub-task shorter than "
+                             f"{plan.min_steps} steps, which MimicGen's term offsets (up to {MIN_SUBTASK_STEPS} steps "
+                             "in its task configs) can move past the next sub-task's end; its parser may refuse them")
     except BaseException:
         with signals_deferred(), contextlib.suppress(FileNotFoundError):
             tmp.unlink()

@@ -66,6 +66,12 @@ class SubtaskPlan:
     out of order or is an unused one), whose boundaries were fitted"""
     settled: int = 0
     """boundaries moved to where a nearby finger motion ended (`settle_grasps`)"""
+    merged: tuple[int, ...] = ()
+    """codes whose sub-task was too short and went into its neighbour (`merge_short`), written as all-zero"""
+    short: tuple[tuple[int, int, int], ...] = ()
+    """(demonstration, sub-task position, steps) of the sub-tasks still shorter than `merge_short`'s minimum"""
+    min_steps: int = 0
+    """`merge_short`'s minimum"""
 
 
 def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str] | None = None) -> SubtaskPlan:
@@ -163,10 +169,56 @@ def plan_line(plan: SubtaskPlan, names: Sequence[str]) -> str:
                  "come out of that order, and got the one boundary per sub-task that agrees with most of their steps")
     if plan.settled:
         line += f"; {plan.settled} boundaries moved to where the gripper's fingers stopped (the grasp or release)"
-    if plan.unused:
-        line += (f"; {', '.join(names[k] for k in plan.unused)} (in fewer than half of the demonstrations) "
+    if plan.merged:
+        line += (f"; {', '.join(names[k] for k in plan.merged)} (sub-tasks of a median under {plan.min_steps} "
+                 "steps) merged into the next and written as all-zero")
+    rare = [k for k in plan.unused if k not in plan.merged]
+    if rare:
+        line += (f"; {', '.join(names[k] for k in rare)} (in fewer than half of the demonstrations) "
                  "written as all-zero")
     return line
+
+
+MIN_SUBTASK_STEPS = 20
+"""the fewest steps a MimicGen sub-task should have (by its median over the demonstrations): MimicGen's task
+configs move each sub-task's end by up to 20 steps (`subtask_term_offset_range`, (10, 20) for Stack), and its
+parser refuses a demonstration where that moves an end past the next one"""
+
+
+MIN_SUBTASK_SHARE = 0.1
+"""a sub-task is merged only if it is also under this share of the median demonstration, so short demonstrations
+keep their sub-tasks"""
+
+
+def merge_short(plan: SubtaskPlan, lengths: Sequence[int], min_steps: int | None = None) -> SubtaskPlan:
+    """`plan` with the shortest sub-task (by its median length over the demonstrations) merged into the next one
+    (the last into the one before) while it is under `min_steps` and more than one is left: its boundary goes, and
+    its code's signal is written all-zero. `min_steps` defaults to `MIN_SUBTASK_STEPS` or `MIN_SUBTASK_SHARE` of
+    the median demonstration, whichever is fewer. Demonstrations whose sub-tasks are still shorter are listed in `short`
+    for the export to name. On robosuite's Stack the default K = 4 cut the reach into two short pieces before the
+    grasp (about 9 and 10 steps), which MimicGen's offsets cannot take."""
+    if min_steps is None:
+        min_steps = min(MIN_SUBTASK_STEPS, int(MIN_SUBTASK_SHARE * float(np.median(lengths))))
+    order, bounds = list(plan.order), [list(b) for b in plan.boundaries]
+    merged = list(plan.merged)
+
+    def durations() -> np.ndarray:  # (demonstrations, sub-tasks)
+        return np.array([np.diff([0, *b, n]) for b, n in zip(bounds, lengths, strict=True)])
+
+    while len(order) > 1:
+        median = np.median(durations(), axis=0)
+        i = int(np.argmin(median))
+        if median[i] >= min_steps:
+            break
+        cut = i if i < len(order) - 1 else i - 1  # the boundary between sub-task `cut` and the next goes
+        merged.append(order.pop(cut))
+        for b in bounds:
+            del b[cut]
+    short = tuple((d, i, int(n)) for d, row in enumerate(durations()) for i, n in enumerate(row)
+                  if n < min_steps and len(order) > 1)
+    return replace(plan, order=tuple(order), boundaries=tuple(tuple(b) for b in bounds),
+                   unused=tuple(sorted({*plan.unused, *merged})), merged=tuple(merged), short=short,
+                   min_steps=min_steps)
 
 
 SETTLED = 0.2
