@@ -122,7 +122,9 @@ def pretrain_command(args: PretrainArgs) -> Path:
             config["vae"]["codes"] = model.codes
             codes_curve({"--codes auto: the K curve": curve}, tmp / "figures" / "k_curve.png")
             print("K selection (held-out description length, nats per step; lower is better): "
-                  + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" for c in curve) + f" -> K = {model.codes}")
+                  + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}"
+                              + ("" if c.get("weighed", True) else " (codes used unevenly)") for c in curve)
+                  + f" -> K = {model.codes}")
         else:
             model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
                                 log_dir=tmp, restart_log=restart_log, pieces=init_pieces_fn(dataset.env_id))
