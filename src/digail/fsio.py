@@ -17,22 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from digail.errors import UserError
-
-
-class OldOutputLeft(UserError):
-    """`--force` replaced an output, but what is left of the old one could not be removed: the new output is in
-    place (the command's work is done) and the sentence names the leftover folder to remove by hand."""
-
-    def __init__(self, final: Path, old: Path, reason: str) -> None:
-        self.final, self.old, self.reason = Path(final), Path(old), reason
-        super().__init__(self.sentence(f"the new {final} is in place"))
-
-    def sentence(self, done: str) -> str:
-        """The refusal after `done` (what is in place), e.g. "the new OUT is in place"."""
-        return (f"{done}, but the old {self.final} could not be removed ({self.reason}); what is left of it is in "
-                f"{self.old}, remove it by hand.")
-
+from digail.errors import OldOutputLeft, UserError
 
 MIN_FREE_BYTES = 16 * 2**20
 """an output location with less free space than this is refused before the work starts"""

@@ -59,8 +59,9 @@ def segment_command(args: SegmentArgs) -> dict[str, Any]:
     from digail.data.importers import is_import_source, prepare_import
     from digail.data.minari_io import load_dataset
     from digail.data.subtask_plan import names_by_code
+    from digail.errors import OldOutputLeft
     from digail.eval.segmentation import summary_line, write_segmentation
-    from digail.fsio import OldOutputLeft, run_dir_lock
+    from digail.fsio import run_dir_lock
 
     if args.export is None and (args.out is not None or args.names is not None):
         raise UserError("--out and --names go with --export; add --export robomimic, lerobot, csv or json.")
