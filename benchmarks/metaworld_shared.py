@@ -175,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld" / "metaworld_shared.json")
     parser.add_argument("--figure", type=Path, default=HERE / "results" / "figures" / "metaworld_shared.png")
     args = parser.parse_args(argv)
-    demos, tasks = shared_dataset((args.runs / f"data_{len(KINDS)}_tasks").resolve())
+    demos, tasks = shared_dataset(args.runs / f"data_{len(KINDS)}_tasks")  # relative: the record stays portable
     result: dict[str, Any] = {"command": "python benchmarks/metaworld_shared.py "
                                          + shlex.join(sys.argv[1:] if argv is None else argv),
                               "kinds": list(KIND_NAMES), "phase_kinds": {t: list(k) for t, k in KINDS.items()},

@@ -414,6 +414,7 @@ def fake_minari(monkeypatch: pytest.MonkeyPatch, trajs: list[Trajectory], env_id
     space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
     module.load_dataset = lambda ref: _FakeDataset(trajs, env_id, space, space, "toy/two-phase-v0", Path(ref))  # type: ignore[attr-defined]
     module.dataset_env_id = lambda ref: env_id  # type: ignore[attr-defined]
+    module.resolve_dataset = lambda ref: Path(str(ref))  # type: ignore[attr-defined]  # nothing there to protect
     monkeypatch.setitem(sys.modules, "digail.data.minari_io", module)
 
 
