@@ -552,9 +552,11 @@ def _inputs(tmp: Path) -> None:
     """cwd/ (a copy of the shipped Circle-World dataset), vae/ (a SMOKE VAE pre-trained on it), ex/ (a folder digail
     made holding an expert file) and a FIFO, in `tmp`: what a folder output could be aimed at."""
     if not _INPUTS:
+        import atexit
         import tempfile
 
         made = Path(tempfile.mkdtemp(prefix="digail-probe-inputs-"))
+        atexit.register(shutil.rmtree, made, True)  # made once per process, gone with it
         shutil.copytree(ROOT / "src" / "digail" / "datasets" / "digail" / "circleworld" / "expert-v0", made / "cwd")
         cli(made, "pretrain", "--demos", "cwd", "--codes", "2", "--preset", "smoke", "--out", "vae")
         _INPUTS.append(made)
