@@ -288,9 +288,9 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
     Why linear policies score K where the VAE's network cannot: a network sub-task policy sees enough of the state
     to explain the actions with fewer codes than there are sub-tasks (the square: 2 instead of 4), so extra codes
     buy it nothing; a linear policy per code needs one code per distinct behaviour. Each dict holds `codes`,
-    `dl_per_step`, `least_used` (how many `fit_on` demonstrations the least used code of the
-    fitted segmentation appears in, as a fraction of the most used code's count) and `episode_dl` (the held-out episodes' own description lengths in nats, for
-    `model_selection.smallest_within_one_se`).
+    `dl_per_step`, `least_used` (how many `fit_on` demonstrations the least used code of the fitted segmentation
+    appears in, as a fraction of the most used code's count) and `episode_dl` (the held-out episodes' own
+    description lengths in nats, for `model_selection.smallest_within_one_se`).
     """
     x_fit, a_fit, n_act, mean, std = _design(fit_on, discrete)
     x_held, a_held, _, _, _ = _design(held, discrete, n_act, mean, std)
