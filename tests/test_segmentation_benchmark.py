@@ -334,3 +334,14 @@ def test_codes_auto_says_which_k_it_left_out(tmp_path: Path, capsys: pytest.Capt
     assert [c["weighed"] for c in curve] == [c["least_used"] >= 0.5 for c in curve] == [True, False]
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("K selection"))
     assert re.search(r"K=2: -?[0-9.]+, K=3: -?[0-9.]+ \(codes used unevenly\) -> K = 2$", line), line
+
+
+def test_a_course_on_a_grid_fits_the_env_it_was_recorded_in(minari_root: Path) -> None:
+    """grid-six is recorded in the waypoint env made with `grid=True` (discrete actions), the same env id whose
+    default has continuous ones: the check against the env makes it with the recorded arguments, so `digail
+    pretrain` takes the data."""
+    from digail.data.validation import check_dataset_env, recorded_env_kwargs
+
+    ds = load_dataset(record_course("grid-six", minari_root, seed=0, episodes=3))
+    assert recorded_env_kwargs(ds)["grid"] is True
+    assert check_dataset_env(ds) is None

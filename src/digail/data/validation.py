@@ -5,6 +5,7 @@ Every failure is one `UserError` sentence naming the episode (`where`) and the f
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from typing import Any
 
@@ -118,12 +119,25 @@ def check_dataset_env(dataset: Dataset) -> str | None:
              "train`, `evaluate` and `run` need an environment")
     if dataset.env_id is None:
         return f"dataset {dataset.dataset_id} names no environment; {after} (pass it to `digail train --env`)."
+    kwargs = recorded_env_kwargs(dataset)
     try:
-        make_env(dataset.env_id).close()
+        make_env(dataset.env_id, **kwargs).close()
     except UserError as exc:
         return f"dataset {dataset.dataset_id} was recorded in {dataset.env_id}, which {_cannot_make(exc)}; {after}."
-    check_matches_env(dataset, dataset.env_id)
+    check_matches_env(dataset, dataset.env_id, **kwargs)
     return None
+
+
+def recorded_env_kwargs(dataset: Dataset) -> dict[str, Any]:
+    """The keyword arguments the dataset's environment was made with, from Minari's stored env spec (a waypoint
+    course on a grid has discrete actions where the same env id's default has continuous ones); {} when the spec
+    holds none."""
+    spec = dataset.metadata.get("env_spec")
+    try:
+        kwargs = (json.loads(spec) if isinstance(spec, str) else spec or {}).get("kwargs") or {}
+    except (ValueError, AttributeError):
+        return {}
+    return dict(kwargs) if isinstance(kwargs, dict) else {}
 
 
 def same_action_space(a: gym.Space, b: gym.Space) -> bool:
