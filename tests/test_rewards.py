@@ -359,16 +359,20 @@ def test_sac_runs_each_reward_with_plain_gail(imitation):
         t.close()
 
 
+def _trainer_for(learner: str, circle_demos, imitation: ImitationConfig):
+    """A small trainer with `imitation`: PPO on Circle-World, or SAC on Pendulum."""
+    if learner == "ppo":
+        return build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, imitation=imitation),
+                             vae_model=_vae(circle_demos), seed=0, run_dir=None, progress=False)
+    return _pendulum_trainer(imitation)
+
+
 @pytest.mark.parametrize("learner", ["ppo", "sac"])
 def test_a_state_only_d_ignores_the_action(circle_demos, learner):
     """`disc_actions=False`: D's input is the state (or its view) alone, on the agent's rows and the expert's, so two
     agent steps that differ only in their action get the same logit; D still trains on both learners."""
     imitation = ImitationConfig(disc_actions=False)
-    if learner == "ppo":
-        t = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, imitation=imitation),
-                          vae_model=_vae(circle_demos), seed=0, run_dir=None, progress=False)
-    else:
-        t = _pendulum_trainer(imitation)
+    t = _trainer_for(learner, circle_demos, imitation)
     try:
         d = t.reward
         assert isinstance(d, DiscReward)
@@ -391,11 +395,7 @@ def test_a_weighted_sum_pays_each_term_times_its_weight(circle_demos, learner):
     """`--train.imitation.terms env:0.25` beside D: the sum pays D's reward plus a quarter of the env's, on a rollout
     and on replayed transitions, and D still learns (its scalars come through the sum)."""
     imitation = ImitationConfig(terms=("env:0.25",))
-    if learner == "ppo":
-        t = build_trainer("digail/CircleWorld-v0", circle_demos, replace(SMALL, imitation=imitation),
-                          vae_model=_vae(circle_demos), seed=0, run_dir=None, progress=False)
-    else:
-        t = _pendulum_trainer(imitation)
+    t = _trainer_for(learner, circle_demos, imitation)
     try:
         s = t.reward
         assert isinstance(s, WeightedSum)
