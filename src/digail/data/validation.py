@@ -132,7 +132,7 @@ def recorded_env_kwargs(dataset: Dataset) -> dict[str, Any]:
     """The keyword arguments the dataset's environment was made with, from Minari's stored env spec (a waypoint
     course on a grid has discrete actions where the same env id's default has continuous ones); {} when the spec
     holds none."""
-    spec = dataset.metadata.get("env_spec")
+    spec = (getattr(dataset, "metadata", None) or {}).get("env_spec")
     try:
         kwargs = (json.loads(spec) if isinstance(spec, str) else spec or {}).get("kwargs") or {}
     except (ValueError, AttributeError):
