@@ -88,6 +88,12 @@ def best_index(scores: Sequence[dict[str, Any]], key: str = "dl_per_step") -> in
     return int(np.argmin([s[key] for s in scores]))
 
 
+def weighed_entries(curve: Sequence[dict[str, Any]], min_use: float = 0.0) -> list[int]:
+    """Indices of the curve's entries whose `least_used` (how many fitted demonstrations the least used code
+    appears in, as a fraction of the most used code's count) reaches `min_use`; all of them when none does."""
+    return [i for i, e in enumerate(curve) if e.get("least_used", 1.0) >= min_use] or list(range(len(curve)))
+
+
 def smallest_within_one_se(curve: Sequence[dict[str, Any]], min_use: float = 0.0) -> int:
     """Index of the smallest K whose held-out description length is within one standard error of the lowest.
 
@@ -97,10 +103,9 @@ def smallest_within_one_se(curve: Sequence[dict[str, Any]], min_use: float = 0.0
     is flat to within noise (extra codes split a sub-task where it costs nothing), and its lowest point there is
     chance; the one-standard-error rule keeps the simplest model the data cannot tell from the best.
 
-    `min_use`: only the entries whose `least_used` (how many fitted demonstrations the least used code appears in,
-    as a fraction of the most used code's count) reaches it are weighed; when none does, all are.
+    `min_use`: only the entries `weighed_entries` keeps are weighed.
     """
-    weighed = [i for i, e in enumerate(curve) if e.get("least_used", 1.0) >= min_use] or list(range(len(curve)))
+    weighed = weighed_entries(curve, min_use)
     best = weighed[best_index([curve[i] for i in weighed])]
     ref = np.asarray(curve[best]["episode_dl"], np.float64)
     for i, entry in ((i, curve[i]) for i in weighed):

@@ -47,6 +47,7 @@ from digail.algos.model_selection import (
     description_length,
     heldout_split,
     smallest_within_one_se,
+    weighed_entries,
 )
 from digail.algos.optim import adam, clipped_step
 from digail.algos.polish import fit_to_codes, polish
@@ -367,10 +368,10 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
                                                       model=cfg.k_criterion, actions=cfg.init_actions,
                                                       ridge=cfg.curve_ridge(discrete))
     pick = smallest_within_one_se(curve, cfg.k_min_use)
-    any_weighed = any(e["least_used"] >= cfg.k_min_use for e in curve)
+    weighed = weighed_entries(curve, cfg.k_min_use)
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
-        entry["weighed"] = bool(entry["least_used"] >= cfg.k_min_use or not any_weighed)
+        entry["weighed"] = i in weighed
         entry["chosen"] = i == pick
     return curve, pick
 
