@@ -24,13 +24,19 @@ def demonstrated_order(codes: Sequence[np.ndarray], n_codes: int) -> list[int]:
     that never occur, by number. MimicGen's export takes its sub-tasks in this order (`plan_subtasks`)."""
     codes = [np.asarray(c).reshape(-1) for c in codes]
     present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
-    common = [k for k in range(n_codes) if 2 * present[k] >= len(codes) and present[k] > 0]
-    common = common or [int(np.argmax(present))]
+    common = _common_codes(present, len(codes))
     where = {k: float(np.median([np.flatnonzero(c == k)[0] / len(c) for c in codes if (c == k).any()]))
              for k in range(n_codes) if present[k]}
     rare = [k for k in where if k not in common]
     return [*sorted(common, key=lambda k: (where[k], k)), *sorted(rare, key=lambda k: (where[k], k)),
             *[k for k in range(n_codes) if not present[k]]]
+
+
+def _common_codes(present: np.ndarray, n_demos: int) -> list[int]:
+    """The codes found in at least half of `n_demos` demonstrations (`present[k]`: how many hold code k), or the
+    most common one when none is."""
+    common = [k for k in range(len(present)) if 2 * present[k] >= n_demos and present[k] > 0]
+    return common or [int(np.argmax(present))]
 
 
 def names_by_code(names: Sequence[str], codes: Sequence[np.ndarray]) -> list[str]:
@@ -95,9 +101,8 @@ def plan_subtasks(codes: Sequence[np.ndarray], n_codes: int, keys: Sequence[str]
     """
     codes = [np.asarray(c).reshape(-1) for c in codes]
     n = len(codes)
-    present = np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)])
-    used = {k for k in range(n_codes) if 2 * present[k] >= n and present[k] > 0} or {int(np.argmax(present))}
-    order = tuple(k for k in demonstrated_order(codes, n_codes) if k in used)
+    used = _common_codes(np.array([sum(bool((c == k).any()) for c in codes) for k in range(n_codes)]), n)
+    order = tuple(demonstrated_order(codes, n_codes)[:len(used)])
     need = len(order) + 1 if len(order) > 1 else 1  # one sub-task: nothing to cut
     boundaries, refitted = [], 0
     for i, c in enumerate(codes):
