@@ -20,6 +20,7 @@ from digail.algos.generate import (
     frames_from_text,
     generate,
     infer_frames,
+    nearest_source,
     plan_segments,
     runs_to_segments,
 )
@@ -62,6 +63,16 @@ def test_frames_are_where_the_end_pose_is_consistent() -> None:
         frames_from_text("table,goal", [0, 1])
     with pytest.raises(UserError, match="3 columns"):
         parse_columns("0:4", "--ee")
+
+
+def test_nearest_source_is_the_one_whose_scene_is_closest() -> None:
+    """`--pick nearest` replays the source whose object and goal started nearest to the new scene's: the goal
+    counts as much as the object."""
+    demos = [_demo(np.array([0.0, 0, 0]), np.array([1.0, 0, 0])), _demo(np.array([0.5, 0, 0]), np.array([0.0, 1, 0]))]
+    obs = np.concatenate([[0.0, 0, 0.5], [0.1, 0, 0], [0.9, 0, 0]])
+    assert nearest_source(obs, demos, SCENE) == 0
+    obs = np.concatenate([[0.0, 0, 0.5], [0.1, 0, 0], [0.0, 0.9, 0]])  # the object nearer demo 0, the goal demo 1
+    assert nearest_source(obs, demos, SCENE) == 1
 
 
 def test_order_takes_each_keys_first_segment() -> None:

@@ -260,7 +260,10 @@ class GenerationPlan:
     interp_speed: float = 1.0
     """0, or action units per step of the straight moves inserted before segments that start far away"""
     seed: int = 0
-    """attempt i is reset with seed + i, from source i mod len(sources)"""
+    """attempt i is reset with seed + i"""
+    pick: Literal["cycle", "nearest"] = "cycle"
+    """which source an attempt replays: source i mod len(sources) (`cycle`), or the one whose scene is nearest to
+    the new one (`nearest`: `nearest_source`)"""
 
     def fingerprint(self) -> dict[str, Any]:
         """What makes two plans play the same attempts (what a resumed run must match)."""
@@ -269,6 +272,7 @@ class GenerationPlan:
                 "frames": {str(k): v for k, v in sorted(self.frames.items())},
                 "gain": self.gain, "blend": self.blend, "hold": self.hold, "seed": self.seed,
                 "interp_speed": self.interp_speed, "integrating": self.scene.integrating,
+                **({"pick": self.pick} if self.pick != "cycle" else {}),
                 "source_steps": [len(t) for t in self.sources]}
 
 
@@ -318,6 +322,25 @@ def _load_chunks(folder: Path, count: int) -> list[Trajectory]:
     return trajs
 
 
+def scene_positions(obs: np.ndarray, scene: SceneColumns) -> np.ndarray:
+    """The scene's layout in an observation: the object's position, then the goal's where the env observes one."""
+    parts = [np.asarray(obs[scene.object], np.float64)]
+    if scene.goal is not None:
+        parts.append(np.asarray(obs[scene.goal], np.float64))
+    return np.concatenate(parts)
+
+
+def nearest_source(obs: np.ndarray, sources: Sequence[Trajectory], scene: SceneColumns) -> int:
+    """The source whose first observation places the object (and goal) nearest to `obs`'s.
+
+    Replaying the nearest source makes the generated action a function of the scene: with sources taken in turn,
+    one scene can come with any source's way of doing the task, and a behaviour-cloned policy averages them.
+    """
+    here = scene_positions(obs, scene)
+    dist = [float(np.linalg.norm(scene_positions(np.asarray(t.obs[0]), scene) - here)) for t in sources]
+    return int(np.argmin(dist))
+
+
 def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, successes: int | None,
              work: Path, *, progress: bool = True) -> tuple[list[Trajectory], GenerationState]:
     """Play attempts until `attempts` were played or `successes` kept, saving progress into `work` every
@@ -352,7 +375,11 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
     try:
         while state.attempts < attempts and (successes is None or state.successes < successes):
             i = state.attempts
-            src = i % len(plan.sources)
+            if plan.pick == "nearest" and len(plan.sources) > 1:
+                first, _ = env.reset(seed=plan.seed + i)  # `attempt` resets with the same seed: the same scene
+                src = nearest_source(np.asarray(first), plan.sources, plan.scene)
+            else:
+                src = i % len(plan.sources)
             result = attempt(env, plan.sources[src], plan.segments[src], plan.frames, plan.scene, plan.seed + i,
                              gain=plan.gain, blend=plan.blend, hold=plan.hold, interp_speed=plan.interp_speed)
             state.attempts += 1

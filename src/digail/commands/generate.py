@@ -51,7 +51,11 @@ class GenerateArgs:
     successes: int | None = None
     """stop once this many demonstrations are kept (default: play every attempt)"""
     seed: int = GENERATION_SEED
-    """attempt i resets the env with seed + i and replays source i mod the number of sources"""
+    """attempt i resets the env with seed + i"""
+    pick: Literal["cycle", "nearest"] = "cycle"
+    """which source an attempt replays: `cycle` source i mod the number of sources, `nearest` the source whose
+    object (and goal) started nearest to the new scene's, so that one scene always comes with one way of doing the
+    task"""
     gain: float = 1.0
     """share of the end-effector's position error the move actions correct in one step (clipped to the bounds)"""
     blend: int = 5
@@ -245,7 +249,8 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
                         "source shows.")
     plan = GenerationPlan(env_id=env_id, sources=[trajs[i] for i in usable], source_ids=[ids[i] for i in usable],
                           segments=[planned[i] or [] for i in usable], frames=frames, scene=scene, gain=args.gain,
-                          blend=args.blend, hold=args.hold, interp_speed=args.interp_speed, seed=args.seed)
+                          blend=args.blend, hold=args.hold, interp_speed=args.interp_speed, seed=args.seed,
+                          pick=args.pick)
     work = args.out.with_name(args.out.name + ".partial")
     check_not_locked(work)
     name = env_id.rpartition("/")[2].lower().rsplit("-v", 1)[0]
@@ -262,7 +267,8 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             "frames": {str(k): v for k, v in sorted(frames.items())}, "order": order, "attempts": state.attempts,
             "successes": state.successes, "rate": rate, "env_steps": state.env_steps,
             "kept_steps": int(sum(len(t) for t in kept)), "gain": args.gain, "blend": args.blend,
-            "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed}
+            "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed,
+            "pick": args.pick}
         if not kept:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
                             f"to write (the attempts are recorded in {work}); try other --segments or --frames, or "
