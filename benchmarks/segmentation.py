@@ -89,7 +89,7 @@ label, runs shorter than `digail.envs.metaworld.MIN_SEGMENT` steps merged into t
 once); K is the number of phases left"""
 
 KEYS = ("accuracy", "nmi", "boundary_f1", "boundary_f1_5", "switches_per_episode", "true_switches_per_episode",
-        "time_s")
+        "time_s", "cpu_s")
 
 
 def task_names() -> list[str]:
@@ -157,16 +157,24 @@ def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     return spec["demos"], spec["codes"], True, spec["description"]
 
 
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished children, every thread (what a shared machine does not inflate)."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def run_one(name: str, seed: int, runs: Path, data_root: Path, extra: list[str]) -> dict[str, Any]:
     demos, codes, shipped, _ = task_data(name, data_root)
     run = runs / f"{name}_s{seed}"
     pretrain = ["pretrain", "--demos", demos, "--codes", str(codes), "--seed", str(seed), "--out", str(run),
                 "--force", *(["--preset", "default"] if shipped else []), *extra]
     print("$ digail " + shlex.join(pretrain), flush=True)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu_seconds()
     if digail(pretrain) != 0:
         raise SystemExit(f"digail pretrain failed on {name} seed {seed}")
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, _cpu_seconds() - cpu0
     if digail(["segment", str(run)]) != 0:
         raise SystemExit(f"digail segment failed on {name} seed {seed}")
     seg = json.loads((run / "segmentation.json").read_text())
@@ -174,7 +182,7 @@ def run_one(name: str, seed: int, runs: Path, data_root: Path, extra: list[str])
     row = {k: seg[k] for k in KEYS if k in seg}
     row.update(reading=seg.get("reading", "causal"), boundary_f1_5=seg.get("boundary_f1_5"),
                readings=seg.get("readings", {}))
-    row.update(time_s=round(elapsed, 1), seed=seed, steps=seg["steps"], episodes=seg["episodes"],
+    row.update(time_s=round(elapsed, 1), cpu_s=round(cpu, 1), seed=seed, steps=seg["steps"], episodes=seg["episodes"],
                epochs=config["vae"].get("epochs_run", config["vae"]["epochs"]),
                command=f"digail {shlex.join(pretrain)}")
     if "restarts" in config:
