@@ -171,6 +171,14 @@ def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pyte
     assert record["env_steps"] >= sum(len(t) for t in ds.trajs)
     assert [s["frame"] for s in record["episodes"][0]["segments"]] == ["object", "object", "object", "goal"]
     assert not (tmp_path / "gen.partial").exists()
+    from digail.data.robomimic import read_robomimic
+
+    assert main(["generate", "--demos", FETCH, "--sources", "0", "--attempts", "2", "--format", "robomimic",
+                 "--out", str(tmp_path / "gen.hdf5"), "--no-progress"]) == 0
+    back = read_robomimic(tmp_path / "gen.hdf5")
+    np.testing.assert_array_equal(back["episodes"][0]["obs"], ds.trajs[0].obs)  # the same seeds, the same scenes
+    assert back["episodes"][0]["subtasks"].max() == 3  # Fetch's four segments
+    (tmp_path / "gen.hdf5").unlink()
     before = (out / "data" / "main_data.hdf5").read_bytes()
     capsys.readouterr()
     cases = [
@@ -181,6 +189,7 @@ def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pyte
         (["--order", "3,9", "--out", str(tmp_path / "o")], "do not have"),
         (["--sources", "0,0", "--out", str(tmp_path / "s")], "distinct episodes"),
         (["--ee", "0:3", "--out", str(tmp_path / "e")], "needs --object"),
+        (["--format", "robomimic", "--out", str(tmp_path / "m")], "name --out with .hdf5"),
     ]
     for extra, phrase in cases:
         argv = ["generate", "--demos", FETCH, "--attempts", "2", "--no-progress", *extra]
@@ -192,6 +201,29 @@ def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pyte
     assert (out / "data" / "main_data.hdf5").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gen"]
     json.dumps(record)
+
+
+def test_robomimic_layout_reads_back_with_its_subtasks(tmp_path: Path) -> None:
+    """`--format robomimic`: the episodes read back (`digail import`'s reader) with the env's observation column for
+    column, every action, and each step's label the index of the segment it was played in."""
+    from digail.data.robomimic import read_robomimic, write_generated
+
+    rng = np.random.default_rng(0)
+    trajs, episodes = [], []
+    for n, starts in ((12, [0, 4, 9]), (7, [0, 3])):
+        trajs.append(Trajectory(obs=rng.normal(size=(n + 1, 9)).astype(np.float32),
+                                acts=rng.normal(size=(n, 4)).astype(np.float32), rews=np.zeros(n, np.float32)))
+        episodes.append({"attempt": 0, "seed": 5, "source": 0, "segments": [{"at": a} for a in starts]})
+    out = write_generated(trajs, tmp_path / "gen.hdf5", "digail/FetchPickAndPlace-v4", episodes, {"rate": 1.0})
+    back = read_robomimic(out)
+    assert back["metadata"]["env_args"]["env_name"] == "digail/FetchPickAndPlace-v4"
+    for ep, traj, starts in zip(back["episodes"], trajs, ([0, 4, 9], [0, 3]), strict=True):
+        np.testing.assert_array_equal(ep["obs"], traj.obs)
+        np.testing.assert_array_equal(ep["acts"], traj.acts)
+        expected = np.searchsorted(starts, np.arange(len(traj.obs)), side="right") - 1
+        np.testing.assert_array_equal(ep["subtasks"], expected)
+    with pytest.raises(UserError, match="already exists"):
+        write_generated(trajs, out, "x", episodes, {})
 
 
 @pytest.mark.mujoco

@@ -23,7 +23,11 @@ class GenerateArgs:
     demos: str
     """source demonstrations: a dataset folder or id, e.g. digail/fetchpickandplace/expert-v0"""
     out: Path
-    """the dataset folder to write (never replaced; an unfinished run's progress waits beside it in OUT.partial)"""
+    """the dataset folder to write, or with --format robomimic the .hdf5 file (never replaced; an unfinished run's
+    progress waits beside it in OUT.partial)"""
+    format: Literal["minari", "robomimic"] = "minari"
+    """what to write: a Minari dataset, or a robomimic HDF5 file whose demonstrations carry their sub-tasks as
+    MimicGen termination signals (datagen_info/subtask_term_signals/subtask_<i>)"""
     segments: Literal["labels", "codes", "one", "chunks"] = "labels"
     """where the sub-tasks come from: `labels` the dataset's oracle sub-task labels, `codes` a pre-trained run's
     codes (--vae or --codes), `one` the whole demonstration as one sub-task in the object's frame, `chunks` pieces
@@ -96,6 +100,9 @@ class GenerateArgs:
             raise UserError(f"--interp-speed must be in [0, 1] (action units per step), not {self.interp_speed}.")
         if not 0 < self.gain <= 2:
             raise UserError(f"--gain must be in (0, 2] (the share of the error corrected per step), not {self.gain}.")
+        if self.format == "robomimic" and self.out.suffix not in (".hdf5", ".h5"):
+            raise UserError(f"--format robomimic writes one HDF5 file; name --out with .hdf5, e.g. "
+                            f"{self.out.with_suffix('.hdf5')}.")
         if self.segments == "codes" and (self.vae is None) == (self.codes is None):
             raise UserError("--segments codes reads the codes of a pre-trained run; pass --vae RUN or --codes FILE "
                             "(one of them).")
@@ -197,6 +204,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
     from digail.commands.common import inputs
     from digail.data.minari_io import load_dataset
     from digail.data.minari_write import write_dataset
+    from digail.data.robomimic import write_generated
     from digail.envs.registry import make_env
     from digail.fsio import check_new_dir, check_not_locked, run_dir_lock
 
@@ -273,10 +281,13 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
                             f"to write (the attempts are recorded in {work}); try other --segments or --frames, or "
                             "more --attempts.")
-        write_dataset(kept, args.out, env_id, dataset_id, seeds=[e["seed"] for e in state.episodes],
-                      algorithm_name="digail generate", description="demonstrations generated from the sub-tasks "
-                      f"of {len(plan.sources)} source demonstration(s) of {args.demos}",
-                      extra_metadata={"generation": {**summary, "episodes": state.episodes}})
+        if args.format == "robomimic":
+            write_generated(kept, args.out, env_id, state.episodes, summary)
+        else:
+            write_dataset(kept, args.out, env_id, dataset_id, seeds=[e["seed"] for e in state.episodes],
+                          algorithm_name="digail generate", description="demonstrations generated from the "
+                          f"sub-tasks of {len(plan.sources)} source demonstration(s) of {args.demos}",
+                          extra_metadata={"generation": {**summary, "episodes": state.episodes}})
     shutil.rmtree(work, ignore_errors=True)
     print(f"kept {state.successes} of {state.attempts} attempts (rate {rate:.3f}, {state.env_steps} env steps); "
           f"wrote {args.out}")

@@ -383,3 +383,72 @@ def write_subtask_signals(source: str | Path, out: str | Path, episode_keys: Seq
             tmp.unlink()
         raise
     return out
+
+
+OBS_KEY = "observation"
+"""the one observation key of a file `write_generated` writes: the env's observation as it is (importing the file
+with the default keys gives the env's observation back, column for column)"""
+
+
+def write_generated(trajs: Sequence[Any], out: str | Path, env_id: str, episodes: Sequence[dict[str, Any]],
+                    record: dict[str, Any]) -> Path:
+    """Write generated demonstrations in robomimic's layout (module doc), atomically: a temporary sibling renamed
+    at the end, so a stopped write leaves nothing at `out`.
+
+    Each demonstration's sub-tasks become MimicGen termination signals (`subtask_<i>`: 0 while its i-th played
+    segment runs, 1 from the step the next one began; the last segment ends with the demonstration and has none),
+    so MimicGen's parser and `digail import` read them back as labels. `env_args` names the env (robomimic's gym type);
+    `data.attrs["digail_generation"]` and each demonstration's attributes say where it came from.
+
+    Args:
+        trajs: the kept episodes (`Trajectory`).
+        out: the `.hdf5` file to write; refused if it exists.
+        env_id: the env they were played in.
+        episodes: per episode its generation record (attempt, seed, source, segments with the step each began).
+        record: the generation's summary (sources, segments, frames, rate, ...).
+    """
+    import h5py
+
+    out = Path(out)
+    if out.exists() or out.is_symlink():
+        raise UserError(f"output {out} already exists and generate never replaces one; choose another --out.")
+    check_writable(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        with h5py.File(tmp, "w") as f:
+            data = f.create_group("data")
+            total = 0
+            for i, (traj, ep) in enumerate(zip(trajs, episodes, strict=True)):
+                demo = data.create_group(f"demo_{i}")
+                n = len(traj.acts)
+                obs = np.asarray(traj.obs, np.float32)
+                demo.create_dataset("actions", data=np.asarray(traj.acts, np.float32))
+                demo.create_dataset(f"obs/{OBS_KEY}", data=obs[:n])
+                demo.create_dataset(f"next_obs/{OBS_KEY}", data=obs[1:n + 1])
+                demo.create_dataset("rewards", data=np.asarray(traj.rews, np.float32).reshape(-1))
+                dones = np.zeros(n, np.int64)
+                dones[-1] = 1  # robomimic marks each demonstration's last step
+                demo.create_dataset("dones", data=dones)
+                starts = [int(s["at"]) for s in ep.get("segments", [])][1:]
+                for k, at in enumerate(starts):
+                    signal = np.zeros(n, np.int64)
+                    signal[at:] = 1  # MimicGen's sub-task ends where its signal first reads 1: the next one's start
+                    demo.create_dataset(f"{SIGNALS_PATH}/subtask_{k}", data=signal)
+                demo.attrs["num_samples"] = n
+                demo.attrs["digail_source"] = int(ep.get("source", -1))
+                demo.attrs["digail_seed"] = int(ep.get("seed", -1))
+                demo.attrs["digail_segments"] = json.dumps(ep.get("segments", []))
+                total += n
+            data.attrs["total"] = total
+            data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": 2, "env_kwargs": {}})
+            data.attrs["digail_generation"] = json.dumps(record)
+        os.chmod(tmp, 0o666 & ~umask())
+        os.replace(tmp, out)
+    except BaseException:
+        with signals_deferred(), contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return out
