@@ -15,10 +15,15 @@ A job (task, source demonstrations N, seed S, segment source) runs, resumably, u
     digail evaluate .../<method>_n<SIZE> --episodes 100   (fresh scenes: the evaluation seeds, 10000 on)
 
 `bc` is the VAE's policy with K codes (Fetch 4, a Meta-World task its expert's phase count), closed-loop q; `flatbc`
-the same pre-training with one code. Every command is kept in the job's `commands.json`. `table` gathers the jobs
+the same pre-training with one code; `digail-l2` is Directed-Info GAIL + L2 started from `bc`'s VAE (the same size):
+
+    digail train --demos .../data --demos-episodes SIZE --vae .../bc_n<SIZE> --seed S --preset P
+        --train.bc-weight 1.0 --train.iterations I --out .../digail-l2_n<SIZE>    (a killed one: --resume)
+
+Every command is kept in the job's `commands.json`. `table` gathers the jobs
 into one JSON: per job the generation (attempts, successes, rate, env steps), per trained row its success rate, the
-env steps generation spent on its SIZE demonstrations, and the training env steps (0: behaviour cloning only), with
-medians over seeds.
+env steps generation spent on its SIZE demonstrations, and the training env steps (0 for behaviour cloning; the
+run's own count for `digail-l2`), with medians over seeds.
 """
 
 from __future__ import annotations
@@ -90,11 +95,27 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
             run = job / f"{method}_n{size}"
             if (run / "eval.json").exists():
                 continue
-            if not (run / "model.pt").exists():
-                codes = info["codes"] if method == "bc" else 1
-                digail(["pretrain", "--demos", str(data), "--demos-episodes", str(size), "--codes", str(codes),
-                        "--seed", str(seed), "--preset", info["preset"], "--out", str(run), "--force"], log, job)
+            if method == "digail-l2":  # Directed-Info GAIL + L2 from the BC-with-codes VAE of the same size
+                bc = job / f"bc_n{size}"
+                if not (bc / "model.pt").exists():
+                    pretrain(data, size, info["codes"], seed, info["preset"], bc, log, job)
+                if (run / "checkpoint.pt").exists():  # a killed training continues
+                    digail(["train", "--resume", str(run)], log, job)
+                else:
+                    digail(["train", "--demos", str(data), "--demos-episodes", str(size), "--vae", str(bc),
+                            "--seed", str(seed), "--preset", info["preset"], "--train.bc-weight", "1.0",
+                            "--train.iterations", str(args.train_iterations), "--train.eval-every", "10",
+                            "--train.eval-episodes", "10", "--out", str(run), "--force"], log, job)
+            elif not (run / "model.pt").exists():
+                pretrain(data, size, info["codes"] if method == "bc" else 1, seed, info["preset"], run, log, job)
             digail(["evaluate", str(run), "--episodes", str(args.eval_episodes)], log, job)
+
+
+def pretrain(data: Path, size: int, codes: int, seed: int, preset: str, run: Path, log: list[list[str]],
+             job: Path) -> None:
+    """Behaviour cloning on the first `size` generated demonstrations: the VAE's policy with `codes` codes."""
+    digail(["pretrain", "--demos", str(data), "--demos-episodes", str(size), "--codes", str(codes), "--seed",
+            str(seed), "--preset", preset, "--out", str(run), "--force"], log, job)
 
 
 def _saved(job: Path) -> list[list[str]]:
@@ -110,6 +131,19 @@ def _generation(data: Path) -> dict[str, Any]:
                 "frames": state["plan"]["frames"], "order": None}
     meta = json.loads((data / "data" / "metadata.json").read_text())
     return meta["digail"]["generation"]
+
+
+def _trained(run: Path) -> int:
+    """Env steps a run trained on: 0 for a VAE (behaviour cloning), the last logged count of a training run."""
+    import csv
+
+    metrics = run / "metrics.csv"
+    if not metrics.exists():
+        return 0
+    with metrics.open() as f:
+        rows = list(csv.DictReader(f))
+    last = rows[-1] if rows else None
+    return int(float(last["step"])) if last and last.get("step") else 0
 
 
 def _steps_for(gen: dict[str, Any], size: int) -> int:
@@ -146,7 +180,7 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
             ev = json.loads((run / "eval.json").read_text())
             rows.append({"task": task, "segments": segments, "demos": n, "seed": seed, "method": method,
                          "size": int(size), "success_rate": ev.get("success_rate"),
-                         "generation_env_steps": _steps_for(gen, int(size)), "training_env_steps": 0,
+                         "generation_env_steps": _steps_for(gen, int(size)), "training_env_steps": _trained(run),
                          "run": str(run), "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                                         if str(run) in c]})
     medians = []
@@ -160,7 +194,7 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                         "success_by_seed": [r["success_rate"] for r in sorted(group, key=lambda r: r["seed"])],
                         "median_generation_rate": statistics.median(j["rate"] for j in gens),
                         "median_generation_env_steps": statistics.median(r["generation_env_steps"] for r in group),
-                        "training_env_steps": 0})
+                        "training_env_steps": statistics.median(r["training_env_steps"] for r in group)})
     if args.publish:  # the median seed's run folder of every row with three seeds, beside the other published runs
         from digail.sweep.publish import portable_text, publish_run
 
@@ -238,7 +272,9 @@ def main() -> None:
     r.add_argument("--seeds", type=int, nargs="+", default=[0])
     r.add_argument("--segments", nargs="+", default=["labels"])
     r.add_argument("--sizes", type=int, nargs="*", default=[100, 500, 1000], help="none: generation only")
-    r.add_argument("--methods", nargs="*", default=["bc", "flatbc"])
+    r.add_argument("--methods", nargs="*", default=["bc", "flatbc"], help="bc, flatbc, digail-l2")
+    r.add_argument("--train-iterations", type=int, default=50,
+                   help="digail-l2: PPO iterations (the fetch preset's 4096 env steps each)")
     r.add_argument("--attempts", type=int, default=1500)
     r.add_argument("--chunk", type=int, default=10)
     r.add_argument("--eval-episodes", type=int, default=100)

@@ -11,10 +11,12 @@ Tasks: the waypoint courses of `digail.envs.waypoints.COURSES` (recorded once pe
 eight short sub-tasks); three shipped data sets: Circle-World (K = 2), Four Rooms (K = 5, label = the next corridor
 or the apple) and the Fetch phases (K = 4: reach, grasp, carry, place); and Hopper's gait phase (K = 4: the shipped
 Hopper demonstrations' first 8 episodes labelled by `digail.eval.gait.gait_phase`, written once into `--data`); and
-nine Meta-World tasks (`metaworld-<task>`: the shipped demonstrations of the scripted expert, its phases as the label
-with runs under `digail.envs.metaworld.MIN_SEGMENT` steps merged, written once into `--data`; K = the phases left).
-The shipped ones run with `--preset default`, the settings an env without a preset gets, so every task sees the
-same defaults. Each (task, seed) runs exactly what a user types:
+sixteen Meta-World tasks (`metaworld-<task>`: the shipped demonstrations of the scripted expert, its phases as the label
+with runs under `digail.envs.metaworld.MIN_SEGMENT` steps merged, written once into `--data`; K = the phases left);
+and two robosuite tasks (`robosuite-stack`, `robosuite-pickplacecan`: the fixtures of tests/data/robosuite imported
+with `digail import`, the scripted expert's phases from the oracle file beside them as the label, merged the same
+way). The shipped ones and robosuite's run with `--preset default`, the settings an env without a preset gets, so
+every task sees the same defaults. Each (task, seed) runs exactly what a user types:
 
     digail pretrain --demos D --codes K --seed S --out R/<task>_sS [--preset default]
     digail segment R/<task>_sS
@@ -88,12 +90,18 @@ METAWORLD = ("pick-place", "assembly", "stick-pull", "shelf-place", "basketball"
 label, runs shorter than `digail.envs.metaworld.MIN_SEGMENT` steps merged into their neighbour (written into `--data`
 once); K is the number of phases left"""
 
+ROBOSUITE = {"robosuite-stack": "stack", "robosuite-pickplacecan": "pickplacecan"}
+"""robosuite tasks: the fixtures of `tests/data/robosuite` (scripted Stack and PickPlaceCan demonstrations in
+robomimic's layout, made by `scripts/robosuite_producer/produce.py`), imported as a user would (`digail import`),
+with the scripted expert's phase from the oracle file beside them as the label (runs under `MIN_SEGMENT` steps
+merged); K is the number of phases left"""
+
 KEYS = ("accuracy", "nmi", "boundary_f1", "boundary_f1_5", "switches_per_episode", "true_switches_per_episode",
         "time_s", "cpu_s")
 
 
 def task_names() -> list[str]:
-    return [*COURSES, *SHIPPED, *DERIVED, *(f"metaworld-{t}" for t in METAWORLD)]
+    return [*COURSES, *SHIPPED, *DERIVED, *(f"metaworld-{t}" for t in METAWORLD), *ROBOSUITE]
 
 
 def derived_dataset(name: str, data_root: Path) -> Path:
@@ -133,6 +141,40 @@ def metaworld_dataset(name: str, data_root: Path) -> tuple[Path, int, str]:
                            f"{len(labels) - 50} steps)")
 
 
+def robosuite_dataset(name: str, data_root: Path) -> tuple[Path, int, str]:
+    """The folder of robosuite task `name`'s data set (the fixture imported, the expert's phases as the label), K and
+    its description."""
+    import h5py
+
+    from digail.data.minari_io import load_dataset
+    from digail.data.minari_write import write_dataset
+    from digail.envs.metaworld import MIN_SEGMENT, merge_short_runs
+
+    source = HERE.parent / "tests" / "data" / "robosuite" / f"{ROBOSUITE[name]}.hdf5"
+    folder = (data_root / f"segbench-{name}").resolve()
+    if not (folder / "data" / "metadata.json").is_file():
+        imported = data_root / f"import-{name}"
+        if not (imported / "data" / "metadata.json").is_file() and digail(
+                ["import", str(source), "--out", str(imported), "--force"]) != 0:
+            raise SystemExit(f"digail import failed on {source}")
+        ds = load_dataset(imported)
+        with h5py.File(source.with_suffix(".oracle.hdf5"), "r") as oracle:
+            phases = [np.asarray(oracle["data"][f"demo_{i}"]["expert_phase"]) for i in range(len(ds.trajs))]
+        if [len(p) for p in phases] != [len(t.acts) for t in ds.trajs]:
+            raise SystemExit(f"{source}: the oracle's phases do not line up with the imported demonstrations")
+        # a label per observation: the last one, after the last action, keeps the last action's phase
+        labelled = [dataclasses.replace(t, subtasks=merge_short_runs(np.append(p, p[-1]), MIN_SEGMENT))
+                    for t, p in zip(ds.trajs, phases, strict=True)]
+        write_dataset(labelled, folder, ds.env_id, f"segbench/{name}-v0",
+                      description=f"robosuite {ROBOSUITE[name]}: the scripted expert's phases",
+                      observation_space=ds.observation_space, action_space=ds.action_space)
+    trajs = load_dataset(folder).trajs
+    labels = np.concatenate([np.asarray(t.subtasks) for t in trajs])
+    codes = len(np.unique(labels))
+    return folder, codes, (f"robosuite {ROBOSUITE[name]}: the scripted expert's {codes} phases (tests/data/robosuite "
+                           f"fixture, {len(trajs)} episodes, {len(labels) - len(trajs)} steps)")
+
+
 def _command_path(folder: Path) -> str:
     """`folder` as the recorded commands name it: relative to the working directory (the repository's root) when it
     lies below it, so a published command runs on any checkout."""
@@ -146,6 +188,9 @@ def task_data(name: str, data_root: Path) -> tuple[str, int, bool, str]:
     """(demos, K, shipped, description) of task `name`, recording a course's data set first if needed."""
     if name.startswith("metaworld-"):
         folder, codes, description = metaworld_dataset(name, data_root)
+        return _command_path(folder), codes, True, description
+    if name in ROBOSUITE:
+        folder, codes, description = robosuite_dataset(name, data_root)
         return _command_path(folder), codes, True, description
     if name in COURSES:
         folder = record_course(name, data_root, seed=0)

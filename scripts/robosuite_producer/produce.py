@@ -21,7 +21,9 @@ It writes two files:
 - `OUT` with `.oracle.hdf5` in place of `.hdf5`: per demonstration, `data/demo_<i>/datagen_info/subtask_term_signals/
   <name>`, computed as MimicGen's `prepare_src_dataset.py` computes them (reset to `states[t]`, `sim.forward()`,
   then the env interface's `get_subtask_term_signals()`), plus `task_success` (`env._check_success()` at
-  `states[t]`). digail never reads this file as input: it is what the segmentation is scored against.
+  `states[t]`), and `expert_phase`: the scripted expert's phase at each step (0 above the object, 1 down, 2 close,
+  3 lift, 4 above the target, 5 down, 6 open), the labels of the segmentation benchmark. digail never reads this
+  file as input: it is what the segmentation is scored against.
 
 The signals, as MimicGen's robosuite env interfaces define them (NVlabs/mimicgen,
 `mimicgen/env_interfaces/robosuite.py`):
@@ -149,11 +151,12 @@ def rollout(task: str, env, rng: np.random.Generator) -> dict | None:
     xml = env.sim.model.get_xml()
     expert = Expert(task, env, rng)
     plan = expert.plan()
-    states, actions, obs, next_obs, rewards, dones = [], [], [], [], [], []
+    states, actions, obs, next_obs, rewards, dones, phases = [], [], [], [], [], [], []
     succeeded_at = None
     for t in range(HORIZON):
         states.append(np.array(env.sim.get_state().flatten()))
         obs.append(robomimic_obs(raw))
+        phases.append(expert.phase)  # the phase this step's action belongs to (act may move on to the next)
         a = expert.act(plan, np.array(raw["robot0_eef_pos"]))
         raw, r, _, _ = env.step(a)
         actions.append(a)
@@ -169,7 +172,8 @@ def rollout(task: str, env, rng: np.random.Generator) -> dict | None:
         return None
     stack = lambda rows: {k: np.stack([r[k] for r in rows]) for k in rows[0]}  # noqa: E731
     return {"states": np.stack(states), "actions": np.stack(actions), "obs": stack(obs), "next_obs": stack(next_obs),
-            "rewards": np.array(rewards), "dones": np.array(dones, dtype=np.int64), "model_file": xml}
+            "rewards": np.array(rewards), "dones": np.array(dones, dtype=np.int64), "model_file": xml,
+            "phases": np.array(phases, dtype=np.int64)}
 
 
 def oracle(task: str, env, states: np.ndarray) -> dict[str, np.ndarray]:
@@ -232,6 +236,7 @@ def main() -> None:
             for k, v in d["oracle"].items():
                 where = "task_success" if k == "task_success" else f"datagen_info/subtask_term_signals/{k}"
                 og.create_dataset(where, data=v)
+            og.create_dataset("expert_phase", data=d["phases"])
         data.attrs["total"] = steps
         data.attrs["env_args"] = json.dumps(env_args, indent=4)
         g.attrs["producer"] = json.dumps({

@@ -41,7 +41,7 @@ class _Transitions:
         for j in range(self.k):
             sel = prev == j
             if sel.any():  # an unused code keeps its last model
-                self.w[j] = _softmax_regression(x[rows[sel]], nxt[sel], self.k, self.w[j], self.ridge)
+                self.w[j] = _softmax_lbfgs(x[rows[sel]], nxt[sel], self.w[j], self.ridge, TRANSITION_STEPS)
 
     def logprob(self, x: np.ndarray) -> np.ndarray:
         """(T, K, K) log p(c_t = k | c_{t-1} = j, s_t) for the rows of `x`."""
@@ -233,6 +233,10 @@ VALUE_RIDGE = 1e-3
 VALUE_STEPS = 15
 """L-BFGS iterations per fit of a few-valued dimension's softmax; each fit starts from the code's last weights,
 so hard EM's rounds add up to a converged fit where the codes settle"""
+
+
+TRANSITION_STEPS = 60
+"""L-BFGS iterations per fit of one previous code's switch model (`_Transitions.fit`), from its last weights"""
 
 
 def _softmax_lbfgs(x: np.ndarray, idx: np.ndarray, w0: np.ndarray, ridge: np.ndarray, steps: int) -> np.ndarray:
