@@ -40,10 +40,20 @@ FETCH = {"env_id": "digail/FetchPickAndPlace-v4", "demos": "digail/fetchpickandp
          "codes": 4}
 
 
+ROUTE = {"env_id": "digail/LandmarkRoute-v0", "demos": "digail/landmarkroute/expert-v0", "preset": "landmark-route",
+         "codes": 4, "generate": ["--order", "3,2,1,0", "--env-arg", "order=3,2,1,0"],
+         "evaluate": ["--env-arg", "order=3,2,1,0"]}
+"""the landmark route driven in an order never demonstrated (3,2,1,0; the demonstrations drive 0,2,1,3): generation
+chains the legs in that order and the env succeeds only on it, in generation and in the evaluation"""
+
+
 def task_info(task: str) -> dict[str, Any]:
-    """The env, the source dataset, the preset and K of a task (`fetch` or a Meta-World task such as pick-place)."""
+    """The env, the source dataset, the preset and K of a task (`fetch`, `landmark-route` or a Meta-World task such
+    as pick-place)."""
     if task == "fetch":
         return FETCH
+    if task == "landmark-route":
+        return ROUTE
     from digail.envs.metaworld import phase_counts
 
     return {"env_id": f"metaworld/{task}-v3", "demos": f"digail/metaworld-{task}/expert-v0", "preset": "metaworld",
@@ -83,7 +93,7 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
         stop = ["--successes", str(max(args.sizes))] if args.sizes else []
         digail(["generate", "--demos", info["demos"], "--sources", sources, "--segments", segments, *extra,
                 "--attempts", str(args.attempts), *stop, "--seed", str(1_000_000 + 100_000 * seed),
-                *args.generate_args, "--out", str(data)], log, job, may_fail=True)
+                *info.get("generate", []), *args.generate_args, "--out", str(data)], log, job, may_fail=True)
         if not data.exists():  # no attempt succeeded: the rate is 0, and there is nothing to train on
             return
     have = _generation(data)["successes"]
@@ -108,7 +118,7 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
                             "--train.eval-episodes", "10", "--out", str(run), "--force"], log, job)
             elif not (run / "model.pt").exists():
                 pretrain(data, size, info["codes"] if method == "bc" else 1, seed, info["preset"], run, log, job)
-            digail(["evaluate", str(run), "--episodes", str(args.eval_episodes)], log, job)
+            digail(["evaluate", str(run), "--episodes", str(args.eval_episodes), *info.get("evaluate", [])], log, job)
 
 
 def pretrain(data: Path, size: int, codes: int, seed: int, preset: str, run: Path, log: list[list[str]],

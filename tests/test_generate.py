@@ -23,6 +23,7 @@ from digail.algos.generate import (
     nearest_source,
     plan_segments,
     runs_to_segments,
+    scene_positions,
 )
 from digail.cli import main
 from digail.data.trajectory import Trajectory
@@ -56,11 +57,31 @@ def test_frames_are_where_the_end_pose_is_consistent() -> None:
     assert infer_frames(demos, segs, SCENE) == {0: "object", 1: "goal"}
     # one demonstration: the nearest origin at the segment's end
     assert infer_frames(demos[:1], segs[:1], SCENE) == {0: "object", 1: "goal"}
-    assert frames_from_text("goal, object", [1, 0]) == {0: "goal", 1: "object"}
+    assert frames_from_text("goal, object", [1, 0], SCENE) == {0: "goal", 1: "object"}
     with pytest.raises(UserError, match="one frame per sub-task"):
-        frames_from_text("object", [0, 1])
+        frames_from_text("object", [0, 1], SCENE)
     with pytest.raises(UserError, match="no frame"):
-        frames_from_text("table,goal", [0, 1])
+        frames_from_text("table,goal", [0, 1], SCENE)
+
+
+def test_planar_landmarks_are_frames() -> None:
+    """A scene of landmarks in the plane (the landmark route's kind): each leg's frame is the landmark it ends at."""
+    scene = SceneColumns(ee=slice(0, 2), object=None, goal=None, move_actions=slice(0, 2), gripper_action=None,
+                         action_scale=0.05, landmarks=(slice(2, 4), slice(4, 6)))
+    rng = np.random.default_rng(1)
+    demos, segs = [], []
+    for _ in range(3):
+        marks = rng.uniform(-1, 1, (2, 2))
+        ee = np.array([[0.0, 0.0], marks[1] / 2, marks[1], (marks[0] + marks[1]) / 2, marks[0]])
+        obs = np.concatenate([ee, np.repeat(marks.reshape(1, 4), 5, 0)], 1)
+        demos.append(Trajectory(obs=obs.astype(np.float32), acts=np.zeros((4, 2), np.float32)))
+        segs.append([Segment(0, 2, 1), Segment(2, 4, 0)])
+    assert infer_frames(demos, segs, scene) == {1: "landmark1", 0: "landmark0"}
+    assert infer_frames(demos[:1], segs[:1], scene) == {1: "landmark1", 0: "landmark0"}
+    assert frames_from_text("landmark0,world", [0, 1], scene) == {0: "landmark0", 1: "world"}
+    with pytest.raises(UserError, match="landmark0, landmark1, world"):
+        frames_from_text("object,landmark1", [0, 1], scene)
+    assert scene_positions(demos[0].obs[0], scene).shape == (4,)
     with pytest.raises(UserError, match="3 columns"):
         parse_columns("0:4", "--ee")
 

@@ -31,7 +31,8 @@ from digail.envs.metaworld import merge_short_runs
 from digail.envs.scene import SceneColumns
 from digail.errors import UserError
 
-Frame = Literal["object", "goal", "world"]
+Frame = str
+"""a reference frame: `object`, `goal`, `world`, or `landmark<i>` in a scene with landmarks (`frame_names`)"""
 FRAMES: tuple[Frame, ...] = ("object", "goal", "world")
 
 
@@ -64,15 +65,26 @@ def chunk_segments(length: int, chunk: int) -> list[Segment]:
     return [Segment(s, min(s + chunk, length), i) for i, s in enumerate(range(0, length, chunk))]
 
 
+def frame_names(scene: SceneColumns) -> tuple[Frame, ...]:
+    """The frames `scene` has: its object's and goal's where it observes them, its landmarks', and the world."""
+    return (*(["object"] if scene.object is not None else []), *(["goal"] if scene.goal is not None else []),
+            *(f"landmark{i}" for i in range(len(scene.landmarks))), "world")
+
+
 def origin(obs: np.ndarray, frame: Frame, scene: SceneColumns) -> np.ndarray:
     """The position of `frame`'s origin in observation(s) `obs` (..., D)."""
+    if frame == "world":
+        return np.zeros(np.shape(obs)[:-1] + (scene.dim,))
+    if frame not in frame_names(scene):
+        raise UserError(f"a segment's frame is {frame!r}, which this env does not observe; name frames among "
+                        f"{', '.join(frame_names(scene))}.")
     if frame == "object":
-        return np.asarray(obs[..., scene.object], np.float64)
-    if frame == "goal":
-        if scene.goal is None:
-            raise UserError("a segment's frame is the goal but the env observes no goal; name other --frames.")
-        return np.asarray(obs[..., scene.goal], np.float64)
-    return np.zeros(np.shape(obs)[:-1] + (3,))
+        cols = scene.object
+    elif frame == "goal":
+        cols = scene.goal
+    else:
+        cols = scene.landmarks[int(frame.removeprefix("landmark"))]
+    return np.asarray(obs[..., cols], np.float64)
 
 
 def infer_frames(trajs: Sequence[Trajectory], segments: Sequence[Sequence[Segment]], scene: SceneColumns
@@ -81,11 +93,11 @@ def infer_frames(trajs: Sequence[Trajectory], segments: Sequence[Sequence[Segmen
 
     With two or more segments of a key (across demonstrations), the frame in which the end-effector's pose at the
     segments' ends is most consistent: the smallest mean squared distance to its mean, with the end pose taken
-    relative to the object's position at the segment's start, to the goal's, or in the world. With one, the frame
-    whose origin is nearest to the end-effector at the segment's end (object or goal: the world's origin says
+    relative to the object's position at the segment's start, to the goal's, a landmark's, or in the world. With
+    one, the frame whose origin is nearest to the end-effector at the segment's end (not the world: its origin says
     nothing about the scene).
     """
-    candidates: tuple[Frame, ...] = ("object", "goal", "world") if scene.goal is not None else ("object", "world")
+    candidates = frame_names(scene)
     ends: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
     for traj, segs in zip(trajs, segments, strict=True):
         for seg in segs:
@@ -153,7 +165,7 @@ def attempt(env: Any, source: Trajectory, segments: Sequence[Segment], frames: d
     if scene.integrating:
         # the target the source's actions accumulated, from where its end-effector started
         moves = np.clip(src_acts[:, scene.move_actions], -1.0, 1.0) * scene.action_scale
-        src_pos = src_obs[0, scene.ee] + np.concatenate([np.zeros((1, 3)), np.cumsum(moves, 0)])
+        src_pos = src_obs[0, scene.ee] + np.concatenate([np.zeros((1, scene.dim)), np.cumsum(moves, 0)])
     else:
         src_pos = src_obs[:, scene.ee]
     command = obs[scene.ee].copy()  # the integrating target, dead-reckoned
@@ -323,11 +335,8 @@ def _load_chunks(folder: Path, count: int) -> list[Trajectory]:
 
 
 def scene_positions(obs: np.ndarray, scene: SceneColumns) -> np.ndarray:
-    """The scene's layout in an observation: the object's position, then the goal's where the env observes one."""
-    parts = [np.asarray(obs[scene.object], np.float64)]
-    if scene.goal is not None:
-        parts.append(np.asarray(obs[scene.goal], np.float64))
-    return np.concatenate(parts)
+    """The scene's layout in an observation: the positions of its object, goal and landmarks (those it has)."""
+    return np.concatenate([origin(obs, f, scene) for f in frame_names(scene) if f != "world"])
 
 
 def nearest_source(obs: np.ndarray, sources: Sequence[Trajectory], scene: SceneColumns) -> int:
@@ -420,15 +429,16 @@ def generation_rate(state: GenerationState) -> float:
     return state.successes / state.attempts if state.attempts else 0.0
 
 
-def frames_from_text(text: str, keys: Sequence[int]) -> dict[int, Frame]:
+def frames_from_text(text: str, keys: Sequence[int], scene: SceneColumns) -> dict[int, Frame]:
     """'object,goal,...' (one frame per key, in key order) -> {key: frame}, refused in one sentence otherwise."""
     names = [n.strip() for n in text.split(",") if n.strip()]
-    bad = [n for n in names if n not in FRAMES]
+    known = frame_names(scene)
+    bad = [n for n in names if n not in known]
     if bad:
-        raise UserError(f"--frames names {bad[0]!r}, which is no frame; name object, goal or world for each "
-                        "sub-task, e.g. object,object,goal,goal.")
+        raise UserError(f"--frames names {bad[0]!r}, which is no frame of this env; name one of {', '.join(known)} "
+                        "for each sub-task, e.g. object,object,goal,goal.")
     keys = sorted(keys)
     if len(names) != len(keys):
         raise UserError(f"--frames names {len(names)} frames but the segments have {len(keys)} sub-tasks "
                         f"({', '.join(map(str, keys))}); name one frame per sub-task.")
-    return {k: n for k, n in zip(keys, names, strict=True)}  # type: ignore[misc]
+    return dict(zip(keys, names, strict=True))

@@ -41,7 +41,8 @@ class _Transitions:
         for j in range(self.k):
             sel = prev == j
             if sel.any():  # an unused code keeps its last model
-                self.w[j] = _softmax_lbfgs(x[rows[sel]], nxt[sel], self.w[j], self.ridge, TRANSITION_STEPS)
+                self.w[j] = _softmax_lbfgs(x[rows[sel]], nxt[sel], self.w[j], self.ridge, TRANSITION_STEPS,
+                                           TRANSITION_GTOL)
 
     def logprob(self, x: np.ndarray) -> np.ndarray:
         """(T, K, K) log p(c_t = k | c_{t-1} = j, s_t) for the rows of `x`."""
@@ -235,11 +236,14 @@ VALUE_STEPS = 15
 so hard EM's rounds add up to a converged fit where the codes settle"""
 
 
-TRANSITION_STEPS = 60
+TRANSITION_STEPS = 300
 """L-BFGS iterations per fit of one previous code's switch model (`_Transitions.fit`), from its last weights"""
+TRANSITION_GTOL = 1e-7
+"""the switch model's fit stops when no gradient entry exceeds this"""
 
 
-def _softmax_lbfgs(x: np.ndarray, idx: np.ndarray, w0: np.ndarray, ridge: np.ndarray, steps: int) -> np.ndarray:
+def _softmax_lbfgs(x: np.ndarray, idx: np.ndarray, w0: np.ndarray, ridge: np.ndarray, steps: int,
+                   gtol: float = 1e-5) -> np.ndarray:
     """Weights (dim_x, n) of a softmax over n values, linear in `x`, fitted to the value indices `idx` by scipy's
     L-BFGS from `w0` (mean cross-entropy plus the ridge). NumPy and SciPy, not torch: the fits are small and many,
     and torch's optimiser costs more per call than the arithmetic."""
@@ -257,7 +261,7 @@ def _softmax_lbfgs(x: np.ndarray, idx: np.ndarray, w0: np.ndarray, ridge: np.nda
         grad = x.T @ (np.exp(logp) - onehot) / len(x) + 2 * ridge[:, None] * w
         return value, grad.ravel()
 
-    res = minimize(loss, w0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": steps})
+    res = minimize(loss, w0.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": steps, "gtol": gtol})
     return np.asarray(res.x).reshape(w0.shape)
 
 

@@ -71,6 +71,9 @@ class GenerateArgs:
     action units per step (1: the action bound; 0: none, the gap closes over --blend steps instead)"""
     env: str | None = None
     """the env to generate in (default: the dataset's)"""
+    env_arg: tuple[str, ...] = ()
+    """KEY=VALUE keyword arguments for the env, e.g. order=3,2,1,0 for the landmark route driven in a new order
+    (recorded in the dataset's env spec)"""
     ee: str | None = None
     """an env without registry columns: the end-effector position's observation columns, e.g. 0:3"""
     object: str | None = None
@@ -205,7 +208,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
     from digail.data.minari_io import load_dataset
     from digail.data.minari_write import write_dataset
     from digail.data.robomimic import write_generated
-    from digail.envs.registry import make_env
+    from digail.envs.registry import make_env, parse_env_args
     from digail.fsio import check_new_dir, check_not_locked, run_dir_lock
 
     if args.out.exists() or args.out.is_symlink():
@@ -216,6 +219,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
     env_id = args.env or ds.env_id
     if env_id is None:
         raise UserError(f"{args.demos} does not record its environment; pass --env.")
+    env_kwargs = parse_env_args(args.env_arg)
     scene = _scene(args, env_id)
     obs_dim = int(np.prod(ds.observation_space.shape or (0,)))
     act_dim = int(np.prod(ds.action_space.shape or (0,)))
@@ -235,7 +239,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
         segments = [chunk_segments(len(t), len(t)) for t in trajs]
     keys = sorted({s.key for segs in segments for s in segs})
     if args.frames is not None:
-        frames = frames_from_text(args.frames, keys)
+        frames = frames_from_text(args.frames, keys, scene)
     elif args.segments == "one":
         frames = {0: "object"}  # no sub-tasks: the whole path moves with the object, as MimicGen's single segment
     else:
@@ -267,7 +271,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
         print(f"continuing the unfinished generation in {work}")
     work.mkdir(parents=True, exist_ok=True)
     with run_dir_lock(work):
-        kept, state = generate(plan, lambda: make_env(env_id), args.attempts, args.successes, work,
+        kept, state = generate(plan, lambda: make_env(env_id, **env_kwargs), args.attempts, args.successes, work,
                                progress=args.progress)
         rate = generation_rate(state)
         summary: dict[str, Any] = {
@@ -276,7 +280,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             "successes": state.successes, "rate": rate, "env_steps": state.env_steps,
             "kept_steps": int(sum(len(t) for t in kept)), "gain": args.gain, "blend": args.blend,
             "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed,
-            "pick": args.pick}
+            "pick": args.pick, **({"env_kwargs": env_kwargs} if env_kwargs else {})}
         if not kept:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
                             f"to write (the attempts are recorded in {work}); try other --segments or --frames, or "
@@ -285,6 +289,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             write_generated(kept, args.out, env_id, state.episodes, summary)
         else:
             write_dataset(kept, args.out, env_id, dataset_id, seeds=[e["seed"] for e in state.episodes],
+                          env_kwargs=env_kwargs,
                           algorithm_name="digail generate", description="demonstrations generated from the "
                           f"sub-tasks of {len(plan.sources)} source demonstration(s) of {args.demos}",
                           extra_metadata={"generation": {**summary, "episodes": state.episodes}})

@@ -59,7 +59,8 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
                   force: bool = False, seeds: Sequence[int] | None = None, author: str | None = "digail",
                   description: str | None = None, algorithm_name: str | None = None,
                   observation_space: gym.Space | None = None, action_space: gym.Space | None = None,
-                  extra_metadata: dict[str, Any] | None = None, compact: bool = True) -> Path:
+                  extra_metadata: dict[str, Any] | None = None, compact: bool = True,
+                  env_kwargs: dict[str, Any] | None = None) -> Path:
     """Write trajectories as a Minari dataset folder at `path`, atomically.
 
     Everything is written into a temporary sibling folder that is renamed to `path` only on success: on any
@@ -83,6 +84,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
             `rewards_recorded`).
         compact: rewrite Minari's chunked HDF5 file with contiguous arrays (about 4x smaller for short
             episodes; see `_compact_hdf5`).
+        env_kwargs: keyword arguments `env_id` is made with (kept in the stored env spec).
 
     Returns:
         `path` as a `Path`.
@@ -114,7 +116,7 @@ def write_dataset(trajs: Sequence[Trajectory], path: str | os.PathLike[str], env
             raise UserError("data without an environment needs its observation and action spaces; pass both.")
         spec, obs_space, act_space = None, observation_space, action_space
     else:
-        env = make_env(env_id)
+        env = make_env(env_id, **(env_kwargs or {}))
         try:
             spec = env.spec
             obs_space = observation_space or env.observation_space

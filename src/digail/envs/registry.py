@@ -9,7 +9,7 @@ import difflib
 import functools
 import io
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -23,6 +23,7 @@ from digail.envs.four_rooms import FourRoomsVecEnv, room_visits
 from digail.envs.metaworld import EPISODE_STEPS as METAWORLD_STEPS
 from digail.envs.metaworld import env_id as metaworld_id
 from digail.envs.scene import FETCH as FETCH_SCENE
+from digail.envs.scene import LANDMARK_ROUTE as ROUTE_SCENE
 from digail.envs.scene import METAWORLD as METAWORLD_SCENE
 from digail.envs.scene import SceneColumns
 from digail.errors import UserError
@@ -164,7 +165,7 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
             step_metrics=(StepMetric("leg_done", "legs_done", "sum"), StepMetric("wrong_visit", "wrong_visits", "sum")),
             auto_backend="sync", name="Landmark route",
             labels=("north-east", "north-west", "south-west", "south-east"), render="image",
-            relative_view="digail.envs.landmark_route:relative_view"),
+            relative_view="digail.envs.landmark_route:relative_view", scene=ROUTE_SCENE),
     # the segmentation benchmark's synthetic courses (kwargs pick the course): the defaults, no tuned preset; the
     # label is the index of the current waypoint, as many as the course has
     EnvSpec("digail/WaypointCourse-v0", "default", 20, "digail.envs.waypoints:WaypointCourseEnv",
@@ -181,6 +182,23 @@ ENV_SPECS: dict[str, EnvSpec] = {spec.env_id: spec for spec in (
       for task, steps in METAWORLD_STEPS.items()),
 )}
 """The environments digail has settings, demonstrations sizes or experts for, by id."""
+
+
+def parse_env_args(items: Sequence[str]) -> dict[str, Any]:
+    """`--env-arg KEY=VALUE ...` as keyword arguments: a value that reads as JSON is taken as such (2, 0.5, true,
+    [3, 2]), anything else as text (order=3,2,1,0 stays the text the env parses)."""
+    import json
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip().isidentifier():
+            raise UserError(f"--env-arg {item!r} is not KEY=VALUE; pass e.g. --env-arg order=3,2,1,0.")
+        try:
+            out[key.strip()] = json.loads(value)
+        except ValueError:
+            out[key.strip()] = value
+    return out
 
 
 def env_spec(env_id: str) -> EnvSpec | None:

@@ -1,5 +1,6 @@
-"""Where an env's observation holds the end-effector, the object and the goal, and which actions move the
-end-effector: what `digail generate` needs to move a demonstrated path into a new scene and track it there.
+"""Where an env's observation holds the end-effector, the object and the goal (or several landmarks), and which
+actions move the end-effector: what `digail generate` needs to move a demonstrated path into a new scene and track
+it there.
 
 An env states this once, in its registry entry (`EnvSpec.scene`); a user's env gives the same by flags
 (`digail generate --ee 0:3 --object 3:6 ...`, parsed by `parse_columns`).
@@ -18,11 +19,11 @@ class SceneColumns:
     frame), and how far one unit of a move action moves the end-effector."""
 
     ee: slice
-    """end-effector position (3 columns)"""
-    object: slice
-    """position of the object the task acts on (3 columns)"""
+    """end-effector position (3 columns, or 2 in a planar env)"""
+    object: slice | None
+    """position of the object the task acts on (as many columns as `ee`); None: the scene has landmarks instead"""
     goal: slice | None
-    """position of the goal (3 columns); None: the env observes no goal"""
+    """position of the goal (as many columns as `ee`); None: the env observes no goal"""
     move_actions: slice
     """the action columns that move the end-effector by a displacement (one per position column)"""
     gripper_action: int | None
@@ -33,18 +34,28 @@ class SceneColumns:
     """the move actions displace a target that accumulates them (Meta-World's mocap, which the hand follows with a
     lag), rather than one placed relative to the end-effector at every step (Fetch's): paths are then tracked on
     that target, dead-reckoned from the actions, so that the hand lags as it lagged in the source"""
+    landmarks: tuple[slice, ...] = ()
+    """positions of further things a sub-task can head for (the landmark route's four landmarks): frames
+    `landmark0`, `landmark1`, ... in this order"""
+
+    @property
+    def dim(self) -> int:
+        """numbers per position (3, or 2 in a planar env)"""
+        return len(range(self.ee.stop or 0)[self.ee])
 
     def check(self, obs_dim: int, act_dim: int) -> None:
         """Refuse, in one sentence, columns outside an observation of `obs_dim` numbers or actions of `act_dim`."""
-        for name, cols in (("--ee", self.ee), ("--object", self.object), ("--goal", self.goal)):
+        named = [("--ee", self.ee), ("--object", self.object), ("--goal", self.goal),
+                 *((f"landmark {i}", c) for i, c in enumerate(self.landmarks))]
+        for name, cols in named:
             if cols is None:
                 continue
-            if len(range(obs_dim)[cols]) != 3 or (cols.stop or 0) > obs_dim:
-                raise UserError(f"{name} {_text(cols)} must name 3 columns of the {obs_dim}-number observation; "
-                                "pass e.g. 0:3.")
-        if len(range(act_dim)[self.move_actions]) != 3 or (self.move_actions.stop or 0) > act_dim:
-            raise UserError(f"--move-actions {_text(self.move_actions)} must name 3 columns of the {act_dim}-number "
-                            "action; pass e.g. 0:3.")
+            if len(range(obs_dim)[cols]) != self.dim or (cols.stop or 0) > obs_dim:
+                raise UserError(f"{name} {_text(cols)} must name {self.dim} columns of the {obs_dim}-number "
+                                "observation; pass e.g. 0:3.")
+        if len(range(act_dim)[self.move_actions]) != self.dim or (self.move_actions.stop or 0) > act_dim:
+            raise UserError(f"--move-actions {_text(self.move_actions)} must name {self.dim} columns of the "
+                            f"{act_dim}-number action; pass e.g. 0:3.")
         if self.gripper_action is not None and not 0 <= self.gripper_action < act_dim:
             raise UserError(f"--gripper-action {self.gripper_action} is not a column of the {act_dim}-number action;"
                             f" pass one of 0-{act_dim - 1}.")
@@ -78,3 +89,7 @@ METAWORLD = SceneColumns(ee=slice(0, 3), object=slice(4, 7), goal=slice(36, 39),
                          gripper_action=3, action_scale=0.01, integrating=True)
 """every Meta-World v3 task (`digail.envs.metaworld`): the hand, the first object and the goal; one action unit moves
 the mocap 1 cm (Meta-World's `action_scale`)"""
+LANDMARK_ROUTE = SceneColumns(ee=slice(0, 2), object=None, goal=None, move_actions=slice(0, 2), gripper_action=None,
+                              action_scale=0.05, landmarks=(slice(2, 4), slice(4, 6), slice(6, 8), slice(8, 10)))
+"""digail/LandmarkRoute-v0 (`digail.envs.landmark_route`): the point and the four landmarks in label order, in the
+plane; one action unit moves the point `SPEED` (0.05)"""

@@ -160,12 +160,16 @@ def expert_summary(env_id: str, episodes: int, seed: int) -> dict[str, Any] | No
 
 
 def evaluate(model: HierarchicalPolicy, env_id: str, episodes: int = 300, seed: int = FINAL_EVAL_SEED,
-             deterministic: bool = True, with_expert: bool = True) -> dict[str, Any]:
-    """Closed-loop evaluation; adds `normalized_return` (agent / expert mean return) when an expert exists."""
-    eps = run_episodes(model, env_id, episodes, seed, deterministic=deterministic)
+             deterministic: bool = True, with_expert: bool = True,
+             env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Closed-loop evaluation; adds `normalized_return` (agent / expert mean return) when an expert exists (not
+    with `env_kwargs`: the expert is measured on the env's default task)."""
+    eps = run_episodes(model, env_id, episodes, seed, deterministic=deterministic, env_kwargs=env_kwargs)
     out = summarize(eps, env_id)
     out.update(env_id=env_id, seed=seed, deterministic=deterministic, macro_policy="closed-loop argmax q")
-    if with_expert:
+    if env_kwargs:
+        out["env_kwargs"] = env_kwargs
+    if with_expert and not env_kwargs:
         expert = expert_summary(env_id, episodes, seed)
         if expert is not None:
             out["expert"] = expert
