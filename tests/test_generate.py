@@ -265,3 +265,26 @@ def test_metaworld_tracks_on_the_integrated_target() -> None:
                     hold=10, interp_speed=1.0).success
             for i in range(10)]
     assert sum(wins) >= 7
+
+
+def test_landmark_route_in_a_new_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The landmark route's legs chained 3,2,1,0 (demonstrated 0,2,1,3) from one source: the env told the new order
+    by --env-arg succeeds on most attempts (measured 48 of 50) and the dataset keeps the order in its env spec;
+    the env left on its own order judges every such attempt a failure."""
+    from digail.data.minari_io import load_dataset
+    from digail.data.validation import recorded_env_kwargs
+
+    route = ["generate", "--demos", "digail/landmarkroute/expert-v0", "--sources", "0", "--order", "3,2,1,0",
+             "--attempts", "4", "--no-progress"]
+    assert main([*route, "--env-arg", "order=3,2,1,0", "--out", str(tmp_path / "new")]) == 0
+    ds = load_dataset(tmp_path / "new")
+    record = ds.metadata["digail"]["generation"]
+    assert record["successes"] >= 3 and record["env_kwargs"] == {"order": "3,2,1,0"}
+    assert recorded_env_kwargs(ds) == {"order": "3,2,1,0"}
+    assert record["frames"] == {"0": "landmark0", "1": "landmark1", "2": "landmark2", "3": "landmark3"}
+    capsys.readouterr()
+    assert main([*route, "--out", str(tmp_path / "old")]) == 2
+    assert "none of the 4 attempts" in capsys.readouterr().err
+    assert main([*route, "--env-arg", "order", "--out", str(tmp_path / "bad")]) == 2
+    assert "KEY=VALUE" in capsys.readouterr().err
+    assert not (tmp_path / "old").exists() and not (tmp_path / "bad").exists()
