@@ -345,3 +345,18 @@ def test_a_course_on_a_grid_fits_the_env_it_was_recorded_in(minari_root: Path) -
     ds = load_dataset(record_course("grid-six", minari_root, seed=0, episodes=3))
     assert recorded_env_kwargs(ds)["grid"] is True
     assert check_dataset_env(ds) is None
+
+
+def test_robosuite_tasks_label_the_imported_fixtures_with_the_experts_phases(tmp_path: Path) -> None:
+    """The robosuite tasks import the fixture as a user would and label every observation with the scripted expert's
+    phase from the oracle file: 7 phases, in the expert's order, a label per observation."""
+    from conftest import repo_module
+
+    bench = repo_module("benchmarks/segmentation.py")
+    demos, codes, shipped, description = bench.task_data("robosuite-pickplacecan", tmp_path)
+    ds = load_dataset(demos)
+    assert codes == 7 and shipped and "10 episodes, 1628 steps" in description
+    for traj in ds.trajs:
+        labels = np.asarray(traj.subtasks)
+        assert len(labels) == len(traj.obs) and labels[0] == 0 and labels[-1] == 6
+        assert np.all(np.diff(labels) >= 0)  # the expert goes through its phases once, in order
