@@ -288,3 +288,15 @@ def test_landmark_route_in_a_new_order(tmp_path: Path, capsys: pytest.CaptureFix
     assert main([*route, "--env-arg", "order", "--out", str(tmp_path / "bad")]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
     assert not (tmp_path / "old").exists() and not (tmp_path / "bad").exists()
+
+
+def test_env_args_read_as_json_or_text(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from digail.envs.registry import parse_env_args
+
+    assert parse_env_args(["order=3,2,1,0", "grid=true", "legs=[1, 2]", "speed=0.5"]) == {
+        "order": "3,2,1,0", "grid": True, "legs": [1, 2], "speed": 0.5}
+    for bad in ("order", "=3", "two words=1"):
+        with pytest.raises(UserError, match="KEY=VALUE"):
+            parse_env_args([bad])
+    assert main(["evaluate", str(tmp_path), "--env-arg", "order"]) == 2  # refused before the run folder is read
+    assert "KEY=VALUE" in capsys.readouterr().err
