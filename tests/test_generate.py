@@ -190,7 +190,7 @@ def test_cli_writes_a_dataset_and_refuses_bad_input(tmp_path: Path, capsys: pyte
     record = ds.metadata["digail"]["generation"]
     assert record["attempts"] == 6 and record["successes"] == len(ds.trajs) > 0
     assert record["env_steps"] >= sum(len(t) for t in ds.trajs)
-    assert [s["frame"] for s in record["episodes"][0]["segments"]] == ["object", "object", "object", "goal"]
+    assert [s["frame"] for s in record["episodes"][0]["segments"]] == ["object", "object", "goal", "goal"]
     assert not (tmp_path / "gen.partial").exists()
     from digail.data.robomimic import read_robomimic
 

@@ -94,8 +94,8 @@ def infer_frames(trajs: Sequence[Trajectory], segments: Sequence[Sequence[Segmen
     With two or more segments of a key (across demonstrations), the frame in which the end-effector's pose at the
     segments' ends is most consistent: the smallest mean squared distance to its mean, with the end pose taken
     relative to the object's position at the segment's start, to the goal's, a landmark's, or in the world. With
-    one, the frame whose origin is nearest to the end-effector at the segment's end (not the world: its origin says
-    nothing about the scene).
+    one, the frame whose origin at the segment's start is nearest to the end-effector at the segment's end (not the
+    world: its origin says nothing about the scene).
     """
     candidates = frame_names(scene)
     ends: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
@@ -107,7 +107,9 @@ def infer_frames(trajs: Sequence[Trajectory], segments: Sequence[Sequence[Segmen
         if len(pairs) == 1:
             start, end = pairs[0]
             near = [f for f in candidates if f != "world"]
-            dist = [np.linalg.norm(end[scene.ee] - origin(end, f, scene)) for f in near]
+            # the origin where the segment starts, which is where the attempt anchors it: an object carried along
+            # is always nearest to the hand at the segment's end, but was not where the carry ends
+            dist = [np.linalg.norm(end[scene.ee] - origin(start, f, scene)) for f in near]
             frames[key] = near[int(np.argmin(dist))]
             continue
         spread = []
