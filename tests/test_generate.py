@@ -64,6 +64,17 @@ def test_frames_are_where_the_end_pose_is_consistent() -> None:
         frames_from_text("table,goal", [0, 1], SCENE)
 
 
+def test_one_source_carry_is_in_the_goals_frame() -> None:
+    """With one source, a carried object is in the hand at the carry's end; the frame is decided by where the origins
+    were when the segment started (the anchor an attempt uses), so the carry goes to the goal's frame."""
+    obj, goal = np.array([0.3, 0.0, 0.0]), np.array([-0.4, 0.5, 0.3])
+    ee = np.array([[0.0, 0, 0.5], obj + [0, 0, 0.2], obj, (obj + goal) / 2, goal])
+    held = np.array([obj, obj, obj, (obj + goal) / 2, goal])  # the object moves with the hand once grasped
+    obs = np.concatenate([ee, held, np.repeat(goal[None], 5, 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((4, 4), np.float32))
+    assert infer_frames([demo], [[Segment(0, 2, 0), Segment(2, 4, 1)]], SCENE) == {0: "object", 1: "goal"}
+
+
 def test_planar_landmarks_are_frames() -> None:
     """A scene of landmarks in the plane (the landmark route's kind): each leg's frame is the landmark it ends at."""
     scene = SceneColumns(ee=slice(0, 2), object=None, goal=None, move_actions=slice(0, 2), gripper_action=None,
