@@ -33,7 +33,6 @@ from digail.errors import UserError
 
 Frame = str
 """a reference frame: `object`, `goal`, `world`, or `landmark<i>` in a scene with landmarks (`frame_names`)"""
-FRAMES: tuple[Frame, ...] = ("object", "goal", "world")
 
 
 @dataclass(frozen=True)

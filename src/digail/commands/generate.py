@@ -103,6 +103,10 @@ class GenerateArgs:
             raise UserError(f"--interp-speed must be in [0, 1] (action units per step), not {self.interp_speed}.")
         if not 0 < self.gain <= 2:
             raise UserError(f"--gain must be in (0, 2] (the share of the error corrected per step), not {self.gain}.")
+        if self.env_arg:
+            from digail.envs.registry import parse_env_args
+
+            parse_env_args(self.env_arg)  # a malformed one is refused before any work
         if self.format == "robomimic" and self.out.suffix not in (".hdf5", ".h5"):
             raise UserError(f"--format robomimic writes one HDF5 file; name --out with .hdf5, e.g. "
                             f"{self.out.with_suffix('.hdf5')}.")
