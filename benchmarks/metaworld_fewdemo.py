@@ -18,7 +18,10 @@ Per (task, method, seed), from the first `--demos` episodes of the task's shippe
             few-demonstration Fetch screen's highest reward at 205k env steps (docs/howto/few-demos-reward.md)
 
 then `digail evaluate RUN --episodes E` on fresh placements (the evaluation seeds, 10000 on); the row keeps the
-success rate, the mean episode length and the commands. Both pre-trainings use the task's preset (metaworld: the
+success rate, the mean episode length and the commands. A bc row also keeps how well its codes segment the task's
+50 shipped demonstrations (`digail segment RUN`, the offline reading, against the expert's phases): what a change of
+the segmentation start (`--pretrain-args`, e.g. `--vae.init-actions gaussian --vae.init-ridge 1.0` for the start
+before 2026-12-07) does to the codes can be set beside what it does to success. Both pre-trainings use the task's preset (metaworld: the
 default VAE).
 """
 
@@ -55,7 +58,10 @@ def one(task: str, method: str, seed: int, args: argparse.Namespace) -> dict[str
     folder = root / f"{method}_s{seed}"
     if method in ("bc", "flatbc"):
         codes = phase_counts()[f"{task}-v3"] if method == "bc" else 1
-        commands.append(["pretrain", *common, "--codes", str(codes), "--out", str(folder), "--force"])
+        commands.append(["pretrain", *common, "--codes", str(codes), "--out", str(folder), "--force",
+                         *shlex.split(args.pretrain_args)])
+        if method == "bc":
+            commands.append(["segment", str(folder)])
     else:
         start = root / f"{'bc' if method.startswith('digail-l2') else 'flatbc'}_s{seed}"
         if not (start / "model.pt").is_file():
@@ -85,13 +91,18 @@ def row(task: str, method: str, seed: int, folder: Path, args: argparse.Namespac
         seconds: float) -> dict[str, Any]:
     ev = json.loads((folder / "eval.json").read_text())
     trained = method not in ("bc", "flatbc")
+    segmentation = {}
+    if (folder / "segmentation.json").is_file() and method == "bc":
+        seg = json.loads((folder / "segmentation.json").read_text())
+        segmentation = {"segmentation": {**{k: seg.get(k) for k in ("accuracy", "boundary_f1_5", "reading", "episodes")},
+                                         "causal_accuracy": (seg.get("readings") or {}).get("causal", {}).get("accuracy")}}
     return {"task": task, "method": method, "seed": seed, "demos": args.demos, "episodes": ev["episodes"],
             "iterations": args.iterations if trained else None,
             "env_steps": args.iterations * 4096 if trained else None,
             "success_rate": ev.get("success_rate"), "mean_length": ev.get("mean_length"),
             "expert_success_rate": (ev.get("expert") or {}).get("success_rate"),
             "minutes": round(seconds / 60, 1), "commands": commands,
-            **({"per_iteration": per_iteration(folder / "metrics.csv")} if trained else {})}
+            **segmentation, **({"per_iteration": per_iteration(folder / "metrics.csv")} if trained else {})}
 
 
 def per_iteration(metrics: Path) -> dict[str, list[float | None]]:
@@ -114,6 +125,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--iterations", type=int, default=10, help="training iterations of the -l2 methods")
     parser.add_argument("--runs", type=Path, default=Path("runs/metaworld_fewdemo"))
+    parser.add_argument("--pretrain-args", default="", metavar="FLAGS",
+                        help="more `digail pretrain` flags for bc and flatbc, one string (e.g. the segmentation start)")
     parser.add_argument("--out", type=Path, default=HERE / "results" / "metaworld" / "metaworld_fewdemo.json")
     parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
                         help="run nothing: add the rows of these files (calls that ran side by side) to --out")
