@@ -14,6 +14,8 @@ A job (task, source demonstrations N, seed S, segment source) runs, resumably, u
     digail pretrain --demos .../data --demos-episodes SIZE --codes K --seed S --preset P --out .../<method>_n<SIZE>
     digail evaluate .../<method>_n<SIZE> --episodes 100   (fresh scenes: the evaluation seeds, 10000 on)
 
+`--bc-args "FLAGS" --bc-name NAME` adds flags to those behaviour-cloning pre-trainings (e.g. more gradient steps
+for 1000 demonstrations: `--vae.init-steps 30000`); their rows are named `<method>-NAME`, beside the plain ones.
 `bc` is the VAE's policy with K codes (Fetch 4, a Meta-World task its expert's phase count), closed-loop q; `flatbc`
 the same pre-training with one code; `digail-l2` is Directed-Info GAIL + L2 started from `bc`'s VAE (the same size):
 
@@ -102,13 +104,13 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
             print(f"{job}: {have} demonstrations generated, fewer than {size}; row skipped")
             continue
         for method in args.methods:
-            run = job / f"{method}_n{size}"
+            run = job / f"{method}{'-' + args.bc_name if args.bc_name else ''}_n{size}"
             if (run / "eval.json").exists():
                 continue
             if method == "digail-l2":  # Directed-Info GAIL + L2 from the BC-with-codes VAE of the same size
-                bc = job / f"bc_n{size}"
+                bc = job / f"bc{'-' + args.bc_name if args.bc_name else ''}_n{size}"
                 if not (bc / "model.pt").exists():
-                    pretrain(data, size, info["codes"], seed, info["preset"], bc, log, job)
+                    pretrain(data, size, info["codes"], seed, info["preset"], bc, log, job, args.bc_args)
                 if (run / "checkpoint.pt").exists():  # a killed training continues
                     digail(["train", "--resume", str(run)], log, job)
                 else:
@@ -117,15 +119,16 @@ def run_job(task: str, n: int, seed: int, segments: str, args: argparse.Namespac
                             "--train.iterations", str(args.train_iterations), "--train.eval-every", "10",
                             "--train.eval-episodes", "10", "--out", str(run), "--force"], log, job)
             elif not (run / "model.pt").exists():
-                pretrain(data, size, info["codes"] if method == "bc" else 1, seed, info["preset"], run, log, job)
+                pretrain(data, size, info["codes"] if method == "bc" else 1, seed, info["preset"], run, log, job,
+                         args.bc_args)
             digail(["evaluate", str(run), "--episodes", str(args.eval_episodes), *info.get("evaluate", [])], log, job)
 
 
 def pretrain(data: Path, size: int, codes: int, seed: int, preset: str, run: Path, log: list[list[str]],
-             job: Path) -> None:
+             job: Path, extra: str = "") -> None:
     """Behaviour cloning on the first `size` generated demonstrations: the VAE's policy with `codes` codes."""
     digail(["pretrain", "--demos", str(data), "--demos-episodes", str(size), "--codes", str(codes), "--seed",
-            str(seed), "--preset", preset, "--out", str(run), "--force"], log, job)
+            str(seed), "--preset", preset, "--out", str(run), "--force", *shlex.split(extra)], log, job)
 
 
 def _saved(job: Path) -> list[list[str]]:
@@ -289,6 +292,8 @@ def main() -> None:
     r.add_argument("--chunk", type=int, default=10)
     r.add_argument("--eval-episodes", type=int, default=100)
     r.add_argument("--generate-args", nargs="*", default=[], help="more `digail generate` flags, e.g. --gain 0.5")
+    r.add_argument("--bc-args", default="", metavar="FLAGS", help="more `digail pretrain` flags for bc and flatbc")
+    r.add_argument("--bc-name", default="", help="the name those rows take: <method>-NAME")
     r.add_argument("--tag", default="", help="a variant's name: its jobs go to runs/generate/<task>/<segments>-<tag>")
     t = sub.add_parser("table", help="gather the jobs into one JSON")
     t.add_argument("--task", nargs="*")
@@ -305,6 +310,8 @@ def main() -> None:
     if args.what == "table":
         table(args)
         return
+    if args.bc_args and not args.bc_name:
+        parser.error("--bc-args needs --bc-name, so those rows do not take the plain rows' folders")
     for task in args.task:
         for segments in args.segments:
             for n in args.demos:

@@ -62,3 +62,35 @@ def test_rows_carry_the_budget_and_what_d_paid_per_iteration(tmp_path: Path) -> 
 def test_a_lead_of_exactly_two_tenths_counts_despite_float_rounding() -> None:
     assert 0.86 - 0.66 < 0.2  # what binary floats make of it
     assert tables._lead(0.86, 0.66) == "**+0.20**" and tables._lead(0.85, 0.66) == "+0.19"
+
+
+downstream = repo_module("benchmarks/metaworld_codes_downstream.py")
+
+
+def test_codes_downstream_sets_the_new_start_beside_the_old(tmp_path: Path) -> None:
+    def seg(accuracy: float) -> dict:
+        return {"segmentation": {"accuracy": accuracy, "boundary_f1_5": 0.5, "reading": "offline", "episodes": 50}}
+
+    old = [_row("box-close", "bc", s, v) for s, v in enumerate((0.6, 0.65, 0.8))]
+    old += [_row("box-close", "digail-l2", s, v, 61) for s, v in enumerate((0.83, 0.7, 0.85))]
+    old += [_row("box-close", "digail-l2", s, 0.1, 30) for s in range(3)]  # another length: not this table's
+    again = [{**_row("box-close", "bc", s, v), **seg(a)} for s, (v, a) in enumerate(((0.6, 0.7), (0.65, 0.74),
+                                                                                      (0.8, 0.72)))]
+    new = [{**_row("box-close", "bc", s, v), **seg(a)} for s, (v, a) in enumerate(((0.9, 0.99), (0.7, 0.9),
+                                                                                    (0.8, 0.98)))]
+    new += [_row("box-close", "digail-l2", s, v, 61) for s, v in enumerate((0.9, 0.95, 0.88))]
+    for name, rows in (("metaworld_fewdemo.json", old), ("metaworld_fewdemo_oldstart_bc.json", again),
+                       ("metaworld_fewdemo_newstart.json", new)):
+        (tmp_path / name).write_text(json.dumps({"rows": rows}))
+    data = downstream.collect(tmp_path)
+    box = data["box-close"]
+    assert box["accuracy_old"]["median"] == 0.72 and box["accuracy_new"]["median"] == 0.98
+    assert box["old_bc_reproduced"] is True
+    text = downstream.table(data)
+    assert ("| box-close | 0.72 (0.70 / 0.74 / 0.72) | 0.98 (0.99 / 0.90 / 0.98) | 0.65 (0.60 / 0.65 / 0.80) | "
+            "0.80 (0.90 / 0.70 / 0.80) | +0.15 | 0.83 (0.83 / 0.70 / 0.85) | 0.90 (0.90 / 0.95 / 0.88) | +0.07 |") in text
+    assert "| hammer | - | - | - | - | - |" in text  # a task not measured says so
+    # the old start's BC made again with other numbers is told, not hidden
+    again[0]["success_rate"] = 0.5
+    (tmp_path / "metaworld_fewdemo_oldstart_bc.json").write_text(json.dumps({"rows": again}))
+    assert downstream.collect(tmp_path)["box-close"]["old_bc_reproduced"] is False
