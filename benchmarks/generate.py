@@ -160,11 +160,12 @@ def _trained(run: Path) -> int:
 
 
 def _steps_for(gen: dict[str, Any], size: int) -> int:
-    """Env steps generation spent until its `size`-th kept demonstration."""
+    """Env steps generation spent until its `size`-th kept demonstration (with `--frame-trials`, the trials' too)."""
     ep = gen["episodes"][size - 1]
+    trials = int((gen.get("frame_trials") or {}).get("env_steps", 0))
     if "env_steps" in ep:
-        return int(ep["env_steps"])
-    return round((ep["attempt"] + 1) * gen["env_steps"] / gen["attempts"])  # equal-length attempts (Fetch)
+        return int(ep["env_steps"]) + trials
+    return round((ep["attempt"] + 1) * gen["env_steps"] / gen["attempts"]) + trials  # equal-length attempts (Fetch)
 
 
 def table(args: argparse.Namespace) -> dict[str, Any]:
@@ -184,6 +185,7 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                      "rate_first_200": round(sum(e["attempt"] < 200 for e in gen["episodes"])
                                              / min(200, gen["attempts"]), 4),
                      "frames": gen["frames"], "order": gen.get("order"),
+                     **({"frame_trials": gen["frame_trials"]} if gen.get("frame_trials") else {}),
                      "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                   if c[0] == "generate" or str(job / "vae") in c]})
         for run in sorted(job.glob("*_n*")):

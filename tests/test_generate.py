@@ -24,6 +24,7 @@ from digail.algos.generate import (
     plan_segments,
     runs_to_segments,
     scene_positions,
+    trial_frames,
 )
 from digail.cli import main
 from digail.data.trajectory import Trajectory
@@ -147,6 +148,30 @@ def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> Non
     kept, state = generate(plan, _PointEnv, attempts=5, successes=None, work=tmp_path / "w", progress=False)
     assert state.attempts == 5 and state.successes == 5 == len(kept)
     assert state.env_steps == sum(len(t) for t in kept)
+
+
+def test_frames_by_trial_keep_what_succeeds(tmp_path: Path) -> None:
+    """The place segment put in the object's frame fails in every new scene; trying each sub-task's other frames on
+    the same scenes moves it to the goal's, where all succeed, and leaves the reach (a tie) where it was."""
+    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
+    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
+    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
+    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    plan = GenerationPlan("point", [demo], [0], [segs], {0: "object", 1: "object"}, SCENE, gain=1.0, blend=20,
+                          hold=40, seed=3)
+    frames, tried, steps = trial_frames(plan, _PointEnv, trials=4, seed=100, progress=False)
+    assert frames == {0: "object", 1: "goal"}
+    # the start, then each key's two other frames (goal, world), each on the same 4 scenes
+    assert len(tried) == 5 and tried[0] == {"frames": {"0": "object", "1": "object"}, "successes": 0}
+    assert {"frames": {"0": "object", "1": "goal"}, "successes": 4} in tried
+    assert steps > 0
+
+
+def test_frame_trials_refused_beside_named_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["generate", "--demos", str(tmp_path / "none"), "--frames", "object", "--frame-trials", "5",
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "pass one of the two" in capsys.readouterr().err and not (tmp_path / "out").exists()
 
 
 def _fetch_plan() -> tuple[GenerationPlan, Callable[[], Any]]:
@@ -296,6 +321,11 @@ def test_landmark_route_in_a_new_order(tmp_path: Path, capsys: pytest.CaptureFix
     capsys.readouterr()
     assert main([*route, "--out", str(tmp_path / "old")]) == 2
     assert "none of the 4 attempts" in capsys.readouterr().err
+    # frames chosen by trial: the landmarks' frames succeed and are kept, and the record says what was tried
+    assert main([*route, "--env-arg", "order=3,2,1,0", "--frame-trials", "1", "--out", str(tmp_path / "trial")]) == 0
+    trial = load_dataset(tmp_path / "trial").metadata["digail"]["generation"]
+    assert trial["frames"] == record["frames"] and trial["frame_trials"]["inferred"] == record["frames"]
+    assert trial["frame_trials"]["tried"][0]["successes"] == 1 and trial["frame_trials"]["env_steps"] > 0
     assert main([*route, "--env-arg", "order", "--out", str(tmp_path / "bad")]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
     assert not (tmp_path / "old").exists() and not (tmp_path / "bad").exists()

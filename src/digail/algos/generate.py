@@ -385,13 +385,8 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
     try:
         while state.attempts < attempts and (successes is None or state.successes < successes):
             i = state.attempts
-            if plan.pick == "nearest" and len(plan.sources) > 1:
-                first, _ = env.reset(seed=plan.seed + i)  # `attempt` resets with the same seed: the same scene
-                src = nearest_source(np.asarray(first), plan.sources, plan.scene)
-            else:
-                src = i % len(plan.sources)
-            result = attempt(env, plan.sources[src], plan.segments[src], plan.frames, plan.scene, plan.seed + i,
-                             gain=plan.gain, blend=plan.blend, hold=plan.hold, interp_speed=plan.interp_speed)
+            src = _source_for(plan, env, i, plan.seed + i)
+            result = _play(plan, env, src, plan.frames, plan.seed + i)
             state.attempts += 1
             state.env_steps += result.steps
             if result.success:
@@ -410,6 +405,68 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
         bar.close()
         env.close()
     return kept, state
+
+
+def _source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
+    """The source attempt `i` (reset with `seed`) replays under the plan's `pick`."""
+    if plan.pick == "nearest" and len(plan.sources) > 1:
+        first, _ = env.reset(seed=seed)  # `attempt` resets with the same seed: the same scene
+        return nearest_source(np.asarray(first), plan.sources, plan.scene)
+    return i % len(plan.sources)
+
+
+def _play(plan: GenerationPlan, env: Any, src: int, frames: dict[int, Frame], seed: int) -> AttemptResult:
+    return attempt(env, plan.sources[src], plan.segments[src], frames, plan.scene, seed, gain=plan.gain,
+                   blend=plan.blend, hold=plan.hold, interp_speed=plan.interp_speed)
+
+
+def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int, seed: int, *,
+                 progress: bool = True) -> tuple[dict[int, Frame], list[dict[str, Any]], int]:
+    """Frames chosen by trying them in the simulator: from `plan.frames`, each sub-task in turn (by key) takes every
+    other frame the scene has, on the same `trials` scenes (reset seeds `seed` on), and keeps the one whose attempts
+    succeed most often (the current one on a tie). With a few sources the most consistent end pose can name the
+    wrong frame (three end poses decide it); attempts are what generation pays for anyway.
+
+    Returns:
+        `(frames, record, env_steps)`: the chosen frames, one entry per assignment tried (its frames and its
+        successes) and the env steps the trials took.
+    """
+    from digail.utils import progress_bar
+
+    keys = sorted(plan.frames)
+    names = frame_names(plan.scene)
+    bar = progress_bar(trials * (1 + len(keys) * (len(names) - 1)), progress, desc="frames", unit="attempt")
+    env = make_env()
+    steps = 0
+    sources = [_source_for(plan, env, i, seed + i) for i in range(trials)]
+
+    def score(frames: dict[int, Frame]) -> int:
+        nonlocal steps
+        wins = 0
+        for i, src in enumerate(sources):
+            result = _play(plan, env, src, frames, seed + i)
+            wins += result.success
+            steps += result.steps
+            bar.update(1)
+        return wins
+
+    try:
+        best = dict(plan.frames)
+        best_wins = score(best)
+        record = [{"frames": {str(k): v for k, v in sorted(best.items())}, "successes": best_wins}]
+        for key in keys:
+            for name in names:
+                if name == best[key]:
+                    continue
+                tried = {**best, key: name}
+                wins = score(tried)
+                record.append({"frames": {str(k): v for k, v in sorted(tried.items())}, "successes": wins})
+                if wins > best_wins:
+                    best, best_wins = tried, wins
+    finally:
+        bar.close()
+        env.close()
+    return best, record, steps
 
 
 def _save(work: Path, state_file: Path, fingerprint: dict[str, Any], state: GenerationState, chunks: int,

@@ -47,6 +47,10 @@ class GenerateArgs:
     """each sub-task's reference frame, in the order of the sub-task ids, e.g. object,object,goal,goal (default:
     inferred: the frame in which its end pose is most consistent across the sources, or the nearest at its end with
     one source)"""
+    frame_trials: int = 0
+    """before generating, choose each sub-task's frame in the simulator: starting from the inferred frames, each
+    sub-task in turn tries every other frame on this many scenes (their own reset seeds, after the attempts') and
+    keeps the frame whose attempts succeed most often (0: the inferred frames as they are)"""
     order: str | None = None
     """the sub-task ids to chain, e.g. 3,2,1,0 (default: each source's own order); a source's first segment of each
     id is played"""
@@ -98,7 +102,10 @@ class GenerateArgs:
         check_at_least(self.min_segment, "--min-segment")
         check_at_least(self.blend, "--blend")
         check_at_least(self.hold, "--hold", low=0)
-        check_seed(self.seed, count=self.attempts, count_flag="--attempts")
+        check_at_least(self.frame_trials, "--frame-trials", low=0)
+        check_seed(self.seed, count=self.attempts + self.frame_trials, count_flag="--attempts")
+        if self.frame_trials and self.frames is not None:
+            raise UserError("--frames names the frames and --frame-trials chooses them; pass one of the two.")
         if not 0 <= self.interp_speed <= 1:
             raise UserError(f"--interp-speed must be in [0, 1] (action units per step), not {self.interp_speed}.")
         if not 0 < self.gain <= 2:
@@ -194,6 +201,7 @@ def _codes(args: GenerateArgs, trajs: list[Any], ids: list[int]) -> list[Any]:
 
 def generate_command(args: GenerateArgs) -> dict[str, Any]:
     """Generate, write the dataset; returns the summary (attempts, successes, the rate, env steps)."""
+    import dataclasses
     import shutil
 
     import numpy as np
@@ -207,6 +215,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
         infer_frames,
         plan_segments,
         runs_to_segments,
+        trial_frames,
     )
     from digail.commands.common import inputs
     from digail.data.minari_io import load_dataset
@@ -269,6 +278,18 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
                           pick=args.pick)
     work = args.out.with_name(args.out.name + ".partial")
     check_not_locked(work)
+    trials: dict[str, Any] = {}
+    if args.frame_trials:
+        inferred = plan.frames
+        chosen, tried, trial_steps = trial_frames(plan, lambda: make_env(env_id, **env_kwargs), args.frame_trials,
+                                                  args.seed + args.attempts, progress=args.progress)
+        plan = dataclasses.replace(plan, frames=chosen)
+        frames = chosen
+        trials = {"frame_trials": {"scenes": args.frame_trials, "seed": args.seed + args.attempts,
+                                   "inferred": {str(k): v for k, v in sorted(inferred.items())}, "tried": tried,
+                                   "env_steps": trial_steps}}
+        print(f"frames by trial ({args.frame_trials} scenes each, {trial_steps} env steps): "
+              + ", ".join(f"{k}: {v}" for k, v in sorted(chosen.items())))
     name = env_id.rpartition("/")[2].lower().rsplit("-v", 1)[0]
     dataset_id = args.dataset_id or f"digail/{''.join(c for c in name if c.isalnum() or c in '-_')}/generated-v0"
     if work.exists():
@@ -284,7 +305,7 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
             "successes": state.successes, "rate": rate, "env_steps": state.env_steps,
             "kept_steps": int(sum(len(t) for t in kept)), "gain": args.gain, "blend": args.blend,
             "hold": args.hold, "interp_speed": args.interp_speed, "seed": args.seed,
-            "pick": args.pick, **({"env_kwargs": env_kwargs} if env_kwargs else {})}
+            "pick": args.pick, **({"env_kwargs": env_kwargs} if env_kwargs else {}), **trials}
         if not kept:
             raise UserError(f"none of the {state.attempts} attempts reached the env's success, so there is nothing "
                             f"to write (the attempts are recorded in {work}); try other --segments or --frames, or "
