@@ -293,7 +293,8 @@ def main() -> None:
     r.add_argument("--attempts", type=int, default=1500)
     r.add_argument("--chunk", type=int, default=10)
     r.add_argument("--eval-episodes", type=int, default=100)
-    r.add_argument("--generate-args", nargs="*", default=[], help="more `digail generate` flags, e.g. --gain 0.5")
+    r.add_argument("--generate-args", nargs="*", action="extend", default=[],
+                   help="more `digail generate` flags, e.g. --generate-args=--gain=0.5 (given again, added to)")
     r.add_argument("--bc-args", default="", metavar="FLAGS", help="more `digail pretrain` flags for bc and flatbc")
     r.add_argument("--bc-name", default="", help="the name those rows take: <method>-NAME")
     r.add_argument("--tag", default="", help="a variant's name: its jobs go to runs/generate/<task>/<segments>-<tag>")
