@@ -19,6 +19,7 @@ from digail.algos.polish import anticipate_switches, polish
 from digail.algos.vae_pretrain import (
     DemoBatch,
     categorical_kl,
+    label_codes,
     pad_demos,
     pretrain,
     smoothing_penalty,
@@ -517,3 +518,18 @@ def test_one_code_pretraining_is_behaviour_cloning() -> None:
             return float(((m.pi.mode(m.normalizer(obs), code) - acts) ** 2).mean())
 
     assert mse(model) < 0.2 * mse(fresh), (mse(model), mse(fresh))
+
+
+def test_labels_start_fits_q_and_pi_to_the_given_labels() -> None:
+    """`--vae.init labels`: q and pi are fitted to the demonstrations' own labels, so the causal segmentation follows
+    them with codes numbered as the labels (no matching needed), and data without labels is refused."""
+    trajs = two_phase_demos(n=12)
+    cfg = VAEConfig(codes=2, epochs=None, steps=0, init="labels", init_steps=400)
+    model, _ = pretrain(trajs, cfg, seed=0, progress=False)
+    codes = np.concatenate(segment_many(model, trajs))
+    labels = np.concatenate([np.asarray(t.subtasks)[:len(t.acts)] for t in trajs])
+    assert np.mean(codes == labels) >= 0.9  # one-to-one as numbered, not under the best matching
+    with pytest.raises(UserError, match="episode 0 has none"):
+        pretrain([dataclasses.replace(t, subtasks=None) for t in trajs], cfg, seed=0, progress=False)
+    with pytest.raises(UserError, match="--codes 2 or more"):
+        label_codes(trajs, 1)

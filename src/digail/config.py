@@ -97,10 +97,10 @@ class VAEConfig:
     this fraction as many fitted demonstrations as its most used one (0: every K): a code that far fewer
     demonstrations take than the others marks how those few differ (a regrasp, a slip), not a sub-task"""
 
-    init: Literal["em", "none"] = "em"
+    init: Literal["em", "none", "labels"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
-    switching linear sub-task policies (`digail.algos.segment_init`), `none` starts from random weights (the
-    paper)"""
+    switching linear sub-task policies (`digail.algos.segment_init`), `labels` to the demonstrations' own sub-task
+    labels (annotated or generated data: label l is code l), `none` starts from random weights (the paper)"""
     init_variance: Literal["shared", "per-code"] = "shared"
     """`em` with continuous actions: one action variance per dimension shared by the codes, or one per code
     (`digail.algos.segment_init`)"""
@@ -168,7 +168,7 @@ class VAEConfig:
         if self.epochs is not None:
             _require(isinstance(self.epochs, int) and 0 <= self.epochs <= EPOCHS_MAX, "--vae.epochs",
                      f"between 0 and {EPOCHS_MAX:,}", self.epochs)
-        _require(self.init in ("em", "none"), "--vae.init", "em or none", self.init)
+        _require(self.init in ("em", "none", "labels"), "--vae.init", "em, labels or none", self.init)
         _require(self.init_variance in ("shared", "per-code"), "--vae.init-variance", "shared or per-code",
                  self.init_variance)
         _require(self.init_switch_costs in ("learned", "fixed"), "--vae.init-switch-costs", "learned or fixed",

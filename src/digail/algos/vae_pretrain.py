@@ -212,6 +212,8 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     if cfg.init == "em" and cfg.init_pieces == "env" and pieces is None:
         raise UserError("--vae.init-pieces env needs an environment that cuts its demonstrations into pieces "
                         "(Four Rooms: its room visits) and this dataset's has none; use --vae.init-pieces steps.")
+    if cfg.init == "labels" and cfg.codes > 1:
+        label_codes(trajs, cfg.codes)  # refused before any training
     if cfg.restarts > 1:
         # every restart trains on the same demonstrations and is scored on the same held-out ones
         train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
@@ -240,6 +242,22 @@ def pretrain(trajs: Sequence[Trajectory], cfg: VAEConfig, *, action_spec: Action
     return model.eval(), history
 
 
+def label_codes(trajs: Sequence[Trajectory], codes: int) -> list[np.ndarray]:
+    """Each demonstration's sub-task labels as its codes (`--vae.init labels`), refused in one sentence where a
+    demonstration has none or a label is not a code below `codes`."""
+    out = []
+    for i, t in enumerate(trajs):
+        if t.subtasks is None:
+            raise UserError(f"--vae.init labels reads each demonstration's sub-task labels, but episode {i} has "
+                            "none; pass labelled demonstrations or use --vae.init em.")
+        labels = np.asarray(t.subtasks)[:len(t.acts)].astype(np.int64)
+        if len(labels) < len(t.acts) or labels.min() < 0 or labels.max() >= codes:
+            raise UserError(f"--vae.init labels: episode {i} has labels from {labels.min()} to {labels.max()}, "
+                            f"which {codes} codes cannot take one each; pass --codes {int(labels.max()) + 1} or more.")
+        out.append(labels)
+    return out
+
+
 def auto_epochs(cfg: VAEConfig, n_demos: int) -> int:
     """`cfg.epochs`, or when that is None the epochs that give about `cfg.steps` gradient steps on `n_demos`
     demonstrations (at least one epoch): the work, and the temperature and warm-up schedules, then follow the
@@ -262,11 +280,15 @@ def _fit(trajs: Sequence[Trajectory], cfg: VAEConfig, action_spec: ActionSpec, o
                                else (cfg.decoder_obs[0], cfg.decoder_obs[1]))
     model.normalizer.fit(np.concatenate([np.asarray(t.obs, np.float64).reshape(len(t.obs), -1) for t in trajs]))
     model.to(dev).train()
-    if cfg.init == "em":
+    if cfg.init in ("em", "labels"):
         # one code has one segmentation (every step is code 0): the start is then plain behaviour cloning, which
         # the flat baselines need (the same decoder, data and steps as the K > 1 VAE, no codes to find)
-        first = (_start(trajs, cfg, action_spec.discrete, seed, pieces) if cfg.codes > 1
-                 else [np.zeros(len(t.acts), np.int64) for t in trajs])
+        if cfg.codes == 1:
+            first = [np.zeros(len(t.acts), np.int64) for t in trajs]
+        elif cfg.init == "labels":
+            first = label_codes(trajs, cfg.codes)
+        else:
+            first = _start(trajs, cfg, action_spec.discrete, seed, pieces)
         fit_to_codes(model, trajs, first, cfg.init_steps, cfg.polish_lr, seed=seed, progress=progress, desc="init")
         model.train()
     data = pad_demos(trajs, model, dev)
