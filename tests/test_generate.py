@@ -150,6 +150,21 @@ def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> Non
     assert state.env_steps == sum(len(t) for t in kept)
 
 
+def test_pick_first_replays_one_source_and_cycle_all(tmp_path: Path) -> None:
+    """`--pick first` plays the first source in every scene (the others inform only the frames); `cycle` takes them
+    in turn."""
+    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
+    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
+    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
+    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    for pick, sources in (("first", [7, 7, 7, 7]), ("cycle", [7, 9, 7, 9])):
+        plan = GenerationPlan("point", [demo, demo], [7, 9], [segs, segs], {0: "object", 1: "goal"}, SCENE,
+                              gain=1.0, blend=20, hold=40, seed=3, pick=pick)  # type: ignore[arg-type]
+        _, state = generate(plan, _PointEnv, attempts=4, successes=None, work=tmp_path / pick, progress=False)
+        assert [e["source"] for e in state.episodes] == sources
+
+
 def test_frames_by_trial_keep_what_succeeds(tmp_path: Path) -> None:
     """The place segment put in the object's frame fails in every new scene; trying each sub-task's other frames on
     the same scenes moves it to the goal's, where all succeed, and leaves the reach (a tie) where it was."""

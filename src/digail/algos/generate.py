@@ -274,9 +274,9 @@ class GenerationPlan:
     """0, or action units per step of the straight moves inserted before segments that start far away"""
     seed: int = 0
     """attempt i is reset with seed + i"""
-    pick: Literal["cycle", "nearest"] = "cycle"
-    """which source an attempt replays: source i mod len(sources) (`cycle`), or the one whose scene is nearest to
-    the new one (`nearest`: `nearest_source`)"""
+    pick: Literal["cycle", "nearest", "first"] = "cycle"
+    """which source an attempt replays: source i mod len(sources) (`cycle`), the one whose scene is nearest to
+    the new one (`nearest`: `nearest_source`), or always the first (`first`: the others only inform the frames)"""
 
     def fingerprint(self) -> dict[str, Any]:
         """What makes two plans play the same attempts (what a resumed run must match)."""
@@ -409,6 +409,8 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
 
 def _source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
     """The source attempt `i` (reset with `seed`) replays under the plan's `pick`."""
+    if plan.pick == "first":
+        return 0
     if plan.pick == "nearest" and len(plan.sources) > 1:
         first, _ = env.reset(seed=seed)  # `attempt` resets with the same seed: the same scene
         return nearest_source(np.asarray(first), plan.sources, plan.scene)

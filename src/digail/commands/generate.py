@@ -60,10 +60,10 @@ class GenerateArgs:
     """stop once this many demonstrations are kept (default: play every attempt)"""
     seed: int = GENERATION_SEED
     """attempt i resets the env with seed + i"""
-    pick: Literal["cycle", "nearest"] = "cycle"
+    pick: Literal["cycle", "nearest", "first"] = "cycle"
     """which source an attempt replays: `cycle` source i mod the number of sources, `nearest` the source whose
     object (and goal) started nearest to the new scene's, so that one scene always comes with one way of doing the
-    task"""
+    task, or `first` always the first source, the others only informing the frames (one way for every scene)"""
     gain: float = 1.0
     """share of the end-effector's position error the move actions correct in one step (clipped to the bounds)"""
     blend: int = 5
