@@ -102,3 +102,19 @@ def test_video_outcome_on_real_episodes(tmp_path):
         find_outcome(model, "digail/FourRooms-v0", True, seed=7, search=3)
     with pytest.raises(UserError, match="reports no info"):
         find_outcome(_circle_model(), "digail/CircleWorld-v0", True, search=2)
+
+
+def test_video_env_is_made_with_the_env_arguments(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    """`digail evaluate --video --env-arg ...` records in the env the evaluation ran in, not the default one."""
+    import digail.envs
+
+    made: list[dict] = []
+    real = digail.envs.make_env
+
+    def spy(env_id: str, **kwargs: object) -> object:
+        made.append(kwargs)
+        return real(env_id, **{k: v for k, v in kwargs.items() if k != "probe"})
+
+    monkeypatch.setattr(digail.envs, "make_env", spy)
+    record_video(_circle_model(), "digail/CircleWorld-v0", tmp_path / "v.mp4", max_steps=3, env_kwargs={"probe": 1})
+    assert made[0] == {"render_mode": "rgb_array", "probe": 1}

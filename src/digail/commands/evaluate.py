@@ -60,6 +60,7 @@ def evaluate_command(args: EvaluateArgs) -> dict[str, Any]:
         if args.video:
             from digail.viz.video import record_video
 
-            mp4, gif = record_video(model, env_id, run / "videos" / "eval.mp4", seed=args.seed)
+            mp4, gif = record_video(model, env_id, run / "videos" / "eval.mp4", seed=args.seed,
+                                    env_kwargs=parse_env_args(args.env_arg) or None)
             print(f"video: {mp4} and {gif}")
     return result

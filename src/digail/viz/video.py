@@ -48,7 +48,7 @@ class RenderedEpisode:
 
 def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, schedule: Sequence[int] | None = None,
                   render: bool = True, deterministic: bool = True,
-                  max_steps: int | None = None) -> list[RenderedEpisode]:
+                  max_steps: int | None = None, env_kwargs: dict[str, Any] | None = None) -> list[RenderedEpisode]:
     """Run `episodes` episodes (episode e reset with `seed + e`) and keep frames, codes and observations.
 
     Args:
@@ -59,6 +59,7 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         deterministic: pi's most likely / mean action, as in evaluation.
         max_steps: cut episodes after this many steps (software-rendered MuJoCo takes about half a second a
             frame on a loaded CPU); None plays them to their end.
+        env_kwargs: keyword arguments for the env (`--env-arg`), e.g. the landmark route's order.
     """
     import gymnasium as gym
 
@@ -73,7 +74,8 @@ def play_episodes(model: Any, env_id: str, episodes: int = 1, seed: int = 0, sch
         raise UserError(f"{env_id} cannot draw its frames (it has no rgb_array rendering); its runs have no video.")
     if render and (spec is None or spec.render == "mujoco"):
         ensure_offscreen_gl()
-    env = make_env(env_id, render_mode="rgb_array") if render else make_env(env_id)
+    kwargs = dict(env_kwargs or {})
+    env = make_env(env_id, render_mode="rgb_array", **kwargs) if render else make_env(env_id, **kwargs)
     if max_steps is not None:
         env = gym.wrappers.TimeLimit(env, max_episode_steps=max_steps)  # the cut reads as a truncation
     policy = hierarchical_act(model, env_action_fn(env), deterministic=deterministic, schedule=schedule)
@@ -227,7 +229,7 @@ def write_mp4_gif(frames: Sequence[np.ndarray], stem: Path, fps: int = 30, gif_s
 
 def record_video(model: Any, env_id: str, path: Path, seed: int = 0, episodes: int = 1,
                  schedule: Sequence[int] | None = None, fps: int | None = None, label: str = "",
-                 max_steps: int | None = None) -> tuple[Path, Path]:
+                 max_steps: int | None = None, env_kwargs: dict[str, Any] | None = None) -> tuple[Path, Path]:
     """Render `episodes` episodes (closed-loop, or under `schedule`) to `path` as MP4 and GIF.
 
     Args:
@@ -235,13 +237,15 @@ def record_video(model: Any, env_id: str, path: Path, seed: int = 0, episodes: i
         fps: frames per second (default: the env's `render_fps`, else 30).
         label: extra caption text, e.g. the schedule.
         max_steps: cut each episode after this many steps (None: play it to its end).
+        env_kwargs: keyword arguments for the env (`--env-arg`).
 
     Returns:
         The MP4 and GIF paths.
     """
     from digail.envs import make_env
 
-    eps = play_episodes(model, env_id, episodes, seed, schedule=schedule, max_steps=max_steps)
+    eps = play_episodes(model, env_id, episodes, seed, schedule=schedule, max_steps=max_steps,
+                        env_kwargs=env_kwargs)
     if fps is None:
         probe = make_env(env_id)
         fps = int(probe.metadata.get("render_fps") or 30)
