@@ -13,8 +13,8 @@ Reads three files of `benchmarks/metaworld_fewdemo.py` (each row keeps its comma
 - `metaworld_fewdemo_newstart.json`: the same rows with today's defaults (BC and Directed-Info GAIL + L2, 61
   iterations) and their segmentation.
 
-Per task (medians over seeds 0-2): the codes' accuracy old and new, and the success of each method old and new;
-the figure sets each task's change in accuracy against its change in success.
+Per task (medians over seeds 0-2): the codes' accuracy old and new, and the success of each method old and new, with
+the change over the seeds both have; the figure sets each task's change in accuracy against its change in success.
 """
 
 from __future__ import annotations
@@ -56,9 +56,17 @@ def collect(results: Path = RESULTS) -> dict[str, Any]:
             accs = [r["segmentation"]["accuracy"] for r in pick(bc_rows, task, "bc", None) if r.get("segmentation")]
             entry[f"accuracy_{era}"] = {"median": _median(accs), "seeds": accs}
         for column, (method, iterations) in METHODS.items():
+            by_seed = {}
             for era, rows in (("old", old), ("new", new)):
-                success = [r["success_rate"] for r in pick(rows, task, method, iterations)]
+                found = pick(rows, task, method, iterations)
+                by_seed[era] = {r["seed"]: r["success_rate"] for r in found}
+                success = [r["success_rate"] for r in found]
                 entry[f"{column}_{era}"] = {"median": _median(success), "seeds": success}
+            # the change over the seeds both have (a seed still training has no new row yet)
+            both = sorted(set(by_seed["old"]) & set(by_seed["new"]))
+            change = (_median([by_seed["new"][s] for s in both]) - _median([by_seed["old"][s] for s in both])
+                      if both else None)
+            entry[f"{column}_change"] = {"value": change, "seeds": both}
         # the old BC rows made again should give the published numbers (the same seeds, the same start); where
         # the code has moved on since, the seeds that differ are told
         again = {r["seed"]: r["success_rate"] for r in pick(old_bc, task, "bc", None)}
@@ -75,8 +83,12 @@ def _cell(entry: dict[str, Any]) -> str:
     return f"{entry['median']:.2f} ({' / '.join(f'{v:.2f}' for v in entry['seeds'])})"
 
 
-def _delta(a: float | None, b: float | None) -> str:
-    return "-" if a is None or b is None else f"{b - a:+.2f}"
+def _change(entry: dict[str, Any]) -> str:
+    if entry["value"] is None:
+        return "-"
+    seeds = entry["seeds"]
+    return f"{entry['value']:+.2f}" + ("" if len(seeds) == 3 else f" (seed{'s' if len(seeds) > 1 else ''} "
+                                                                      f"{', '.join(map(str, seeds))})")
 
 
 def table(data: dict[str, Any]) -> str:
@@ -84,9 +96,8 @@ def table(data: dict[str, Any]) -> str:
              "Directed-Info GAIL + L2, old | new | change |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for task, e in data.items():
         lines.append(f"| {task} | {_cell(e['accuracy_old'])} | {_cell(e['accuracy_new'])} | {_cell(e['bc_old'])} | "
-                     f"{_cell(e['bc_new'])} | {_delta(e['bc_old']['median'], e['bc_new']['median'])} | "
-                     f"{_cell(e['digail-l2_old'])} | {_cell(e['digail-l2_new'])} | "
-                     f"{_delta(e['digail-l2_old']['median'], e['digail-l2_new']['median'])} |")
+                     f"{_cell(e['bc_new'])} | {_change(e['bc_change'])} | "
+                     f"{_cell(e['digail-l2_old'])} | {_cell(e['digail-l2_new'])} | {_change(e['digail-l2_change'])} |")
     return "\n".join(lines)
 
 
@@ -101,16 +112,16 @@ def figure(data: dict[str, Any], out: Path) -> None:
                                    strict=True):
         for task, e in data.items():
             a0, a1 = e["accuracy_old"]["median"], e["accuracy_new"]["median"]
-            s0, s1 = e[f"{column}_old"]["median"], e[f"{column}_new"]["median"]
-            if None in (a0, a1, s0, s1):
+            change = e[f"{column}_change"]["value"]
+            if None in (a0, a1, change):
                 continue
-            ax.scatter(a1 - a0, s1 - s0, color="tab:blue")
-            ax.annotate(task, (a1 - a0, s1 - s0), fontsize=8, xytext=(4, 3), textcoords="offset points")
+            ax.scatter(a1 - a0, change, color="tab:blue")
+            ax.annotate(task, (a1 - a0, change), fontsize=8, xytext=(4, 3), textcoords="offset points")
         ax.axhline(0, color="grey", lw=0.6)
         ax.axvline(0, color="grey", lw=0.6)
         ax.set_xlabel("change in the codes' accuracy (new start - old)")
         ax.set_title(title, fontsize=10)
-    axes[0].set_ylabel("change in success (median of 3 seeds)")
+    axes[0].set_ylabel("change in success (median over the seeds both have)")
     fig.suptitle("Meta-World, 10 demonstrations: the segmentation's change against the policy's change", fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -12,14 +12,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from digail.algos.frames import frames_from_text, infer_frames
 from digail.algos.generate import (
     GenerationPlan,
     Segment,
     attempt,
     chunk_segments,
-    frames_from_text,
     generate,
-    infer_frames,
     nearest_source,
     plan_segments,
     runs_to_segments,

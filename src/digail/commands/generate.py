@@ -206,13 +206,12 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
 
     import numpy as np
 
+    from digail.algos.frames import frames_from_text, infer_frames
     from digail.algos.generate import (
         GenerationPlan,
         chunk_segments,
-        frames_from_text,
         generate,
         generation_rate,
-        infer_frames,
         plan_segments,
         runs_to_segments,
         trial_frames,
