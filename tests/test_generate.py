@@ -164,9 +164,13 @@ def test_pick_first_replays_one_source_and_cycle_all(tmp_path: Path) -> None:
         assert [e["source"] for e in state.episodes] == sources
 
 
-def test_frames_by_trial_keep_what_succeeds(tmp_path: Path) -> None:
+def test_frames_by_trial_keep_what_succeeds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The place segment put in the object's frame fails in every new scene; trying each sub-task's other frames on
-    the same scenes moves it to the goal's, where all succeed, and leaves the reach (a tie) where it was."""
+    the same scenes moves it to the goal's, where all succeed, and leaves the reach (a tie) where it was (the search
+    through every assignment, for a start that fails everywhere, is switched off here)."""
+    import digail.algos.generate as generation
+
+    monkeypatch.setattr(generation, "SEARCH_ALL_MAX", 0)
     obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
     ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
     obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
@@ -180,6 +184,36 @@ def test_frames_by_trial_keep_what_succeeds(tmp_path: Path) -> None:
     assert len(tried) == 5 and tried[0] == {"frames": {"0": "object", "1": "object"}, "successes": 0}
     assert {"frames": {"0": "object", "1": "goal"}, "successes": 4} in tried
     assert steps > 0
+
+
+class _TouchEnv(_PointEnv):
+    """Success: the point has touched the object (within 1 cm) and is now within 1 cm of the goal."""
+
+    def reset(self, seed: int) -> tuple[np.ndarray, dict]:
+        self.touched = False
+        return super().reset(seed)
+
+    def step(self, act: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        obs, rew, term, trunc, _ = super().step(act)
+        self.touched = self.touched or bool(np.linalg.norm(self.p - self.obj) < 0.01)
+        return obs, rew, term, trunc, {"is_success": self.touched and bool(np.linalg.norm(self.p - self.goal) < 0.01)}
+
+
+def test_frames_by_trial_search_every_assignment_when_the_start_fails_everywhere(tmp_path: Path) -> None:
+    """Both sub-tasks in the world's frame: no single change succeeds (the reach must move with the object and the
+    place with the goal), so the trials look through every assignment on a few scenes and start from the one that
+    succeeds."""
+    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
+    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
+    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
+    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    plan = GenerationPlan("point", [demo], [0], [segs], {0: "world", 1: "world"}, SCENE, gain=1.0, blend=1,
+                          hold=40, seed=3)
+    frames, tried, _ = trial_frames(plan, _TouchEnv, trials=4, seed=100, progress=False)
+    assert frames == {0: "object", 1: "goal"}
+    assert tried[0]["successes"] == 0 and sum(t.get("scenes") == 3 for t in tried) == 9  # 3 frames, 2 sub-tasks
+    assert {"frames": {"0": "object", "1": "goal"}, "successes": 4} in tried
 
 
 def test_frame_trials_refused_beside_named_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -18,6 +18,7 @@ smoothly without extra steps. Attempts that reach the env's success are kept (`g
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -351,6 +352,12 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
     return kept, state
 
 
+SEARCH_ALL_MAX = 256
+"""`trial_frames` tries every frame assignment (when its start fails everywhere) only up to this many of them"""
+SEARCH_ALL_SCENES = 3
+"""scenes each assignment is tried on in that search"""
+
+
 def _source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
     """The source attempt `i` (reset with `seed`) replays under the plan's `pick`."""
     if plan.pick == "first":
@@ -373,6 +380,10 @@ def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int,
     succeed most often (the current one on a tie). With a few sources the most consistent end pose can name the
     wrong frame (three end poses decide it); attempts are what generation pays for anyway.
 
+    Where no attempt of `plan.frames` succeeds (two sub-tasks wrong at once leave every single change failing too),
+    the search starts instead from the assignment that succeeds most often on the first `SEARCH_ALL_SCENES` scenes
+    among all of them, when there are at most `SEARCH_ALL_MAX`.
+
     Returns:
         `(frames, record, env_steps)`: the chosen frames, one entry per assignment tried (its frames and its
         successes) and the env steps the trials took.
@@ -386,27 +397,45 @@ def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int,
     steps = 0
     sources = [_source_for(plan, env, i, seed + i) for i in range(trials)]
 
-    def score(frames: dict[int, Frame]) -> int:
+    def score(frames: dict[int, Frame], scenes: int = trials) -> int:
         nonlocal steps
         wins = 0
-        for i, src in enumerate(sources):
+        for i, src in enumerate(sources[:scenes]):
             result = _play(plan, env, src, frames, seed + i)
             wins += result.success
             steps += result.steps
             bar.update(1)
         return wins
 
+    def entry(frames: dict[int, Frame], wins: int, scenes: int = trials) -> dict[str, Any]:
+        return {"frames": {str(k): v for k, v in sorted(frames.items())}, "successes": wins,
+                **({"scenes": scenes} if scenes != trials else {})}
+
     try:
         best = dict(plan.frames)
         best_wins = score(best)
-        record = [{"frames": {str(k): v for k, v in sorted(best.items())}, "successes": best_wins}]
+        record = [entry(best, best_wins)]
+        every = len(names) ** len(keys)
+        if best_wins == 0 and every <= SEARCH_ALL_MAX:
+            few = min(SEARCH_ALL_SCENES, trials)
+            bar.total += every * few + trials
+            found, found_wins = None, 0
+            for assignment in itertools.product(names, repeat=len(keys)):
+                tried = dict(zip(keys, assignment, strict=True))
+                wins = score(tried, few)
+                record.append(entry(tried, wins, few))
+                if wins > found_wins:
+                    found, found_wins = tried, wins
+            if found is not None:
+                best, best_wins = found, score(found)
+                record.append(entry(best, best_wins))
         for key in keys:
             for name in names:
                 if name == best[key]:
                     continue
                 tried = {**best, key: name}
                 wins = score(tried)
-                record.append({"frames": {str(k): v for k, v in sorted(tried.items())}, "successes": wins})
+                record.append(entry(tried, wins))
                 if wins > best_wins:
                     best, best_wins = tried, wins
     finally:
