@@ -1,11 +1,11 @@
-"""Reference frames of generated sub-tasks (`digail generate`): the frames a scene has, where their origins are in an
-observation, and each sub-task's frame inferred from the sources' end poses or named by the user (the frames tried in
-the simulator are `digail.algos.generate.trial_frames`)."""
+"""Sub-task segments of source demonstrations and their reference frames (`digail generate`): the frames a scene has,
+where their origins are in an observation, and each sub-task's frame inferred from the sources' end poses or named by
+the user (the frames tried in the simulator are `digail.algos.generate.trial_frames`)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,11 +13,20 @@ from digail.data.trajectory import Trajectory
 from digail.envs.scene import SceneColumns
 from digail.errors import UserError
 
-if TYPE_CHECKING:
-    from digail.algos.generate import Segment
-
 Frame = str
 """a reference frame: `object`, `goal`, `world`, or `landmark<i>` in a scene with landmarks (`frame_names`)"""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Steps `start` to `end` (actions, end exclusive) of a source demonstration, one sub-task `key`."""
+
+    start: int
+    """first action of the segment"""
+    end: int
+    """one past its last action"""
+    key: int
+    """what ties segments together across demonstrations (their label, code or chunk index); one frame per key"""
 
 
 def frame_names(scene: SceneColumns) -> tuple[Frame, ...]:

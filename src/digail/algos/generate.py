@@ -28,23 +28,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from digail.algos.frames import Frame, frame_names, origin
+from digail.algos.frames import Frame, Segment, frame_names, origin
 from digail.data.trajectory import SUBTASK_KEY, Trajectory
 from digail.envs.metaworld import merge_short_runs
 from digail.envs.scene import SceneColumns
 from digail.errors import UserError
-
-
-@dataclass(frozen=True)
-class Segment:
-    """Steps `start` to `end` (actions, end exclusive) of a source demonstration, one sub-task `key`."""
-
-    start: int
-    """first action of the segment"""
-    end: int
-    """one past its last action"""
-    key: int
-    """what ties segments together across demonstrations (their label, code or chunk index); one frame per key"""
 
 
 def runs_to_segments(labels: np.ndarray, min_len: int = 1) -> list[Segment]:
