@@ -108,8 +108,8 @@ def figure(data: dict[str, Any], out: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), sharey=True)
-    for ax, (column, title) in zip(axes, (("bc", "BC with codes"), ("digail-l2", "Directed-Info GAIL + L2, 250k steps")),
-                                   strict=True):
+    panels = (("bc", "BC with codes"), ("digail-l2", "Directed-Info GAIL + L2, 250k steps"))
+    for ax, (column, title) in zip(axes, panels, strict=True):
         for task, e in data.items():
             a0, a1 = e["accuracy_old"]["median"], e["accuracy_new"]["median"]
             change = e[f"{column}_change"]["value"]

@@ -21,8 +21,8 @@ then `digail evaluate RUN --episodes E` on fresh placements (the evaluation seed
 success rate, the mean episode length and the commands. A bc row also keeps how well its codes segment the task's
 50 shipped demonstrations (`digail segment RUN`, the offline reading, against the expert's phases): what a change of
 the segmentation start (`--pretrain-args`, e.g. `--vae.init-actions gaussian --vae.init-ridge 1.0` for the start
-before 2026-12-07) does to the codes can be set beside what it does to success. Both pre-trainings use the task's preset (metaworld: the
-default VAE).
+before 2026-12-07) does to the codes can be set beside what it does to success. Both pre-trainings use the task's
+preset (metaworld: the default VAE).
 """
 
 from __future__ import annotations
@@ -94,8 +94,9 @@ def row(task: str, method: str, seed: int, folder: Path, args: argparse.Namespac
     segmentation = {}
     if (folder / "segmentation.json").is_file() and method == "bc":
         seg = json.loads((folder / "segmentation.json").read_text())
-        segmentation = {"segmentation": {**{k: seg.get(k) for k in ("accuracy", "boundary_f1_5", "reading", "episodes")},
-                                         "causal_accuracy": (seg.get("readings") or {}).get("causal", {}).get("accuracy")}}
+        kept = {k: seg.get(k) for k in ("accuracy", "boundary_f1_5", "reading", "episodes")}
+        causal = (seg.get("readings") or {}).get("causal", {}).get("accuracy")
+        segmentation = {"segmentation": {**kept, "causal_accuracy": causal}}
     return {"task": task, "method": method, "seed": seed, "demos": args.demos, "episodes": ev["episodes"],
             "iterations": args.iterations if trained else None,
             "env_steps": args.iterations * 4096 if trained else None,
