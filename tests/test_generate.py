@@ -133,15 +133,20 @@ class _PointEnv:
         pass
 
 
+def _reach_and_place() -> tuple[Trajectory, list[Segment]]:
+    """A demonstration whose steps the point can follow exactly (1 cm each): to the object (sub-task 0), then to the
+    goal (sub-task 1)."""
+    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
+    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
+    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
+    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
+    return demo, [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+
+
 def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> None:
     """A demonstration whose steps the point can follow exactly (1 cm each) is replayed in new scenes, each segment
     in its frame: with gain 1 and no blend needed after the first step the point ends on the new goal."""
-    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
-    start = np.array([0.0, 0, 0.5])
-    ee = np.concatenate([np.linspace(start, obj, 30), np.linspace(obj, goal, 10)[1:]])
-    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
-    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
-    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    demo, segs = _reach_and_place()
     plan = GenerationPlan("point", [demo], [0], [segs], {0: "object", 1: "goal"}, SCENE, gain=1.0, blend=20,
                           hold=40, seed=3)
     kept, state = generate(plan, _PointEnv, attempts=5, successes=None, work=tmp_path / "w", progress=False)
@@ -152,11 +157,7 @@ def test_attempt_tracks_the_path_moved_into_the_new_scene(tmp_path: Path) -> Non
 def test_pick_first_replays_one_source_and_cycle_all(tmp_path: Path) -> None:
     """`--pick first` plays the first source in every scene (the others inform only the frames); `cycle` takes them
     in turn."""
-    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
-    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
-    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
-    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
-    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    demo, segs = _reach_and_place()
     for pick, sources in (("first", [7, 7, 7, 7]), ("cycle", [7, 9, 7, 9])):
         plan = GenerationPlan("point", [demo, demo], [7, 9], [segs, segs], {0: "object", 1: "goal"}, SCENE,
                               gain=1.0, blend=20, hold=40, seed=3, pick=pick)  # type: ignore[arg-type]
@@ -171,11 +172,7 @@ def test_frames_by_trial_keep_what_succeeds(tmp_path: Path, monkeypatch: pytest.
     import digail.algos.generate as generation
 
     monkeypatch.setattr(generation, "SEARCH_ALL_MAX", 0)
-    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
-    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
-    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
-    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
-    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    demo, segs = _reach_and_place()
     plan = GenerationPlan("point", [demo], [0], [segs], {0: "object", 1: "object"}, SCENE, gain=1.0, blend=20,
                           hold=40, seed=3)
     frames, tried, steps = trial_frames(plan, _PointEnv, trials=4, seed=100, progress=False)
@@ -203,11 +200,7 @@ def test_frames_by_trial_search_every_assignment_when_the_start_fails_everywhere
     """Both sub-tasks in the world's frame: no single change succeeds (the reach must move with the object and the
     place with the goal), so the trials look through every assignment on a few scenes and start from the one that
     succeeds."""
-    obj, goal = np.array([0.2, 0.1, 0.3]), np.array([0.25, 0.12, 0.36])
-    ee = np.concatenate([np.linspace([0.0, 0, 0.5], obj, 30), np.linspace(obj, goal, 10)[1:]])
-    obs = np.concatenate([ee, np.repeat(obj[None], len(ee), 0), np.repeat(goal[None], len(ee), 0)], 1)
-    demo = Trajectory(obs=obs.astype(np.float32), acts=np.zeros((len(ee) - 1, 4), np.float32))
-    segs = [Segment(0, 29, 0), Segment(29, len(ee) - 1, 1)]
+    demo, segs = _reach_and_place()
     plan = GenerationPlan("point", [demo], [0], [segs], {0: "world", 1: "world"}, SCENE, gain=1.0, blend=1,
                           hold=40, seed=3)
     frames, tried, _ = trial_frames(plan, _TouchEnv, trials=4, seed=100, progress=False)
