@@ -3,6 +3,7 @@
     python benchmarks/generate.py run --task fetch --demos 1 --seeds 0 1 2 --sizes 100 500 1000 --methods bc flatbc
     python benchmarks/generate.py run --task pick-place --demos 3 --seeds 0 --segments codes ...
     python benchmarks/generate.py table --out benchmarks/results/generate/generate.json [--publish]
+        [--keep benchmarks/results/generate/generate.json]   (keep the earlier jobs whose folders are not here)
     python benchmarks/generate.py figure   # -> benchmarks/results/figures/generate_paths.png
 
 A job (task, source demonstrations N, seed S, segment source) runs, resumably, under
@@ -160,9 +161,10 @@ def _trained(run: Path) -> int:
 
 
 def _steps_for(gen: dict[str, Any], size: int) -> int:
-    """Env steps generation spent until its `size`-th kept demonstration (with `--frame-trials`, the trials' too)."""
+    """Env steps generation spent until its `size`-th kept demonstration (with `--frame-trials` or `--pick best`, the
+    trials' too)."""
     ep = gen["episodes"][size - 1]
-    trials = int((gen.get("frame_trials") or {}).get("env_steps", 0))
+    trials = sum(int((gen.get(k) or {}).get("env_steps", 0)) for k in ("frame_trials", "source_trials"))
     if "env_steps" in ep:
         return int(ep["env_steps"]) + trials
     return round((ep["attempt"] + 1) * gen["env_steps"] / gen["attempts"]) + trials  # equal-length attempts (Fetch)
@@ -185,7 +187,7 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                      "rate_first_200": round(sum(e["attempt"] < 200 for e in gen["episodes"])
                                              / min(200, gen["attempts"]), 4),
                      "frames": gen["frames"], "order": gen.get("order"),
-                     **({"frame_trials": gen["frame_trials"]} if gen.get("frame_trials") else {}),
+                     **{k: gen[k] for k in ("frame_trials", "source_trials") if gen.get(k)},
                      "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                   if c[0] == "generate" or str(job / "vae") in c]})
         for run in sorted(job.glob("*_n*")):
@@ -198,6 +200,12 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                          "generation_env_steps": _steps_for(gen, int(size)), "training_env_steps": _trained(run),
                          "run": str(run), "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                                         if str(run) in c]})
+    if args.keep and args.keep.exists():  # jobs measured earlier whose folders are not here (another machine's)
+        here = {(j["task"], j["segments"], j["demos"], j["seed"]) for j in jobs}
+        earlier = json.loads(args.keep.read_text())
+        for name, into in (("jobs", jobs), ("rows", rows)):
+            into += [x for x in earlier[name] if (x["task"], x["segments"], x["demos"], x["seed"]) not in here
+                     and (not args.task or x["task"] in args.task)]
     medians = []
     keys = sorted({(r["task"], r["segments"], r["demos"], r["method"], r["size"]) for r in rows})
     for key in keys:
@@ -221,6 +229,10 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
             median = sorted(group, key=lambda r: r["success_rate"])[len(group) // 2]
             dest = Path("benchmarks/results/runs") / (f"generate_{m['task']}_{m['segments']}_d{m['demos']}_"
                                                       f"{m['method']}_n{m['size']}_s{median['seed']}")
+            if not Path(median["run"]).exists():  # a kept job's run: published where it was measured, if it was
+                if dest.exists():
+                    m["median_run"] = str(dest)
+                continue
             publish_run(Path(median["run"]), dest)
             for file in dest.glob("*.json"):  # publish_run makes config.json portable; segmentation.json too
                 file.write_text(portable_text(file.read_text()))
@@ -302,6 +314,8 @@ def main() -> None:
     t.add_argument("--task", nargs="*")
     t.add_argument("--out", type=Path)
     t.add_argument("--publish", action="store_true", help="copy each row's median run to benchmarks/results/runs")
+    t.add_argument("--keep", type=Path, metavar="JSON",
+                   help="an earlier table whose jobs are kept where runs/generate has no folder for them")
     f = sub.add_parser("figure", help="source and generated gripper paths (Fetch)")
     f.add_argument("--data", default="runs/generate/fetch/labels/d1_s0/data")
     f.add_argument("--episodes", type=int, default=6)

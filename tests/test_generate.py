@@ -23,8 +23,8 @@ from digail.algos.generate import (
     plan_segments,
     runs_to_segments,
     scene_positions,
-    trial_frames,
 )
+from digail.algos.trials import trial_frames, trial_sources
 from digail.cli import main
 from digail.data.trajectory import Trajectory
 from digail.envs.scene import SceneColumns, parse_columns
@@ -169,9 +169,9 @@ def test_frames_by_trial_keep_what_succeeds(tmp_path: Path, monkeypatch: pytest.
     """The place segment put in the object's frame fails in every new scene; trying each sub-task's other frames on
     the same scenes moves it to the goal's, where all succeed, and leaves the reach (a tie) where it was (the search
     through every assignment, for a start that fails everywhere, is switched off here)."""
-    import digail.algos.generate as generation
+    import digail.algos.trials as trials
 
-    monkeypatch.setattr(generation, "SEARCH_ALL_MAX", 0)
+    monkeypatch.setattr(trials, "SEARCH_ALL_MAX", 0)
     demo, segs = _reach_and_place()
     plan = GenerationPlan("point", [demo], [0], [segs], {0: "object", 1: "object"}, SCENE, gain=1.0, blend=20,
                           hold=40, seed=3)
@@ -207,6 +207,23 @@ def test_frames_by_trial_search_every_assignment_when_the_start_fails_everywhere
     assert frames == {0: "object", 1: "goal"}
     assert tried[0]["successes"] == 0 and sum(t.get("scenes") == 3 for t in tried) == 9  # 3 frames, 2 sub-tasks
     assert {"frames": {"0": "object", "1": "goal"}, "successes": 4} in tried
+
+
+def test_source_by_trial_replays_the_one_that_succeeds(tmp_path: Path) -> None:
+    """Two sources, the first stopping 3 cm short of its goal (so it fails in every new scene): trying each on the
+    same scenes picks the second, with or without frame trials, and every attempt then replays it."""
+    good, segs = _reach_and_place()
+    short = Trajectory(obs=good.obs[:-3], acts=good.acts[:-3])
+    plan = GenerationPlan("point", [short, good], [4, 8], [[segs[0], Segment(29, len(short), 1)], segs],
+                          {0: "object", 1: "goal"}, SCENE, gain=1.0, blend=20, hold=40, seed=3)
+    for frame_trials in (False, True):
+        chosen, tried, steps = trial_sources(plan, _PointEnv, trials=3, seed=100, frame_trials=frame_trials,
+                                             progress=False)
+        assert [(e["source"], e["successes"]) for e in tried] == [(4, 0), (8, 3)] and steps > 0
+        assert chosen.source_ids == [8, 4] and chosen.pick == "first" and chosen.frames == {0: "object", 1: "goal"}
+        assert ("frame_trials" in tried[0]) == frame_trials
+    _, state = generate(chosen, _PointEnv, attempts=3, successes=None, work=tmp_path / "w", progress=False)
+    assert [e["source"] for e in state.episodes] == [8, 8, 8]
 
 
 def test_frame_trials_refused_beside_named_frames(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

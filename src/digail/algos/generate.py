@@ -4,7 +4,7 @@ Each source demonstration is cut into segments (`Segment`: its sub-tasks, from o
 codes, fixed-length chunks or the whole demonstration). Each segment key (a label, a code, a chunk index) is tied to
 a reference frame, `object`, `goal` or `world` (`digail.algos.frames.infer_frames`): the one in which the segment's
 end pose of the end-effector is most consistent across the demonstrations, or the nearest to it at its end when
-there is one demonstration; or the one whose attempts succeed most often (`trial_frames`). The frames are
+there is one demonstration; or the one whose attempts succeed most often (`digail.algos.trials`). The frames are
 translations: the scenes of Fetch and Meta-World place their objects and goals at random positions, not
 orientations.
 
@@ -18,7 +18,6 @@ smoothly without extra steps. Attempts that reach the env's success are kept (`g
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -318,8 +317,8 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
     try:
         while state.attempts < attempts and (successes is None or state.successes < successes):
             i = state.attempts
-            src = _source_for(plan, env, i, plan.seed + i)
-            result = _play(plan, env, src, plan.frames, plan.seed + i)
+            src = source_for(plan, env, i, plan.seed + i)
+            result = replay(plan, env, src, plan.frames, plan.seed + i)
             state.attempts += 1
             state.env_steps += result.steps
             if result.success:
@@ -340,13 +339,7 @@ def generate(plan: GenerationPlan, make_env: Callable[[], Any], attempts: int, s
     return kept, state
 
 
-SEARCH_ALL_MAX = 256
-"""`trial_frames` tries every frame assignment (when its start fails everywhere) only up to this many of them"""
-SEARCH_ALL_SCENES = 3
-"""scenes each assignment is tried on in that search"""
-
-
-def _source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
+def source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
     """The source attempt `i` (reset with `seed`) replays under the plan's `pick`."""
     if plan.pick == "first":
         return 0
@@ -356,80 +349,10 @@ def _source_for(plan: GenerationPlan, env: Any, i: int, seed: int) -> int:
     return i % len(plan.sources)
 
 
-def _play(plan: GenerationPlan, env: Any, src: int, frames: dict[int, Frame], seed: int) -> AttemptResult:
+def replay(plan: GenerationPlan, env: Any, src: int, frames: dict[int, Frame], seed: int) -> AttemptResult:
+    """One attempt of `plan` replaying source `src` in `frames`, on the scene reset with `seed`."""
     return attempt(env, plan.sources[src], plan.segments[src], frames, plan.scene, seed, gain=plan.gain,
                    blend=plan.blend, hold=plan.hold, interp_speed=plan.interp_speed)
-
-
-def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int, seed: int, *,
-                 progress: bool = True) -> tuple[dict[int, Frame], list[dict[str, Any]], int]:
-    """Frames chosen by trying them in the simulator: from `plan.frames`, each sub-task in turn (by key) takes every
-    other frame the scene has, on the same `trials` scenes (reset seeds `seed` on), and keeps the one whose attempts
-    succeed most often (the current one on a tie). With a few sources the most consistent end pose can name the
-    wrong frame (three end poses decide it); attempts are what generation pays for anyway.
-
-    Where no attempt of `plan.frames` succeeds (two sub-tasks wrong at once leave every single change failing too),
-    the search starts instead from the assignment that succeeds most often on the first `SEARCH_ALL_SCENES` scenes
-    among all of them, when there are at most `SEARCH_ALL_MAX`.
-
-    Returns:
-        `(frames, record, env_steps)`: the chosen frames, one entry per assignment tried (its frames and its
-        successes) and the env steps the trials took.
-    """
-    from digail.utils import progress_bar
-
-    keys = sorted(plan.frames)
-    names = frame_names(plan.scene)
-    bar = progress_bar(trials * (1 + len(keys) * (len(names) - 1)), progress, desc="frames", unit="attempt")
-    env = make_env()
-    steps = 0
-    sources = [_source_for(plan, env, i, seed + i) for i in range(trials)]
-
-    def score(frames: dict[int, Frame], scenes: int = trials) -> int:
-        nonlocal steps
-        wins = 0
-        for i, src in enumerate(sources[:scenes]):
-            result = _play(plan, env, src, frames, seed + i)
-            wins += result.success
-            steps += result.steps
-            bar.update(1)
-        return wins
-
-    def entry(frames: dict[int, Frame], wins: int, scenes: int = trials) -> dict[str, Any]:
-        return {"frames": {str(k): v for k, v in sorted(frames.items())}, "successes": wins,
-                **({"scenes": scenes} if scenes != trials else {})}
-
-    try:
-        best = dict(plan.frames)
-        best_wins = score(best)
-        record = [entry(best, best_wins)]
-        every = len(names) ** len(keys)
-        if best_wins == 0 and every <= SEARCH_ALL_MAX:
-            few = min(SEARCH_ALL_SCENES, trials)
-            bar.total += every * few + trials
-            found, found_wins = None, 0
-            for assignment in itertools.product(names, repeat=len(keys)):
-                tried = dict(zip(keys, assignment, strict=True))
-                wins = score(tried, few)
-                record.append(entry(tried, wins, few))
-                if wins > found_wins:
-                    found, found_wins = tried, wins
-            if found is not None:
-                best, best_wins = found, score(found)
-                record.append(entry(best, best_wins))
-        for key in keys:
-            for name in names:
-                if name == best[key]:
-                    continue
-                tried = {**best, key: name}
-                wins = score(tried)
-                record.append(entry(tried, wins))
-                if wins > best_wins:
-                    best, best_wins = tried, wins
-    finally:
-        bar.close()
-        env.close()
-    return best, record, steps
 
 
 def _save(work: Path, state_file: Path, fingerprint: dict[str, Any], state: GenerationState, chunks: int,

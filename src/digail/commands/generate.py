@@ -60,10 +60,12 @@ class GenerateArgs:
     """stop once this many demonstrations are kept (default: play every attempt)"""
     seed: int = GENERATION_SEED
     """attempt i resets the env with seed + i"""
-    pick: Literal["cycle", "nearest", "first"] = "cycle"
+    pick: Literal["cycle", "nearest", "first", "best"] = "cycle"
     """which source an attempt replays: `cycle` source i mod the number of sources, `nearest` the source whose
     object (and goal) started nearest to the new scene's, so that one scene always comes with one way of doing the
-    task, or `first` always the first source, the others only informing the frames (one way for every scene)"""
+    task, `first` always the first source, the others only informing the frames (one way for every scene), or
+    `best` always the source whose trial attempts succeed most often (each source on --frame-trials scenes, its
+    frames chosen there, or on 20 scenes with the inferred frames)"""
     gain: float = 1.0
     """share of the end-effector's position error the move actions correct in one step (clipped to the bounds)"""
     blend: int = 5
@@ -95,6 +97,13 @@ class GenerateArgs:
     progress: bool = True
     """show a progress bar"""
 
+    @property
+    def trial_scenes(self) -> int:
+        """scenes the trials play before the attempts (their reset seeds follow the attempts')"""
+        from digail.algos.trials import PICK_TRIALS
+
+        return PICK_TRIALS if self.pick == "best" and not self.frame_trials else self.frame_trials
+
     def __post_init__(self) -> None:
         check_episodes(self.attempts, "--attempts")  # each attempt an episode, each kept one held until written
         check_episodes(self.successes, "--successes")
@@ -103,7 +112,7 @@ class GenerateArgs:
         check_at_least(self.blend, "--blend")
         check_at_least(self.hold, "--hold", low=0)
         check_at_least(self.frame_trials, "--frame-trials", low=0)
-        check_seed(self.seed, count=self.attempts + self.frame_trials, count_flag="--attempts")
+        check_seed(self.seed, count=self.attempts + self.trial_scenes, count_flag="--attempts")
         if self.frame_trials and self.frames is not None:
             raise UserError("--frames names the frames and --frame-trials chooses them; pass one of the two.")
         if not 0 <= self.interp_speed <= 1:
@@ -214,8 +223,8 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
         generation_rate,
         plan_segments,
         runs_to_segments,
-        trial_frames,
     )
+    from digail.algos.trials import trial_frames, trial_sources
     from digail.commands.common import inputs
     from digail.data.minari_io import load_dataset
     from digail.data.minari_write import write_dataset
@@ -274,17 +283,30 @@ def generate_command(args: GenerateArgs) -> dict[str, Any]:
     plan = GenerationPlan(env_id=env_id, sources=[trajs[i] for i in usable], source_ids=[ids[i] for i in usable],
                           segments=[planned[i] or [] for i in usable], frames=frames, scene=scene, gain=args.gain,
                           blend=args.blend, hold=args.hold, interp_speed=args.interp_speed, seed=args.seed,
-                          pick=args.pick)
+                          pick="first" if args.pick == "best" else args.pick)
     work = args.out.with_name(args.out.name + ".partial")
     check_not_locked(work)
     trials: dict[str, Any] = {}
-    if args.frame_trials:
+    trial_seed = args.seed + args.attempts
+    if args.pick == "best":
+        inferred = plan.frames
+        plan, tried, trial_steps = trial_sources(plan, lambda: make_env(env_id, **env_kwargs), args.trial_scenes,
+                                                 trial_seed, frame_trials=bool(args.frame_trials),
+                                                 progress=args.progress)
+        frames = plan.frames
+        trials = {"source_trials": {"scenes": args.trial_scenes, "seed": trial_seed, "chosen": plan.source_ids[0],
+                                    "inferred": {str(k): v for k, v in sorted(inferred.items())}, "tried": tried,
+                                    "env_steps": trial_steps}}
+        print(f"source by trial ({args.trial_scenes} scenes each, {trial_steps} env steps): "
+              + ", ".join(f"{e['source']}: {e['successes']}" for e in tried) + f"; replaying {plan.source_ids[0]} "
+              "in frames " + ", ".join(f"{k}: {v}" for k, v in sorted(frames.items())))
+    elif args.frame_trials:
         inferred = plan.frames
         chosen, tried, trial_steps = trial_frames(plan, lambda: make_env(env_id, **env_kwargs), args.frame_trials,
-                                                  args.seed + args.attempts, progress=args.progress)
+                                                  trial_seed, progress=args.progress)
         plan = dataclasses.replace(plan, frames=chosen)
         frames = chosen
-        trials = {"frame_trials": {"scenes": args.frame_trials, "seed": args.seed + args.attempts,
+        trials = {"frame_trials": {"scenes": args.frame_trials, "seed": trial_seed,
                                    "inferred": {str(k): v for k, v in sorted(inferred.items())}, "tried": tried,
                                    "env_steps": trial_steps}}
         print(f"frames by trial ({args.frame_trials} scenes each, {trial_steps} env steps): "
