@@ -20,6 +20,19 @@ SEARCH_ALL_SCENES = 3
 """scenes each assignment is tried on in that search"""
 
 
+def _wins(plan: GenerationPlan, env: Any, sources: list[int], frames: dict[int, Frame], seed: int,
+          bar: Any) -> tuple[int, int]:
+    """Successes and env steps of `plan` in `frames` on the scenes reset with `seed` on, scene i replaying
+    `sources[i]`."""
+    wins = steps = 0
+    for i, src in enumerate(sources):
+        result = replay(plan, env, src, frames, seed + i)
+        wins += result.success
+        steps += result.steps
+        bar.update(1)
+    return wins, steps
+
+
 def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int, seed: int, *,
                  progress: bool = True) -> tuple[dict[int, Frame], list[dict[str, Any]], int]:
     """Frames chosen by trying them in the simulator: from `plan.frames`, each sub-task in turn (by key) takes every
@@ -46,12 +59,8 @@ def trial_frames(plan: GenerationPlan, make_env: Callable[[], Any], trials: int,
 
     def score(frames: dict[int, Frame], scenes: int = trials) -> int:
         nonlocal steps
-        wins = 0
-        for i, src in enumerate(sources[:scenes]):
-            result = replay(plan, env, src, frames, seed + i)
-            wins += result.success
-            steps += result.steps
-            bar.update(1)
+        wins, used = _wins(plan, env, sources[:scenes], frames, seed, bar)
+        steps += used
         return wins
 
     def entry(frames: dict[int, Frame], wins: int, scenes: int = trials) -> dict[str, Any]:
@@ -132,13 +141,9 @@ def trial_sources(plan: GenerationPlan, make_env: Callable[[], Any], trials: int
             steps += used
         else:
             env, bar = make_env(), progress_bar(trials, progress, desc=f"source {plan.source_ids[s]}", unit="attempt")
-            wins = 0
             try:
-                for i in range(trials):
-                    result = replay(candidate, env, 0, candidate.frames, seed + i)
-                    wins += result.success
-                    steps += result.steps
-                    bar.update(1)
+                wins, used = _wins(candidate, env, [0] * trials, candidate.frames, seed, bar)
+                steps += used
             finally:
                 bar.close()
                 env.close()
