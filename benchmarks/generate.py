@@ -3,7 +3,7 @@
     python benchmarks/generate.py run --task fetch --demos 1 --seeds 0 1 2 --sizes 100 500 1000 --methods bc flatbc
     python benchmarks/generate.py run --task pick-place --demos 3 --seeds 0 --segments codes ...
     python benchmarks/generate.py table --out benchmarks/results/generate/generate.json [--publish]
-        [--keep benchmarks/results/generate/generate.json]   (keep the earlier jobs whose folders are not here)
+        [--keep benchmarks/results/generate/generate.json]   (keep what the earlier table measured that is not here)
     python benchmarks/generate.py figure   # -> benchmarks/results/figures/generate_paths.png
 
 A job (task, source demonstrations N, seed S, segment source) runs, resumably, under
@@ -200,12 +200,8 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
                          "generation_env_steps": _steps_for(gen, int(size)), "training_env_steps": _trained(run),
                          "run": str(run), "commands": [shlex.join(["digail", *c]) for c in _saved(job)
                                                         if str(run) in c]})
-    if args.keep and args.keep.exists():  # jobs measured earlier whose folders are not here (another machine's)
-        here = {(j["task"], j["segments"], j["demos"], j["seed"]) for j in jobs}
-        earlier = json.loads(args.keep.read_text())
-        for name, into in (("jobs", jobs), ("rows", rows)):
-            into += [x for x in earlier[name] if (x["task"], x["segments"], x["demos"], x["seed"]) not in here
-                     and (not args.task or x["task"] in args.task)]
+    if args.keep and args.keep.exists():
+        _keep_earlier(json.loads(args.keep.read_text()), jobs, rows, args.task)
     medians = []
     keys = sorted({(r["task"], r["segments"], r["demos"], r["method"], r["size"]) for r in rows})
     for key in keys:
@@ -248,6 +244,34 @@ def table(args: argparse.Namespace) -> dict[str, Any]:
               f"{m['median_success']:.2f} {m['success_by_seed']} gen rate {m['median_generation_rate']:.2f} "
               f"gen steps {m['median_generation_env_steps']:.0f}")
     return result
+
+
+def _job_key(x: dict[str, Any]) -> tuple[Any, ...]:
+    return x["task"], x["segments"], x["demos"], x["seed"]
+
+
+def _keep_earlier(earlier: dict[str, Any], jobs: list[dict[str, Any]], rows: list[dict[str, Any]],
+                  tasks: list[str] | None) -> None:
+    """Add to `jobs` and `rows` what an earlier table measured and this machine has no run of (another machine's
+    jobs, or sizes a job here did not train). A job generated here and earlier keeps the longer generation's record;
+    the attempts' seeds are the same, so the shorter one's kept demonstrations are the first of the longer's (checked
+    on the first 200 attempts)."""
+    wanted = [x for x in earlier["jobs"] if not tasks or x["task"] in tasks]
+    here = {_job_key(j): i for i, j in enumerate(jobs)}
+    for job in wanted:
+        i = here.get(_job_key(job))
+        if i is None:
+            jobs.append(job)
+            continue
+        if job["rate_first_200"] != jobs[i]["rate_first_200"]:
+            raise SystemExit(f"{_job_key(job)}: the earlier table's first 200 attempts kept a share of "
+                             f"{job['rate_first_200']}, this machine's {jobs[i]['rate_first_200']}: not the same "
+                             "generation; move one of them to another --tag.")
+        if job["attempts"] > jobs[i]["attempts"]:
+            jobs[i] = job
+    have = {(*_job_key(r), r["method"], r["size"]) for r in rows}
+    rows += [r for r in earlier["rows"] if (*_job_key(r), r["method"], r["size"]) not in have
+             and (not tasks or r["task"] in tasks)]
 
 
 def figure(args: argparse.Namespace) -> Path:
@@ -315,7 +339,7 @@ def main() -> None:
     t.add_argument("--out", type=Path)
     t.add_argument("--publish", action="store_true", help="copy each row's median run to benchmarks/results/runs")
     t.add_argument("--keep", type=Path, metavar="JSON",
-                   help="an earlier table whose jobs are kept where runs/generate has no folder for them")
+                   help="an earlier table: its jobs and rows that runs/generate has no run of are kept")
     f = sub.add_parser("figure", help="source and generated gripper paths (Fetch)")
     f.add_argument("--data", default="runs/generate/fetch/labels/d1_s0/data")
     f.add_argument("--episodes", type=int, default=6)
