@@ -414,7 +414,7 @@ def measure(args: argparse.Namespace, out: Path) -> None:
                 discrete = ActionSpec.from_space(ds.action_space).discrete
                 t0 = time.perf_counter()
                 curve, pick = codes_curve(ds.trajs, cfg, list(range(2, 9)), discrete, seed=seed)
-                chosen = int(curve[pick]["codes"])
+                chosen = int(curve[pick]["chosen_codes"])
                 truth = len(np.unique(np.concatenate([t.subtasks for t in ds.trajs])))
                 rows.append({"seed": seed, "true_codes": truth, "chosen": chosen, "hit": chosen == truth,
                              "criterion": cfg.k_criterion, "curve": curve,

@@ -196,6 +196,33 @@ def test_one_standard_error_rule_keeps_the_smallest_k_the_data_cannot_tell_from_
     assert _least_used(seg, 3) == pytest.approx(1 / 3) and _least_used(seg, 2) == 1.0
 
 
+def test_a_fit_counts_for_the_codes_it_uses_alike() -> None:
+    """Hard EM asked for 5 codes leaves one to a single demonstration and describes the held-out actions far better
+    than the fit asked for 4, which merged two sub-tasks: counted by the codes it uses, that fit stands for K = 4 and
+    wins; counted by what it was asked for, it is not weighed and the merged fits decide."""
+    from digail.algos.model_selection import (
+        by_codes_used,
+        codes_used,
+        smallest_used_within_one_se,
+        smallest_within_one_se,
+    )
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(100.0, 10.0, 30)
+    curve = [{"codes": 2, "episode_dl": base + 30.0, "code_demos": [40, 40]},
+             {"codes": 3, "episode_dl": base + 5.0, "code_demos": [40, 40, 38]},
+             {"codes": 4, "episode_dl": base + 4.9, "code_demos": [40, 40, 38, 4]},
+             {"codes": 5, "episode_dl": base - 5.0, "code_demos": [40, 40, 38, 39, 1]},
+             {"codes": 6, "episode_dl": base - 5.02 + np.resize([1.0, -1.0], 30),
+              "code_demos": [40, 40, 38, 39, 30, 0]}]
+    for c in curve:
+        c["dl_per_step"] = float(np.mean(c["episode_dl"]))
+        c["least_used"] = min(c["code_demos"]) / max(c["code_demos"])
+    assert [codes_used(c, 0.5) for c in curve] == [2, 3, 3, 4, 5]
+    assert by_codes_used(curve, 0.5) == [0, 2, 3, 4]  # of the two 3-code fits, the one asked for 4 is lower
+    assert smallest_used_within_one_se(curve, 0.5) == (3, 4)  # 5 codes (the fit of 6) are within noise of 4
+    assert smallest_within_one_se(curve, 0.5) == 1  # asked: only K = 2, 3 are weighed, and 3 is the lower
+
 def test_every_benchmark_task_gets_as_many_codes_as_its_labels_take_values(minari_root: Path) -> None:
     """The benchmark scores one-to-one accuracy with K given: with fewer codes than label values the smallest
     labels cannot be matched (Four Rooms ran K = 4 against 5 labels, a ceiling of 0.876)."""
@@ -323,17 +350,27 @@ def test_random_fourier_features_are_seeded_and_scaled_by_the_states_spread() ->
         _FeatureMap("mlp")
 
 
-def test_codes_auto_says_which_k_it_left_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("count", ["used", "asked"])
+def test_codes_auto_says_which_k_it_left_out(tmp_path: Path, capsys: pytest.CaptureFixture[str], count: str) -> None:
     """On Circle-World's demonstrations K = 3 leaves a code that far fewer demonstrations take than the others
-    (measured: 0.39 as many): `--codes auto` records it as not weighed and says so in its K line."""
+    (measured: 0.39 as many): `--codes auto` records that the fit uses 2 codes alike and says so in its K line
+    (`--vae.k-count used`, the default), or records it as not weighed (`asked`); K = 2 either way, and with
+    `used` the fit asked for 3 is the one weighed for 2, its held-out description length being the lower."""
     from digail.cli import main
 
     assert main(["pretrain", "--demos", "digail/circleworld/expert-v0", "--codes", "auto", "--max-codes", "3",
-                 "--preset", "smoke", "--out", str(tmp_path / "vae")]) == 0
-    curve = json.loads((tmp_path / "vae" / "config.json").read_text())["k_selection"]
-    assert [c["weighed"] for c in curve] == [c["least_used"] >= 0.5 for c in curve] == [True, False]
+                 "--preset", "smoke", "--vae.k-count", count, "--out", str(tmp_path / "vae")]) == 0
+    config = json.loads((tmp_path / "vae" / "config.json").read_text())
+    curve = config["k_selection"]
+    assert config["vae"]["codes"] == 2
+    assert [c["used"] for c in curve] == [2, 2] and [c["least_used"] >= 0.5 for c in curve] == [True, False]
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("K selection"))
-    assert re.search(r"K=2: -?[0-9.]+, K=3: -?[0-9.]+ \(codes used unevenly\) -> K = 2$", line), line
+    if count == "used":  # the fit asked for 3 describes the held-out actions better and stands for K = 2
+        assert [c["weighed"] for c in curve] == [False, True] and [c["chosen"] for c in curve] == [False, True]
+        assert re.search(r"K=2: -?[0-9.]+ \(not weighed\), K=3: -?[0-9.]+ \(uses 2 alike\) -> K = 2$", line), line
+    else:
+        assert [c["weighed"] for c in curve] == [True, False]
+        assert re.search(r"K=2: -?[0-9.]+, K=3: -?[0-9.]+ \(codes used unevenly\) -> K = 2$", line), line
 
 
 def test_a_course_on_a_grid_fits_the_env_it_was_recorded_in(minari_root: Path) -> None:

@@ -93,9 +93,14 @@ class VAEConfig:
     k_ridge: float | None = None
     """ridge of the `linear` and `rff` criteria's sub-task policies (None: the start's, `start_ridge`)"""
     k_min_use: float = 0.5
-    """`--codes auto` with the `linear` or `rff` criterion only weighs a K whose least used code appears in at least
-    this fraction as many fitted demonstrations as its most used one (0: every K): a code that far fewer
+    """`--codes auto` with the `linear` or `rff` criterion: a code counts as a sub-task only if it appears in at least
+    this fraction as many fitted demonstrations as the most used code (0: every code): a code that far fewer
     demonstrations take than the others marks how those few differ (a regrasp, a slip), not a sub-task"""
+    k_count: Literal["used", "asked"] = "used"
+    """what a fit of the K curve counts for (`linear`, `rff`): `used`, the number of its codes used alike
+    (`k_min_use`), so a fit asked for 5 codes that leaves one to a few demonstrations is a fit of 4 and the best fit
+    of each count is weighed (`model_selection.by_codes_used`); `asked`, the K it was asked for, weighed only when
+    all its codes are used alike (how `--codes auto` chose before 2026-12-08)"""
 
     init: Literal["em", "none", "labels"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
@@ -189,6 +194,7 @@ class VAEConfig:
                  self.init_actions)
         _require(self.k_criterion in ("linear", "rff", "vae"), "--vae.k-criterion", "linear, rff or vae",
                  self.k_criterion)
+        _require(self.k_count in ("used", "asked"), "--vae.k-count", "used or asked", self.k_count)
         if self.init_obs is not None:
             lo, hi = self.init_obs
             _require(0 <= lo < hi, "--vae.init-obs", "a range START STOP with 0 <= START < STOP", self.init_obs)

@@ -327,6 +327,7 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
         curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
                       "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
                       "least_used": _least_used(seg, k),
+                      "code_demos": [sum(bool(np.any(c == j)) for c in seg) for j in range(k)],
                       "episode_dl": episode.tolist()})
     return curve
 

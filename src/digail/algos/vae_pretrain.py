@@ -43,9 +43,12 @@ from digail.algos.fast.vae_grad import VAEGrad
 from digail.algos.gumbel import gumbel_softmax_chain
 from digail.algos.model_selection import (
     best_index,
+    by_codes_used,
     check_selectable,
+    codes_used,
     description_length,
     heldout_split,
+    smallest_used_within_one_se,
     smallest_within_one_se,
     weighed_entries,
 )
@@ -380,8 +383,10 @@ def write_tensorboard(log_dir: Path, history: dict[str, list[float]]) -> None:
 
 def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequence[int], discrete: bool, *,
                 seed: int = 0) -> tuple[list[dict[str, Any]], int]:
-    """(curve, index of the chosen K) of the `linear` or `rff` criterion (`select_codes`): hard EM per K on the
-    demonstrations less the held-out share `heldout_split` gives for `seed`, scored on that share."""
+    """(curve, index of the chosen fit) of the `linear` or `rff` criterion (`select_codes`): hard EM per K on the
+    demonstrations less the held-out share `heldout_split` gives for `seed`, scored on that share. The chosen fit's
+    `chosen_codes` is the K chosen: with `cfg.k_count` `used`, the codes it uses alike, which may be fewer than it
+    was asked for."""
     train_idx, held_idx = heldout_split(len(trajs), cfg.heldout_fraction, seed)
     fit_on, held = [trajs[i] for i in train_idx], [trajs[i] for i in held_idx]
     # fixed switch costs: with learned ones the curve kept falling past the truth (grid-large: 7-8 for 3)
@@ -389,12 +394,18 @@ def codes_curve(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequenc
                                                       switch_costs="fixed", outlier_share=cfg.init_outlier_share,
                                                       model=cfg.k_criterion, actions=cfg.init_actions,
                                                       ridge=cfg.curve_ridge(discrete))
-    pick = smallest_within_one_se(curve, cfg.k_min_use)
-    weighed = weighed_entries(curve, cfg.k_min_use)
+    if cfg.k_count == "used":
+        pick, k = smallest_used_within_one_se(curve, cfg.k_min_use)
+        weighed = by_codes_used(curve, cfg.k_min_use)
+    else:
+        pick = smallest_within_one_se(curve, cfg.k_min_use)
+        weighed, k = weighed_entries(curve, cfg.k_min_use), int(curve[pick]["codes"])
     for i, entry in enumerate(curve):
         del entry["episode_dl"]  # the selection's working data, not worth keeping in config.json
+        entry["used"] = codes_used(entry, cfg.k_min_use)
         entry["weighed"] = i in weighed
         entry["chosen"] = i == pick
+    curve[pick]["chosen_codes"] = k
     return curve, pick
 
 
@@ -426,7 +437,7 @@ def select_codes(trajs: Sequence[Trajectory], cfg: VAEConfig, candidates: Sequen
     curve: list[dict[str, Any]] = []
     if cfg.k_criterion != "vae":
         curve, pick = codes_curve(trajs, cfg, candidates, action_spec.discrete, seed=seed)
-        model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["codes"])),
+        model, history = pretrain(trajs, dataclasses.replace(cfg, codes=int(curve[pick]["chosen_codes"])),
                                   action_spec=action_spec, seed=seed, device=device, progress=progress,
                                   log_dir=log_dir, pieces=pieces)
     else:

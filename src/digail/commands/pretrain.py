@@ -7,7 +7,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from digail.config import VAEConfig, check_at_least, check_codes, check_seed
 from digail.errors import UserError
@@ -122,8 +122,7 @@ def pretrain_command(args: PretrainArgs) -> Path:
             config["vae"]["codes"] = model.codes
             codes_curve({"--codes auto: the K curve": curve}, tmp / "figures" / "k_curve.png")
             print("K selection (held-out description length, nats per step; lower is better): "
-                  + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}"
-                              + ("" if c.get("weighed", True) else " (codes used unevenly)") for c in curve)
+                  + ", ".join(f"K={c['codes']}: {c['dl_per_step']:.4f}" + _use_note(c, cfg.k_count) for c in curve)
                   + f" -> K = {model.codes}")
         else:
             model, _ = pretrain(dataset.trajs, cfg, action_spec=action_spec, seed=args.seed, device=args.device,
@@ -142,3 +141,11 @@ def pretrain_command(args: PretrainArgs) -> Path:
     print(summary_line(metrics))
     print(f"VAE run folder: {run}")
     return run
+
+
+def _use_note(entry: dict[str, Any], count: str) -> str:
+    """What the K curve's printed line says of one fit beside its description length."""
+    if count == "used":
+        uses = f" (uses {entry['used']} alike)" if entry.get("used", entry["codes"]) != entry["codes"] else ""
+        return uses + ("" if entry.get("weighed", True) else " (not weighed)")
+    return "" if entry.get("weighed", True) else " (codes used unevenly)"

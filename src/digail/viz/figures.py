@@ -479,11 +479,13 @@ def codes_curve(curves: Mapping[str, Sequence[Mapping[str, Any]]], path: Path, t
         dl = [float(c["dl_per_step"]) for c in curve]
         ax.plot(ks, dl, "o-", color="0.4", ms=4)
         unweighed = [(k, d) for k, d, c in zip(ks, dl, curve, strict=True) if not c.get("weighed", True)]
-        if unweighed:  # K whose codes are used too unevenly to be chosen (`VAEConfig.k_min_use`)
-            ax.plot(*zip(*unweighed, strict=True), "o", mfc="white", mec="0.4", ms=6, label="codes used unevenly")
+        if unweighed:  # fits not weighed: codes used too unevenly, or a better fit uses as many codes alike
+            ax.plot(*zip(*unweighed, strict=True), "o", mfc="white", mec="0.4", ms=6, label="not weighed")
         for k, d, c in zip(ks, dl, curve, strict=True):
             if c.get("chosen"):
-                ax.plot([k], [d], "o", color=code_colour(3), ms=9, label=f"chosen K = {k}")
+                chosen = int(c.get("chosen_codes", k))
+                ax.plot([k], [d], "o", color=code_colour(3), ms=9,
+                        label=f"chosen K = {chosen}" + (f" (the fit of {k})" if chosen != k else ""))
         if truth and name in truth:
             ax.axvline(truth[name], color=code_colour(2), ls="--", lw=1, label=f"true K = {truth[name]}")
         ax.set_title(name, fontsize=8)
