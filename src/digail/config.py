@@ -96,11 +96,12 @@ class VAEConfig:
     """`--codes auto` with the `linear` or `rff` criterion: a code counts as a sub-task only if it appears in at least
     this fraction as many fitted demonstrations as the most used code (0: every code): a code that far fewer
     demonstrations take than the others marks how those few differ (a regrasp, a slip), not a sub-task"""
-    k_count: Literal["used", "asked"] = "used"
-    """what a fit of the K curve counts for (`linear`, `rff`): `used`, the number of its codes used alike
-    (`k_min_use`), so a fit asked for 5 codes that leaves one to a few demonstrations is a fit of 4 and the best fit
-    of each count is weighed (`model_selection.by_codes_used`); `asked`, the K it was asked for, weighed only when
-    all its codes are used alike (how `--codes auto` chose before 2026-12-08)"""
+    k_count: Literal["asked", "used"] = "asked"
+    """what a fit of the K curve counts for (`linear`, `rff`): `asked`, the K it was asked for, weighed only when all
+    its codes are used alike (`k_min_use`); `used`, the number of its codes used alike, so a fit asked for 5 codes
+    that leaves one to a few demonstrations is a fit of 4 and the best fit of each count is weighed
+    (`model_selection.by_codes_used`). Both find the phase count on 10 of the 16 Meta-World tasks, not the same
+    ten (docs/howto/choosing-k.md)"""
 
     init: Literal["em", "none", "labels"] = "em"
     """first segmentation the VAE starts from: `em` fits q and pi (`init_steps`) to a hard-EM segmentation by
