@@ -114,7 +114,7 @@ def by_codes_used(curve: Sequence[dict[str, Any]], min_use: float) -> list[int]:
     number: where several fits use as many codes alike, the one with the lowest held-out description length.
 
     Why: hard EM asked for K codes may leave some to a few demonstrations (a slip, a regrasp) or to none, and then
-    it has found a segmentation into fewer sub-tasks, often a better one than the fit asked for that many (on
+    it has found a segmentation into fewer sub-tasks, sometimes a better one than the fit asked for that many (on
     Meta-World's hammer the fit asked for 5 codes uses 4 and describes the held-out actions in 2.5 nats a step
     less than the fit asked for 4, which merges two phases). Such a fit is evidence for the codes it uses."""
     best: dict[int, int] = {}
@@ -140,7 +140,8 @@ def smallest_within_one_se(curve: Sequence[dict[str, Any]], min_use: float = 0.0
 
 
 def _smallest_within_one_se(curve: Sequence[dict[str, Any]], weighed: Sequence[int]) -> int:
-    """`smallest_within_one_se` over the entries `weighed` (indices into `curve`, in increasing K)."""
+    """`smallest_within_one_se` over the entries `weighed` (indices into `curve`, in increasing order of the K they
+    stand for)."""
     best = weighed[best_index([curve[i] for i in weighed])]
     ref = np.asarray(curve[best]["episode_dl"], np.float64)
     for i, entry in ((i, curve[i]) for i in weighed):
