@@ -327,14 +327,19 @@ def heldout_codes_curve(fit_on: Sequence[Trajectory], held: Sequence[Trajectory]
         curve.append({"codes": k, "dl_per_step": float(episode.sum() / lengths.sum()),
                       "switches_per_episode": float(np.mean([np.count_nonzero(np.diff(c)) for c in codes])),
                       "least_used": _least_used(seg, k),
-                      "code_demos": [sum(bool(np.any(c == j)) for c in seg) for j in range(k)],
+                      "code_demos": _code_demos(seg, k),
                       "episode_dl": episode.tolist()})
     return curve
 
 
+def _code_demos(seg: Sequence[np.ndarray], k: int) -> list[int]:
+    """How many demonstrations each of k codes appears in."""
+    return [sum(bool(np.any(c == j)) for c in seg) for j in range(k)]
+
+
 def _least_used(seg: Sequence[np.ndarray], k: int) -> float:
     """How many demonstrations the least used of k codes appears in, as a fraction of the most used one's count."""
-    counts = np.array([sum(bool(np.any(c == j)) for c in seg) for j in range(k)], np.float64)
+    counts = np.asarray(_code_demos(seg, k), np.float64)
     return float(counts.min() / counts.max()) if counts.max() > 0 else 0.0
 
 
