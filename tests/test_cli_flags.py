@@ -153,3 +153,29 @@ def test_the_reference_lists_both_tables():
     renamed_part = text.split("## Renamed flags")[1].split("\n## ")[0]
     rows = dict(re.findall(r"\| `(--[a-z0-9._-]+)` \| `(--[a-z0-9._-]+)` \|", renamed_part))
     assert rows == RENAMED_FLAGS
+
+
+def _help_text(argv: list[str], monkeypatch, capsys) -> str:
+    monkeypatch.setenv("COLUMNS", "200")
+    try:
+        main(argv)
+    except SystemExit as stop:
+        assert stop.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["generate", "pretrain", "train", "import", "run", "sweep"])
+def test_help_says_each_default_once(command, monkeypatch, capsys):
+    """A flag whose docstring names its default ("(default: the dataset's env)") gets no "(default: None)" after it."""
+    text = " ".join(_help_text([command, "--help"], monkeypatch, capsys).split())
+    assert "(default:" in text
+    twice = re.search(r"\(default: (?:[^()]|\([^()]*\))*\) \(default: ", text)
+    assert twice is None, twice.group(0) if twice else ""
+
+
+def test_help_reads_a_docstring_as_one_paragraph(monkeypatch, capsys):
+    """The source's line breaks inside a flag's docstring are not printed: at 200 columns `--vae`'s help, two
+    source lines, fits its first row."""
+    rows = _help_text(["generate", "--help"], monkeypatch, capsys).splitlines()
+    row = next(r for r in rows if r.lstrip(" │").startswith("--vae "))
+    assert "covers the sources, else the run's model segments them causally" in row, row

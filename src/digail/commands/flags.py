@@ -6,7 +6,12 @@ sentence (exit status 2) instead of running on with a spelling that may later me
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import inspect
+import itertools
+import re
+import textwrap
 import typing
 from collections.abc import Sequence
 from typing import Annotated, Any
@@ -136,22 +141,57 @@ def without_flags(argv: Sequence[str], paths: Sequence[str]) -> list[str]:
 
 def help_view(cls: type, default: Any, hidden: Sequence[str]) -> tuple[type, Any]:
     """`cls` and its `default` as `--help` shows them: the same fields, those at the paths `hidden` marked
-    `tyro.conf.Suppress`. Only for printing the help; parsing always uses `cls` itself."""
+    `tyro.conf.Suppress`, each other one's help its docstring as one paragraph (`help_text`). Only for printing the
+    help; parsing always uses `cls` itself."""
     view = _view(cls, set(hidden), "")
     return view, None if default is None else _as_view(default, view)
 
 
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's docstring (the string under it) in the class bodies of `cls` and its bases."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError):  # built in, or made at run time: no source
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for stmt, after in itertools.pairwise(body):
+            if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and isinstance(after, ast.Expr)
+                    and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+                docs[stmt.target.id] = after.value.value
+    return docs
+
+
+def help_text(doc: str) -> str:
+    """A field docstring as `--help` prints it: its source lines joined (tyro keeps a line break wherever the next
+    line of the docstring starts indented, which is every line of ours), blank-line paragraphs kept."""
+    paragraphs = re.split(r"\n\s*\n", doc.strip())
+    return "\n\n".join(" ".join(line.strip() for line in p.splitlines() if line.strip()) for p in paragraphs)
+
+
+def _help_arg(doc: str) -> object:
+    """The flag's help from its docstring; where the docstring says the default itself ("(default: the env's)"),
+    without tyro's "(default: None)" after it."""
+    text = help_text(doc)
+    return tyro.conf.arg(help=text, help_behavior_hint="" if "(default:" in text else None)
+
+
 def _view(cls: type, hidden: set[str], prefix: str) -> type:
     hints = typing.get_type_hints(cls, include_extras=True)
+    docs = field_docs(cls)
     changed = []
     for f in dataclasses.fields(cls):
         path = prefix + f.name
+        keep = dataclasses.field(default=f.default, default_factory=f.default_factory)
         if path in hidden:
             tp: Any = Annotated[hints[f.name], tyro.conf.Suppress]
-            changed.append((f.name, tp, dataclasses.field(default=f.default, default_factory=f.default_factory)))
-        elif dataclasses.is_dataclass(hints[f.name]) and any(h.startswith(path + ".") for h in hidden):
+            changed.append((f.name, tp, keep))
+        elif dataclasses.is_dataclass(hints[f.name]):
             tp = _view(hints[f.name], hidden, path + ".")
             changed.append((f.name, tp, dataclasses.field(default_factory=tp)))
+        elif f.name in docs:
+            changed.append((f.name, Annotated[hints[f.name], _help_arg(docs[f.name])], keep))
     # a subclass: tyro finds each field's docstring on the class it was written in
     view = dataclasses.make_dataclass(cls.__name__, changed, bases=(cls,), frozen=True)
     view.__doc__ = cls.__doc__

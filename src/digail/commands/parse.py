@@ -13,7 +13,7 @@ from typing import Any
 
 import tyro
 
-from digail.commands.flags import HELP_ALL, STUDY_SETTINGS, help_view, without_flags
+from digail.commands.flags import HELP_ALL, STUDY_SETTINGS, help_text, help_view, without_flags
 from digail.errors import UserError
 
 
@@ -24,8 +24,8 @@ def parse_and_run(cls: type, handler: Callable[[Any], Any], defaults: Callable[[
     default = defaults(argv) if defaults is not None else None
     hidden = STUDY_SETTINGS.get(prog.split()[-1], ())  # prog is "digail COMMAND"
     if HELP_ALL in argv:
-        argv = ["--help" if tok == HELP_ALL else tok for tok in argv]
-    elif hidden and any(tok in ("-h", "--help") for tok in argv):
+        show_help(cls, default, ["--help" if tok == HELP_ALL else tok for tok in argv], prog, ())
+    elif any(tok in ("-h", "--help") for tok in argv):
         show_help(cls, default, argv, prog, hidden)
     with parse_errors_as_user_errors(argv):
         args = tyro.cli(cls, args=list(argv), prog=prog, default=default, description=cls.__doc__)
@@ -33,14 +33,16 @@ def parse_and_run(cls: type, handler: Callable[[Any], Any], defaults: Callable[[
 
 
 def show_help(cls: type, default: Any, argv: Sequence[str], prog: str, hidden: Sequence[str]) -> None:
-    """Print `prog --help` without the settings at `hidden` (study switches, optimiser internals) and exit; the
-    description ends by saying how many are left out and how to see them."""
+    """Print `prog --help` (`flags.help_view`: without the settings at `hidden`, study switches and optimiser
+    internals) and exit; where some are left out, the description ends by saying how many and how to see them."""
     view, view_default = help_view(cls, default, hidden)
     kept = without_flags(argv, hidden)  # the view has no such flags; with --help their values change nothing
-    note = (f"{len(hidden)} study and ablation switches and optimiser internals are left out here; "
-            f"`{prog} {HELP_ALL}` lists every flag, and the configuration reference says what each is for.")
+    note = (f"\n{len(hidden)} study and ablation switches and optimiser internals are left out here; "
+            f"`{prog} {HELP_ALL}` lists every flag, and the configuration reference says what each is for."
+            if hidden else "")
     with parse_errors_as_user_errors(kept):
-        tyro.cli(view, args=list(kept), prog=prog, default=view_default, description=f"{cls.__doc__}\n{note}")
+        tyro.cli(view, args=list(kept), prog=prog, default=view_default,
+                 description=help_text(cls.__doc__ or "") + note)
 
 
 _TYPE_WORDS = {"INT": "an integer", "FLOAT": "a number", "PATH": "a path", "STR": "a string",
