@@ -140,21 +140,26 @@ def test_names_follow_the_demonstrated_order_whatever_the_code_numbers():
 
 def test_a_boundary_near_a_grasp_moves_to_where_the_fingers_stop():
     """robosuite's Stack demonstration 0: the gripper is commanded closed at step 33 and its fingers move until
-    step 39, where MimicGen's grasp signal turns 1. A boundary at the command (33), or at the lift seven steps
-    after the fingers stopped (46), moves to 39; a boundary far from any finger motion stays, and so does one whose
-    move would pass the next boundary, and the boundaries of a demonstration whose fingers never move."""
+    step 39, where MimicGen's grasp signal turns 1. A boundary at the command (33), at the lift seven steps after
+    the fingers stopped (46), or later in the carry (67, as on PickPlaceCan) moves to 39; a boundary whose
+    sub-task starts after the motion stays, and so does one whose move would pass the next boundary, and the
+    boundaries of a demonstration whose fingers never move. A one-step jolt of the fingers is not a motion."""
     from digail.data.subtask_plan import finger_motions, settle_grasps
 
     speed = np.full(90, 0.0004)
     speed[34:39] = [0.019, 0.0406, 0.053, 0.0597, 0.0639]
     speed[39] = 0.0091
     assert finger_motions(speed) == [(34, 39)] and finger_motions(np.full(90, 0.0004)) == []
-    for first in (33, 46):
-        codes = [np.repeat([0, 1, 2], [first, 70 - first, 20])] * 3
+    jolt = speed.copy()
+    jolt[60] = 0.04  # one step of the fingers knocked as the arm lifts (held-out PickPlaceCan): no motion
+    assert finger_motions(jolt) == [(34, 39)]
+    for first in (33, 46, 67):
+        codes = [np.repeat([0, 1, 2], [first, 75 - first, 15])] * 3
         plan = plan_subtasks(codes, 3)
-        assert plan.boundaries[0] == (first, 70)
+        assert plan.boundaries[0] == (first, 75)
         settled = settle_grasps(plan, [speed, np.full(90, 0.0004), None])
-        assert settled.boundaries == ((39, 70), (first, 70), (first, 70)) and settled.settled == 1
+        assert settled.boundaries == ((39, 75), (first, 75), (first, 75)) and settled.settled == 1
+        assert settle_grasps(plan, [jolt, jolt, jolt]).boundaries == ((39, 75),) * 3
         assert "1 boundaries moved" in plan_line(settled, ["a", "b", "c"])
     # the next sub-task starts at 37: 33 cannot pass it, and 37, as near the motion, goes to 39 instead
     crowded = plan_subtasks([np.repeat([0, 1, 2], [33, 4, 53])], 3)

@@ -3,8 +3,8 @@
 MimicGen's parser (`parse_source_dataset`) takes the signals of a task spec in order and ends sub-task i at the
 first 0 -> 1 step of its signal after sub-task i - 1 ended, so every demonstration needs one such step per named
 sub-task, in one order. `plan_subtasks` decides that order once for a file and fits each demonstration's
-boundaries; `settle_grasps` moves a boundary near a finger motion to where the fingers stopped, since MimicGen's signals
-mark the grasp made, the codes the command to make it or the arm's next move.
+boundaries; `settle_grasps` moves a boundary that follows a finger motion in its sub-task to where the fingers
+stopped, since MimicGen's signals mark the grasp made, the codes the command to make it or the arm's next move.
 """
 
 from __future__ import annotations
@@ -230,38 +230,44 @@ SETTLED = 0.2
 """the fingers move while their speed is at least this share of the demonstration's fastest finger motion"""
 IDLE = 10.0
 """a demonstration's fingers move at all only if their top speed is this many times their median speed"""
-GRASP_STEPS = 25
-"""a boundary goes to the end of a finger motion that starts at most this many steps before it or `GRASP_LAG`
-after it"""
+MOTION_STEPS = 2
+"""a finger motion lasts at least this many steps: a one-step jolt (the object knocking the fingers as the arm
+lifts) is not one"""
 GRASP_LAG = 3
+"""a boundary goes to the end of a finger motion that starts in its own sub-task or at most this many steps after
+it"""
 
 
 def finger_motions(speed: np.ndarray) -> list[tuple[int, int]]:
     """The finger motions of one demonstration as (first moving step, first step stopped again), from its fingers'
-    speed per step (`SETTLED`, `IDLE`)."""
+    speed per step (`SETTLED`, `IDLE`, `MOTION_STEPS`)."""
     top = float(speed.max()) if len(speed) else 0.0
     if top <= 0 or top < IDLE * float(np.median(speed)):
         return []
     moving = np.concatenate([[False], speed >= SETTLED * top, [False]])
     edges = np.flatnonzero(np.diff(moving.astype(np.int8)))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b < len(speed)]
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)
+            if b < len(speed) and b - a >= MOTION_STEPS]
 
 
 def settle_grasps(plan: SubtaskPlan, finger_speed: Sequence[np.ndarray | None]) -> SubtaskPlan:
-    """`plan` with each boundary near a finger motion moved to the step the fingers stopped: MimicGen's grasp
+    """`plan` with each boundary after a finger motion moved to the step the fingers stopped: MimicGen's grasp
     signal turns 1 when the object is held, and on robosuite's Stack and PickPlaceCan that comes 5-7 steps after
-    the command to close, while the codes switch at the command or where the arm next moves (the lift, after the
-    fingers have closed). The motion taken is the one starting at most `GRASP_STEPS` steps before the boundary or
-    `GRASP_LAG` after it whose end is nearest; the boundary stays where it was without one, or when moving it would
-    reach a neighbouring boundary (each sub-task keeps a step, the last two). `finger_speed`: per demonstration,
-    the fingers' speed at every step, or None (no gripper velocities in the observations: nothing moves)."""
+    the command to close, while the codes switch at the command or where the arm next moves (the lift, 7 steps
+    after the fingers stopped on Stack, 20-24 on PickPlaceCan). A MimicGen sub-task ends where its object is held
+    or let go, so the motion taken is one that starts within the boundary's own sub-task (after the boundary before
+    it) or at most `GRASP_LAG` steps after it, the one whose end is nearest; the boundary stays where it was
+    without one, or when moving it would reach a neighbouring boundary (each sub-task keeps a step, the last two).
+    `finger_speed`: per demonstration, the fingers' speed at every step, or None (no gripper velocities in the
+    observations: nothing moves)."""
     moved = 0
     boundaries = []
     for cuts, speed in zip(plan.boundaries, finger_speed, strict=True):
         new = list(cuts)
         motions = finger_motions(speed) if speed is not None else []
         for j, b in enumerate(cuts):
-            near = [end for start, end in motions if b - GRASP_STEPS <= start <= b + GRASP_LAG]
+            first = new[j - 1] if j > 0 else 0
+            near = [end for start, end in motions if first <= start <= b + GRASP_LAG]
             if not near:
                 continue
             to = min(near, key=lambda end: (abs(end - b), end))
