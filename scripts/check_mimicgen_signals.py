@@ -25,13 +25,13 @@ demonstrations: every demonstration must parse, into the boundaries digail's pla
 import csv
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import h5py
 import numpy as np
+from check_mimicgen_offsets import with_placeholder_poses  # scripts/ is on the path of a script run there
 
 MAIN = Path(os.environ.get("DIGAIL_ROOT", Path(__file__).resolve().parents[1]))
 OUT = Path(os.environ.get("MG_CHECK_OUT", "runs/mg_check"))
@@ -91,25 +91,10 @@ def parse(path, signals, keys=None):
                                              subtask_term_offset_ranges=[(0, 0)] * len(signals))
 
 
-def harness(src, dst):
-    """A copy with placeholder poses (parse_source_dataset reads them unconditionally), signals untouched."""
-    shutil.copyfile(src, dst)
-    with h5py.File(dst, "r+") as f:
-        for key in f["data"]:
-            demo = f[f"data/{key}"]
-            T = demo["actions"].shape[0]
-            dg = demo["datagen_info"]
-            dg.create_dataset("eef_pose", data=np.tile(np.eye(4), (T, 1, 1)))
-            dg.create_dataset("target_pose", data=np.tile(np.eye(4), (T, 1, 1)))
-            dg.create_dataset("gripper_action", data=demo["actions"][:, -1:])
-            dg.create_group("object_poses")
-    return dst
-
-
 def check_plan(name, export, plan_file):
     """Parse an export with the spec its plan announced; every demonstration's ends must be its boundaries + 1."""
     plan = json.loads(plan_file.read_text())
-    path = harness(export, OUT / f"{name}.with-placeholder-poses.hdf5")
+    path = with_placeholder_poses(export, OUT / f"{name}.with-placeholder-poses.hdf5")
     keys = MG_FileUtils.get_all_demos_from_dataset(dataset_path=str(path))
     try:
         _, indices, _, _ = parse(path, plan["spec"], keys)
@@ -135,7 +120,7 @@ except KeyError as e:
 print("export as is:", raw)
 
 # 3. harness copy: placeholder poses, signals untouched
-harness(EXPORT, HARNESS)
+with_placeholder_poses(EXPORT, HARNESS)
 datagen_infos, subtask_indices, _, _ = parse(HARNESS, term_signals)
 # the fixture's oracle signal `grasp` (written as MimicGen's annotate_subtasks.py writes signals) for comparison
 _, grasp_indices, _, _ = parse(HARNESS, ["grasp", None])
